@@ -1,0 +1,20 @@
+// Stands in for the CUDA backend in builds without a CUDA LibTorch: render() checks available() first and
+// reports a clear error, so these entry points are only reached by a caller that bypasses it.
+#include <c10/util/Exception.h>
+
+#include "splat/backend.h"
+
+namespace sfgs::splat::cuda {
+
+bool available() { return false; }
+
+ForwardOutputs forward(const SplatInputs&, const CameraSpec&, const BackendSettings&) {
+  TORCH_CHECK(false, "sfgs: this build has no CUDA backend (rebuild against a CUDA LibTorch)");
+}
+
+InputGradients backward(const SplatInputs&, const CameraSpec&, const BackendSettings&, const ForwardOutputs&,
+                        const OutputGradients&) {
+  TORCH_CHECK(false, "sfgs: this build has no CUDA backend (rebuild against a CUDA LibTorch)");
+}
+
+}  // namespace sfgs::splat::cuda

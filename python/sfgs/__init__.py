@@ -1,0 +1,15 @@
+"""sfgs: structure-aware fine-grained Gaussian splatting for animatable full-body avatars (C++/LibTorch core)."""
+import torch  # noqa: F401  (loads libtorch and its Python bindings before the extension)
+
+from ._C import (  # noqa: F401
+    LOW_PASS_VARIANCE_PX2,
+    MAX_ALPHA,
+    MIN_ALPHA,
+    MIN_TRANSMITTANCE,
+    TILE_SIZE,
+    cuda_available,
+    demo_scene,
+    render,
+)
+
+__all__ = ["render", "cuda_available", "demo_scene"]

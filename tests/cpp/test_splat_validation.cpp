@@ -1,0 +1,85 @@
+// Invalid inputs are errors with messages that say what was expected and what came (docs/splatting.md).
+#include <cmath>
+#include <functional>
+#include <limits>
+#include <string>
+
+#include <gtest/gtest.h>
+
+#include "splat_test_utils.h"
+
+namespace sfgs::testing {
+namespace {
+
+void expect_error(const std::function<void(TestScene&)>& spoil, const std::string& message) {
+  SceneSpec spec;
+  spec.count = 4;
+  TestScene s = random_scene(spec, 2);
+  spoil(s);
+  try {
+    render(s.gaussians, s.background, s.camera);
+    ADD_FAILURE() << "expected an error containing '" << message << "'";
+  } catch (const c10::Error& e) {
+    EXPECT_NE(std::string(e.what_without_backtrace()).find(message), std::string::npos)
+        << "message was: " << e.what_without_backtrace();
+  }
+}
+
+TEST(SplatValidation, ShapesAreChecked) {
+  expect_error([](TestScene& s) { s.gaussians.means = s.gaussians.means.narrow(1, 0, 2); },
+               "means must have shape (N, 3), got a Double tensor of shape [4, 2]");
+  expect_error([](TestScene& s) { s.gaussians.scales = s.gaussians.scales.narrow(0, 0, 3); },
+               "scales must have shape (4, 3)");
+  expect_error([](TestScene& s) { s.gaussians.rotations = s.gaussians.rotations.narrow(1, 0, 3); },
+               "rotations must have shape (4, 4)");
+  expect_error([](TestScene& s) { s.gaussians.opacities = s.gaussians.opacities.view({2, 2}); },
+               "opacities must have shape (N) or (N, 1) with N = 4");
+  expect_error([](TestScene& s) { s.gaussians.features = s.gaussians.features.view({-1}); },
+               "features must have shape (4, C)");
+  expect_error([](TestScene& s) { s.gaussians.features = s.gaussians.features.narrow(1, 0, 0); },
+               "features need at least one channel");
+  expect_error([](TestScene& s) { s.background = s.background.narrow(0, 0, 2); },
+               "background must have shape (C) with C = 3");
+}
+
+TEST(SplatValidation, ExactlyOneCovarianceParameterisation) {
+  expect_error([](TestScene& s) { s.gaussians.covariances = at::zeros({4, 6}, at::kDouble); }, "got both");
+  expect_error(
+      [](TestScene& s) {
+        s.gaussians.scales = at::Tensor();
+        s.gaussians.rotations = at::Tensor();
+      },
+      "got neither");
+  expect_error([](TestScene& s) { s.gaussians.rotations = at::Tensor(); }, "rotations must be given");
+}
+
+TEST(SplatValidation, DtypesAndDevicesAreChecked) {
+  expect_error([](TestScene& s) { s.gaussians.means = s.gaussians.means.to(at::kInt); }, "must be float32 or float64");
+  expect_error([](TestScene& s) { s.gaussians.scales = s.gaussians.scales.to(at::kFloat); },
+               "scales must have the dtype of means (Double), got a Float tensor");
+  expect_error([](TestScene& s) { s.background = s.background.to(at::kFloat); }, "background must have the dtype");
+  expect_error([](TestScene& s) { s.gaussians.means = at::empty({4, 3}, at::TensorOptions(at::kMeta).dtype(at::kDouble)); },
+               "must be on the CPU or a CUDA device");
+}
+
+TEST(SplatValidation, CameraIsChecked) {
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  expect_error([](TestScene& s) { s.camera.fx = 0; }, "focal lengths must be finite and positive");
+  expect_error([nan](TestScene& s) { s.camera.fy = nan; }, "focal lengths must be finite and positive");
+  expect_error([nan](TestScene& s) { s.camera.cx = nan; }, "principal point must be finite");
+  expect_error([](TestScene& s) { s.camera.width = 0; }, "image sides must be in [1, 16384], got 0 x 29");
+  expect_error([](TestScene& s) { s.camera.height = 20000; }, "image sides must be in [1, 16384]");
+  expect_error([](TestScene& s) { s.camera.near_plane = 0; }, "near_plane must be positive");
+  expect_error([](TestScene& s) { s.camera.far_plane = s.camera.near_plane; }, "far_plane must exceed near_plane");
+  expect_error([](TestScene& s) { s.camera.world_to_camera[14] = 1; }, "last row of world_to_camera must be");
+  expect_error([nan](TestScene& s) { s.camera.world_to_camera[3] = nan; }, "world_to_camera must be finite");
+  EXPECT_THROW(Camera::from_tensor(at::eye(3), 1, 1, 0, 0, 4, 4), c10::Error);
+}
+
+TEST(SplatValidation, NonFiniteBackgroundIsAnError) {
+  expect_error([](TestScene& s) { s.background[1] = std::numeric_limits<double>::infinity(); },
+               "background must be finite");
+}
+
+}  // namespace
+}  // namespace sfgs::testing
