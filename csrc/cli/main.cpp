@@ -7,6 +7,7 @@
 #include <map>
 #include <stdexcept>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include <ATen/ATen.h>
@@ -132,6 +133,8 @@ int run_demo(const Arguments& args) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  // OpenMP may start with one thread; use every core unless the user chose with OMP_NUM_THREADS.
+  if (!std::getenv("OMP_NUM_THREADS")) at::set_num_threads(int(std::max(1u, std::thread::hardware_concurrency())));
   try {
     const Arguments args = parse(argc, argv);
     if (args.command == "demo") return run_demo(args);

@@ -1,0 +1,20 @@
+#!/usr/bin/env bash
+# Installs sfgs's build and test dependencies from Debian 12's packages (run as root or with sudo available).
+set -euo pipefail
+packages=(
+  build-essential cmake ninja-build
+  libtorch-dev python3-torch
+  pybind11-dev python3-pybind11 python3-pytest
+  libopencv-dev libglm-dev libgtest-dev
+)
+sudo_cmd=()
+if [ "$(id -u)" -ne 0 ]; then sudo_cmd=(sudo); fi
+missing=()
+for p in "${packages[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if [ ${#missing[@]} -gt 0 ]; then
+  "${sudo_cmd[@]}" apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive "${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends "${missing[@]}"
+fi
+echo "sfgs dependencies are installed"
