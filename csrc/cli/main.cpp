@@ -12,10 +12,9 @@
 
 #include <ATen/ATen.h>
 #include <ATen/Parallel.h>
-#include <opencv2/imgcodecs.hpp>
 #include <torch/csrc/autograd/autograd.h>
 
-#include "common/atomic_file.h"
+#include "data/image_io.h"
 #include "scene/builtin_scene.h"
 
 namespace {
@@ -113,11 +112,7 @@ int run_demo(const Arguments& args) {
   std::sort(forward_ms.begin(), forward_ms.end());
   std::sort(backward_ms.begin(), backward_ms.end());
 
-  const at::Tensor bgr = result.image.detach().flip({2}).clamp(0, 1).mul(255).round().to(at::kByte).cpu().contiguous();
-  const cv::Mat view(int(height), int(width), CV_8UC3, bgr.data_ptr<uint8_t>());
-  std::vector<unsigned char> png;
-  if (!cv::imencode(".png", view, png)) throw std::runtime_error("could not encode the PNG");
-  sfgs::write_file_atomically(out, png, args.force);
+  sfgs::data::write_png(out, result.image.detach().cpu(), args.force);
 
   const int64_t visible = result.visible.sum().item<int64_t>();
   std::printf("sfgs demo: %lld Gaussians (%lld visible), %lld x %lld, device %s, %d threads\n", (long long)count,

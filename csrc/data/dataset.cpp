@@ -1,0 +1,244 @@
+#include "data/dataset.h"
+
+#include <algorithm>
+#include <filesystem>
+#include <sstream>
+
+#include <ATen/ATen.h>
+#include <nlohmann/json.hpp>
+
+#include "common/atomic_file.h"
+#include "data/json_values.h"
+#include "data/neuman.h"
+
+namespace sfgs::data {
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+namespace {
+
+constexpr const char* kFormatName = "sfgs-dataset";
+constexpr int kFormatVersion = 1;
+constexpr const char* kIndexFile = "dataset.json";
+
+struct PoseField {
+  const char* key;
+  at::Tensor SmplxPose::*member;
+  std::vector<int64_t> shape;  // -1: any length
+};
+
+const std::vector<PoseField>& pose_fields() {
+  static const std::vector<PoseField> fields = {
+      {"global_orient", &SmplxPose::global_orient, {3}},   {"body_pose", &SmplxPose::body_pose, {21, 3}},
+      {"jaw_pose", &SmplxPose::jaw_pose, {3}},             {"leye_pose", &SmplxPose::left_eye_pose, {3}},
+      {"reye_pose", &SmplxPose::right_eye_pose, {3}},      {"left_hand_pose", &SmplxPose::left_hand_pose, {15, 3}},
+      {"right_hand_pose", &SmplxPose::right_hand_pose, {15, 3}},
+      {"expression", &SmplxPose::expression, {-1}},        {"transl", &SmplxPose::transl, {3}}};
+  return fields;
+}
+
+json tensor_to_json(const at::Tensor& t) {
+  const at::Tensor flat = t.detach().cpu().to(at::kDouble).contiguous().view({-1});
+  return json(std::vector<double>(flat.data_ptr<double>(), flat.data_ptr<double>() + flat.numel()));
+}
+
+json pose_to_json(const SmplxPose& pose) {
+  json j;
+  for (const PoseField& f : pose_fields()) j[f.key] = tensor_to_json(pose.*(f.member));
+  j["in_camera_frame"] = pose.in_camera_frame;
+  return j;
+}
+
+SmplxPose pose_from_json(const json& j, const std::string& where) {
+  SmplxPose pose;
+  TORCH_CHECK(j.is_object(), where, ": expected an object of SMPL-X parameters");
+  for (const PoseField& f : pose_fields()) {
+    TORCH_CHECK(j.contains(f.key), where, ": missing SMPL-X parameter '", f.key, "'");
+    pose.*(f.member) = json_numbers(j.at(f.key), f.shape, where + "." + f.key);
+  }
+  pose.in_camera_frame = j.value("in_camera_frame", false);
+  return pose;
+}
+
+json camera_to_json(const Camera& c) {
+  return json{{"fx", c.fx}, {"fy", c.fy}, {"cx", c.cx}, {"cy", c.cy}, {"width", c.width}, {"height", c.height},
+              {"world_to_camera", std::vector<double>(c.world_to_camera.begin(), c.world_to_camera.end())}};
+}
+
+Camera camera_from_json(const json& j, const std::string& where) {
+  TORCH_CHECK(j.is_object(), where, ": expected a camera object");
+  for (const char* key : {"fx", "fy", "cx", "cy", "width", "height", "world_to_camera"})
+    TORCH_CHECK(j.contains(key), where, ": missing camera field '", key, "'");
+  Camera c;
+  c.fx = j.at("fx").get<double>();
+  c.fy = j.at("fy").get<double>();
+  c.cx = j.at("cx").get<double>();
+  c.cy = j.at("cy").get<double>();
+  c.width = j.at("width").get<int64_t>();
+  c.height = j.at("height").get<int64_t>();
+  const auto m = j.at("world_to_camera").get<std::vector<double>>();
+  TORCH_CHECK(m.size() == 16, where, ".world_to_camera: expected 16 numbers (row-major 4x4), got ", m.size());
+  std::copy(m.begin(), m.end(), c.world_to_camera.begin());
+  return c;
+}
+
+const std::map<Split, const char*>& split_names() {
+  static const std::map<Split, const char*> names = {{Split::kTrain, "train"}, {Split::kVal, "val"}, {Split::kTest, "test"}};
+  return names;
+}
+
+std::string resolve(const std::string& folder, const std::string& relative) {
+  return relative.empty() ? relative : (fs::path(folder) / relative).string();
+}
+
+std::string relative_to(const std::string& folder, const std::string& path) {
+  return path.empty() ? path : fs::relative(fs::path(path), fs::path(folder)).generic_string();
+}
+
+}  // namespace
+
+SmplxPose SmplxPose::zeros(int64_t expression_count) {
+  SmplxPose p;
+  p.global_orient = at::zeros({3});
+  p.body_pose = at::zeros({21, 3});
+  p.jaw_pose = at::zeros({3});
+  p.left_eye_pose = at::zeros({3});
+  p.right_eye_pose = at::zeros({3});
+  p.left_hand_pose = at::zeros({15, 3});
+  p.right_hand_pose = at::zeros({15, 3});
+  p.expression = at::zeros({expression_count});
+  p.transl = at::zeros({3});
+  return p;
+}
+
+const std::vector<int64_t>& Dataset::split(Split s) const {
+  static const std::vector<int64_t> empty;
+  const auto it = splits.find(s);
+  return it == splits.end() ? empty : it->second;
+}
+
+Frame Dataset::load(int64_t index) const {
+  TORCH_CHECK(index >= 0 && index < size(), "Dataset::load: frame ", index, " out of range [0, ", size(), ")");
+  const FrameRecord& r = frames[size_t(index)];
+  Frame f;
+  f.image = read_image_rgb(r.image_path);
+  const int64_t h = f.image.size(0), w = f.image.size(1);
+  TORCH_CHECK(h == r.camera.height && w == r.camera.width, "image '", r.image_path, "' is ", w, " x ", h,
+              " but its camera says ", r.camera.width, " x ", r.camera.height);
+  f.mask = r.mask_path.empty() ? at::ones({h, w}) : read_mask(r.mask_path, r.mask_encoding);
+  TORCH_CHECK(f.mask.size(0) == h && f.mask.size(1) == w, "mask '", r.mask_path, "' is ", f.mask.size(1), " x ",
+              f.mask.size(0), " but its image is ", w, " x ", h);
+  f.eval_mask = r.eval_mask_path.empty() ? f.mask : read_mask(r.eval_mask_path, r.eval_mask_encoding);
+  TORCH_CHECK(f.eval_mask.size(0) == h && f.eval_mask.size(1) == w, "evaluation mask '", r.eval_mask_path,
+              "' does not match its image size ", w, " x ", h);
+  return f;
+}
+
+double Dataset::normalized_time(int64_t index) const {
+  TORCH_CHECK(index >= 0 && index < size(), "Dataset::normalized_time: frame ", index, " out of range");
+  const auto [lo, hi] = std::minmax_element(frames.begin(), frames.end(),
+                                            [](const FrameRecord& a, const FrameRecord& b) { return a.time < b.time; });
+  const double span = hi->time - lo->time;
+  if (span <= 0) return 0.0;
+  return 2.0 * (frames[size_t(index)].time - lo->time) / span - 1.0;
+}
+
+void Dataset::validate() const {
+  TORCH_CHECK(!frames.empty(), "dataset '", source, "' has no frames");
+  TORCH_CHECK(!sequences.empty(), "dataset '", source, "' has no sequence names");
+  TORCH_CHECK(betas.defined() && betas.dim() == 1, "dataset '", source, "': betas must be a 1-D tensor");
+  for (const auto& [s, indices] : splits)
+    for (int64_t i : indices)
+      TORCH_CHECK(i >= 0 && i < size(), "dataset '", source, "': split '", split_names().at(s), "' names frame ", i,
+                  " of ", size());
+  for (const FrameRecord& r : frames) {
+    TORCH_CHECK(r.sequence >= 0 && r.sequence < int64_t(sequences.size()), "dataset '", source, "': frame '", r.name,
+                "' names sequence ", r.sequence);
+    TORCH_CHECK(r.camera.width >= 1 && r.camera.height >= 1 && r.camera.fx > 0 && r.camera.fy > 0, "dataset '",
+                source, "': frame '", r.name, "' has an invalid camera");
+    for (const PoseField& f : pose_fields()) {
+      const at::Tensor& t = r.pose.*(f.member);
+      TORCH_CHECK(t.defined(), "dataset '", source, "': frame '", r.name, "' lacks SMPL-X parameter ", f.key);
+      if (f.shape[0] != -1)
+        TORCH_CHECK(t.sizes() == at::IntArrayRef(f.shape), "dataset '", source, "': frame '", r.name, "' ", f.key,
+                    " has shape ", t.sizes());
+      TORCH_CHECK(t.isfinite().all().item<bool>(), "dataset '", source, "': frame '", r.name, "' ", f.key,
+                  " is not finite");
+    }
+  }
+}
+
+Dataset read_sfgs_dataset(const std::string& folder) {
+  const std::string index = (fs::path(folder) / kIndexFile).string();
+  TORCH_CHECK(fs::exists(index), "cannot open '", index, "' (an sfgs dataset folder holds dataset.json)");
+  const json j = read_json_file(index);
+  TORCH_CHECK(j.value("format", "") == kFormatName, "'", index, "': expected format '", kFormatName, "', got '",
+              j.value("format", ""), "'");
+  TORCH_CHECK(j.value("version", 0) == kFormatVersion, "'", index, "': unsupported version ", j.value("version", 0),
+              " (this sfgs reads version ", kFormatVersion, ")");
+  Dataset d;
+  d.source = folder;
+  d.format = "sfgs";
+  try {
+    d.betas = json_numbers(j.at("betas"), {-1}, index + ": betas");
+    d.sequences = j.value("sequences", std::vector<std::string>{"sequence"});
+    const json& frames = j.at("frames");
+    TORCH_CHECK(frames.is_array(), index, ": 'frames' must be an array");
+    for (size_t i = 0; i < frames.size(); ++i) {
+      const json& f = frames[i];
+      const std::string where = index + ": frames[" + std::to_string(i) + "]";
+      FrameRecord r;
+      r.name = f.at("name").get<std::string>();
+      r.time = f.at("time").get<double>();
+      r.sequence = f.value("sequence", int64_t(0));
+      r.camera = camera_from_json(f.at("camera"), where + ".camera");
+      r.pose = pose_from_json(f.at("smplx"), where + ".smplx");
+      r.image_path = resolve(folder, f.at("image").get<std::string>());
+      r.mask_path = resolve(folder, f.value("mask", ""));
+      r.mesh_path = resolve(folder, f.value("mesh", ""));
+      d.frames.push_back(std::move(r));
+    }
+    for (const auto& [split, name] : split_names())
+      if (j.contains("splits") && j.at("splits").contains(name))
+        d.splits[split] = j.at("splits").at(name).get<std::vector<int64_t>>();
+  } catch (const json::exception& e) {
+    TORCH_CHECK(false, "'", index, "' does not follow the sfgs dataset format: ", e.what());
+  }
+  d.validate();
+  return d;
+}
+
+void write_sfgs_dataset(const Dataset& d, const std::string& folder, bool overwrite) {
+  d.validate();
+  json frames = json::array();
+  for (const FrameRecord& r : d.frames) {
+    TORCH_CHECK(r.eval_mask_path.empty() || r.eval_mask_path == r.mask_path,
+                "write_sfgs_dataset: frame '", r.name, "' has a separate evaluation mask, which the format cannot hold");
+    json f{{"name", r.name},
+           {"time", r.time},
+           {"sequence", r.sequence},
+           {"camera", camera_to_json(r.camera)},
+           {"smplx", pose_to_json(r.pose)},
+           {"image", relative_to(folder, r.image_path)}};
+    if (!r.mask_path.empty()) f["mask"] = relative_to(folder, r.mask_path);
+    if (!r.mesh_path.empty()) f["mesh"] = relative_to(folder, r.mesh_path);
+    frames.push_back(std::move(f));
+  }
+  json splits = json::object();
+  for (const auto& [split, name] : split_names()) splits[name] = d.split(split);
+  const json j{{"format", kFormatName}, {"version", kFormatVersion}, {"sequences", d.sequences},
+               {"betas", tensor_to_json(d.betas)}, {"frames", frames}, {"splits", splits}};
+  const std::string text = j.dump(1);
+  write_file_atomically((fs::path(folder) / kIndexFile).string(), std::vector<unsigned char>(text.begin(), text.end()),
+                        overwrite);
+}
+
+Dataset read_dataset(const std::string& folder) {
+  TORCH_CHECK(fs::is_directory(folder), "dataset folder '", folder, "' does not exist");
+  if (fs::exists(fs::path(folder) / kIndexFile)) return read_sfgs_dataset(folder);
+  if (fs::exists(fs::path(folder) / "sparse" / "cameras.txt")) return read_neuman(folder);
+  TORCH_CHECK(false, "'", folder, "' is not a dataset folder: expected dataset.json (sfgs) or sparse/cameras.txt "
+              "(NeuMan)");
+}
+
+}  // namespace sfgs::data

@@ -1,0 +1,85 @@
+#pragma once
+// A monocular video with masks, cameras and per-frame SMPL-X parameters, whatever format it came from. The trainer
+// and evaluator see only this. docs/dataset_format.md describes sfgs's own on-disk format; the NeuMan and X-Humans
+// readers (neuman.h, xhumans.h) produce the same structure.
+#include <map>
+#include <string>
+#include <vector>
+
+#include <ATen/core/Tensor.h>
+
+#include "data/image_io.h"
+#include "splat/splat.h"
+
+namespace sfgs::data {
+
+// SMPL-X parameters of one frame, axis-angle rotations. Tensors are float32 on the CPU.
+struct SmplxPose {
+  at::Tensor global_orient;    // (3)
+  at::Tensor body_pose;        // (21, 3)
+  at::Tensor jaw_pose;         // (3)
+  at::Tensor left_eye_pose;    // (3)
+  at::Tensor right_eye_pose;   // (3)
+  at::Tensor left_hand_pose;   // (15, 3)
+  at::Tensor right_hand_pose;  // (15, 3)
+  at::Tensor expression;       // (E), E may be 0
+  at::Tensor transl;           // (3)
+  // Whether the parameters place the body in the frame's camera coordinates (ExAvatar's NeuMan fits) rather than
+  // in world coordinates; render such a frame with an identity world_to_camera.
+  bool in_camera_frame = false;
+
+  static SmplxPose zeros(int64_t expression_count);
+};
+
+struct FrameRecord {
+  std::string name;
+  double time = 0;  // seconds since the start of its sequence
+  int64_t sequence = 0;  // index into Dataset::sequences (X-Humans takes; 0 otherwise)
+  Camera camera;
+  SmplxPose pose;
+  std::string image_path;
+  std::string mask_path;       // training mask; empty if none
+  MaskEncoding mask_encoding = MaskEncoding::kWhitePerson;
+  std::string eval_mask_path;  // mask of the evaluation protocol; empty = the training mask
+  MaskEncoding eval_mask_encoding = MaskEncoding::kWhitePerson;
+  std::string mesh_path;       // ground-truth posed vertices (.npy, float32 (V, 3)); empty if none
+};
+
+struct Frame {
+  at::Tensor image;      // (H, W, 3) float32 in [0, 1], RGB
+  at::Tensor mask;       // (H, W) float32 in {0, 1}; all ones when the record has no mask
+  at::Tensor eval_mask;  // (H, W) float32, the evaluation protocol's mask
+};
+
+enum class Split { kTrain, kVal, kTest };
+
+class Dataset {
+ public:
+  std::string source;                      // folder it was read from
+  std::string format;                      // "sfgs", "neuman" or "xhumans"
+  std::vector<FrameRecord> frames;
+  std::vector<std::string> sequences;      // names of the sequences (takes); at least one
+  std::map<Split, std::vector<int64_t>> splits;
+  at::Tensor betas;                        // (B) shared shape parameters, float32
+  std::map<std::string, at::Tensor> extras;  // optional per-subject data (e.g. ExAvatar's joint_offset)
+
+  int64_t size() const { return int64_t(frames.size()); }
+  const std::vector<int64_t>& split(Split s) const;
+  // Reads the frame's image and masks; errors name the file.
+  Frame load(int64_t index) const;
+  // Frame time mapped once, over the whole dataset, to [-1, 1] (the hexplane's time axis).
+  double normalized_time(int64_t index) const;
+  // Checks indices, sizes and shapes; called by every reader and by the writer.
+  void validate() const;
+};
+
+// sfgs's own format (docs/dataset_format.md).
+Dataset read_sfgs_dataset(const std::string& folder);
+// Writes dataset.json into `folder` atomically; images, masks and meshes must already be there (their paths are
+// stored relative to the folder). Refuses to replace an existing dataset.json unless `overwrite`.
+void write_sfgs_dataset(const Dataset& dataset, const std::string& folder, bool overwrite);
+
+// Reads whichever known format the folder holds (sfgs, NeuMan, X-Humans subject folder).
+Dataset read_dataset(const std::string& folder);
+
+}  // namespace sfgs::data
