@@ -3,9 +3,11 @@
 //
 // Pipeline: project each Gaussian (pair_math.h) -> count and emit its (tile, depth) intersections with the exact
 // ellipse/tile test -> counting sort by tile, then sort each tile by (depth, Gaussian) -> blend front to back.
-// Backward replays each pixel's blend (re-evaluating, not dividing, its transmittances), walks it back to front,
-// writes each pair's gradient into that intersection's own slot, and sums the slots per Gaussian.
+// Both blends run tile by tile and Gaussian by Gaussian over only the pixels each Gaussian can reach. Backward
+// replays each pixel's blend (re-evaluating, not dividing, its transmittances), walks it back to front, writes each
+// pair's gradient into that intersection's own slot, and sums the slots per Gaussian.
 #include <algorithm>
+#include <array>
 #include <numeric>
 #include <vector>
 
@@ -48,6 +50,25 @@ template <typename T> Mat3<T> world_covariance(const SplatInputs& in, int64_t i,
   return cov;
 }
 
+// Pixels a projected Gaussian can reach with alpha >= kMinAlpha, widened by one pixel so rounding at the ellipse's
+// edge can never drop a pixel the pair test would keep: every pixel outside has sigma well above the level.
+template <typename T> PixelRect reachable_pixels(const ProjectedGaussian<T>& g, int width, int height) {
+  const T det = g.conic[0] * g.conic[2] - g.conic[1] * g.conic[1];
+  PixelRect r = pixel_rect(g, g.conic[2] / det, g.conic[0] / det, width, height);
+  r.x0 = std::max(0, r.x0 - 1);
+  r.y0 = std::max(0, r.y0 - 1);
+  r.x1 = std::min(width - 1, r.x1 + 1);
+  r.y1 = std::min(height - 1, r.y1 + 1);
+  return r;
+}
+
+// One entry of a tile's depth-ordered list, with the part of the tile it can reach.
+template <typename T> struct TileEntry {
+  ProjectedGaussian<T> g;
+  int64_t slot;  // emission slot (gradient slot) of this intersection
+  int x0, y0, x1, y1;  // reachable pixels inside the tile, tile-local
+};
+
 struct TileGrid {
   int width, height, tiles_x, tiles_y;
   int64_t count() const { return int64_t(tiles_x) * tiles_y; }
@@ -55,6 +76,26 @@ struct TileGrid {
 
 TileGrid make_grid(const CameraSpec& c) {
   return TileGrid{c.width, c.height, (c.width + kTileSize - 1) / kTileSize, (c.height + kTileSize - 1) / kTileSize};
+}
+
+// The tile's list entries [begin, end) with their reachable pixels clipped to the tile; entries reaching none of the
+// tile's pixels are kept (as empty rectangles) so list positions stay those of the forward pass.
+template <typename T>
+void gather_tile(const TileGrid& grid, int64_t tile, const int64_t* order, int64_t begin, int64_t end,
+                 const int64_t* isect_gaussian, const T* projected, std::vector<TileEntry<T>>& out) {
+  const int tx0 = int(tile % grid.tiles_x) * kTileSize, ty0 = int(tile / grid.tiles_x) * kTileSize;
+  out.clear();
+  for (int64_t k = begin; k < end; ++k) {
+    TileEntry<T> e;
+    e.slot = order[k];
+    e.g = load_projected(projected + isect_gaussian[e.slot] * kProjectedWidth);
+    const PixelRect r = reachable_pixels(e.g, grid.width, grid.height);
+    e.x0 = std::max(r.x0 - tx0, 0);
+    e.y0 = std::max(r.y0 - ty0, 0);
+    e.x1 = std::min(r.x1 - tx0, kTileSize - 1);
+    e.y1 = std::min(r.y1 - ty0, kTileSize - 1);
+    out.push_back(e);
+  }
 }
 
 template <typename T> bool features_finite(const T* f, int64_t channels) {
@@ -167,36 +208,58 @@ ForwardOutputs forward_typed(const SplatInputs& in, const CameraSpec& spec, cons
   int32_t* con = contributors.data_ptr<int32_t>();
   const T* bg = in.background.data_ptr<T>();
 
+  // Tile by tile, Gaussian by Gaussian over only the pixels each can reach: per pixel this is exactly the front-to-back
+  // loop over the tile's list (same pairs, same order, same arithmetic), without visiting pairs that must be skipped.
+  constexpr int kTilePixels = kTileSize * kTileSize;
   at::parallel_for(0, n_tiles, 1, [&](int64_t begin, int64_t end) {
-    std::vector<T> colour(channels);
+    std::vector<TileEntry<T>> entries;
+    std::vector<T> colour(size_t(kTilePixels * channels));
+    std::array<T, kTilePixels> transmittance, depth;
+    std::array<int32_t, kTilePixels> last;
+    std::array<bool, kTilePixels> done;
     for (int64_t tile = begin; tile < end; ++tile) {
-      const int tx = int(tile % grid.tiles_x), ty = int(tile / grid.tiles_x);
-      for (int y = ty * kTileSize; y < std::min<int>(h, (ty + 1) * kTileSize); ++y)
-        for (int x = tx * kTileSize; x < std::min<int>(w, (tx + 1) * kTileSize); ++x) {
-          const T px = T(x) + T(kPixelCentre), py = T(y) + T(kPixelCentre);
-          std::fill(colour.begin(), colour.end(), T(0));
-          T transmittance = T(1), depth = T(0);
-          int32_t last = 0;
-          for (int64_t k = toff[tile]; k < toff[tile + 1]; ++k) {
-            const int64_t gi = ig[order[k]];
-            const ProjectedGaussian<T> g = load_projected(proj + gi * kProjectedWidth);
+      const int tx0 = int(tile % grid.tiles_x) * kTileSize, ty0 = int(tile / grid.tiles_x) * kTileSize;
+      const int tw = std::min<int>(kTileSize, int(w) - tx0), th = std::min<int>(kTileSize, int(h) - ty0);
+      gather_tile(grid, tile, order, toff[tile], toff[tile + 1], ig, proj, entries);
+      std::fill(colour.begin(), colour.end(), T(0));
+      transmittance.fill(T(1));
+      depth.fill(T(0));
+      last.fill(0);
+      done.fill(false);
+      int remaining = tw * th;
+      for (size_t k = 0; k < entries.size() && remaining > 0; ++k) {
+        const TileEntry<T>& e = entries[k];
+        const T* f = features + ig[e.slot] * channels;
+        for (int ly = e.y0; ly <= std::min(e.y1, th - 1); ++ly)
+          for (int lx = e.x0; lx <= std::min(e.x1, tw - 1); ++lx) {
+            const int p = ly * kTileSize + lx;
+            if (done[p]) continue;
             PairAlpha<T> pair;
-            if (!pair_alpha(g, px, py, pair)) continue;
-            const T next = transmittance * (T(1) - pair.alpha);
-            if (next < T(kMinTransmittance)) break;
-            const T weight = pair.alpha * transmittance;
-            const T* f = features + gi * channels;
-            for (int64_t c = 0; c < channels; ++c) colour[c] += weight * f[c];
-            depth += weight * g.depth;
-            transmittance = next;
-            last = int32_t(k - toff[tile] + 1);
+            if (!pair_alpha(e.g, T(tx0 + lx) + T(kPixelCentre), T(ty0 + ly) + T(kPixelCentre), pair)) continue;
+            const T next = transmittance[p] * (T(1) - pair.alpha);
+            if (next < T(kMinTransmittance)) {
+              done[p] = true;
+              --remaining;
+              continue;
+            }
+            const T weight = pair.alpha * transmittance[p];
+            T* c = colour.data() + p * channels;
+            for (int64_t ch = 0; ch < channels; ++ch) c[ch] += weight * f[ch];
+            depth[p] += weight * e.g.depth;
+            transmittance[p] = next;
+            last[p] = int32_t(k + 1);
           }
-          const int64_t pix = int64_t(y) * w + x;
-          for (int64_t c = 0; c < channels; ++c) img[pix * channels + c] = colour[c] + transmittance * bg[c];
-          alp[pix] = T(1) - transmittance;
-          dep[pix] = depth;
-          fin[pix] = transmittance;
-          con[pix] = last;
+      }
+      for (int ly = 0; ly < th; ++ly)
+        for (int lx = 0; lx < tw; ++lx) {
+          const int p = ly * kTileSize + lx;
+          const int64_t pix = int64_t(ty0 + ly) * w + (tx0 + lx);
+          for (int64_t ch = 0; ch < channels; ++ch)
+            img[pix * channels + ch] = colour[size_t(p * channels + ch)] + transmittance[p] * bg[ch];
+          alp[pix] = T(1) - transmittance[p];
+          dep[pix] = depth[p];
+          fin[pix] = transmittance[p];
+          con[pix] = last[p];
         }
     }
   });
@@ -258,30 +321,45 @@ InputGradients backward_typed(const SplatInputs& in, const CameraSpec& spec, con
   std::vector<T> background_partial(size_t(n_tiles * channels), T(0));
 
   at::parallel_for(0, n_tiles, 1, [&](int64_t begin, int64_t end) {
-    std::vector<ReplayedPair<T>> replay;
+    constexpr int kTilePixels = kTileSize * kTileSize;
+    std::vector<TileEntry<T>> entries;
+    std::vector<std::vector<ReplayedPair<T>>> replay(kTilePixels);
+    std::array<T, kTilePixels> transmittance;
     for (int64_t tile = begin; tile < end; ++tile) {
-      const int tx = int(tile % grid.tiles_x), ty = int(tile / grid.tiles_x);
+      const int tx0 = int(tile % grid.tiles_x) * kTileSize, ty0 = int(tile / grid.tiles_x) * kTileSize;
+      const int tw = std::min<int>(kTileSize, int(w) - tx0), th = std::min<int>(kTileSize, int(h) - ty0);
       T* bg_partial = background_partial.data() + tile * channels;
-      for (int y = ty * kTileSize; y < std::min<int>(h, (ty + 1) * kTileSize); ++y)
-        for (int x = tx * kTileSize; x < std::min<int>(w, (tx + 1) * kTileSize); ++x) {
-          const int64_t pix = int64_t(y) * w + x;
+      // Replay the forward pass (same pairs, same products), remembering each pixel's blended pairs.
+      int32_t longest = 0;
+      for (int ly = 0; ly < th; ++ly)
+        for (int lx = 0; lx < tw; ++lx) longest = std::max(longest, con[int64_t(ty0 + ly) * w + tx0 + lx]);
+      gather_tile(grid, tile, order, toff[tile], toff[tile] + longest, ig, proj, entries);
+      for (auto& r : replay) r.clear();
+      transmittance.fill(T(1));
+      for (size_t k = 0; k < entries.size(); ++k) {
+        const TileEntry<T>& e = entries[k];
+        for (int ly = e.y0; ly <= std::min(e.y1, th - 1); ++ly)
+          for (int lx = e.x0; lx <= std::min(e.x1, tw - 1); ++lx) {
+            if (int32_t(k) >= con[int64_t(ty0 + ly) * w + tx0 + lx]) continue;
+            const int p = ly * kTileSize + lx;
+            PairAlpha<T> pair;
+            if (!pair_alpha(e.g, T(tx0 + lx) + T(kPixelCentre), T(ty0 + ly) + T(kPixelCentre), pair)) continue;
+            replay[size_t(p)].push_back(ReplayedPair<T>{e.slot, pair, transmittance[p]});
+            transmittance[p] *= T(1) - pair.alpha;
+          }
+      }
+      // Walk each pixel's pairs back to front.
+      for (int ly = 0; ly < th; ++ly)
+        for (int lx = 0; lx < tw; ++lx) {
+          const int64_t pix = int64_t(ty0 + ly) * w + tx0 + lx;
           const T* g_colour = gimg + pix * channels;
           const T final_transmittance = fin[pix];
           for (int64_t c = 0; c < channels; ++c) bg_partial[c] += final_transmittance * g_colour[c];
-          const T px = T(x) + T(kPixelCentre), py = T(y) + T(kPixelCentre);
-          replay.clear();
-          T transmittance = T(1);
-          for (int64_t k = toff[tile]; k < toff[tile] + con[pix]; ++k) {
-            const ProjectedGaussian<T> g = load_projected(proj + ig[order[k]] * kProjectedWidth);
-            PairAlpha<T> pair;
-            if (!pair_alpha(g, px, py, pair)) continue;
-            replay.push_back(ReplayedPair<T>{order[k], pair, transmittance});
-            transmittance *= T(1) - pair.alpha;
-          }
           T behind_colour = T(0);
           for (int64_t c = 0; c < channels; ++c) behind_colour += final_transmittance * bg[c] * g_colour[c];
           T behind_depth = T(0);
-          for (auto it = replay.rbegin(); it != replay.rend(); ++it) {
+          const auto& pairs = replay[size_t(ly * kTileSize + lx)];
+          for (auto it = pairs.rbegin(); it != pairs.rend(); ++it) {
             const int64_t gi = ig[it->slot];
             const ProjectedGaussian<T> g = load_projected(proj + gi * kProjectedWidth);
             const T* f = features + gi * channels;
