@@ -6,7 +6,7 @@ packages=(
   libtorch-dev python3-torch
   pybind11-dev python3-pybind11 python3-pytest
   libopencv-dev libglm-dev libgtest-dev
-  nlohmann-json3-dev libstb-dev
+  nlohmann-json3-dev libstb-dev libzip-dev libyaml-cpp-dev python3-numpy
 )
 sudo_cmd=()
 if [ "$(id -u)" -ne 0 ]; then sudo_cmd=(sudo); fi

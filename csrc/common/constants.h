@@ -43,4 +43,63 @@ inline constexpr int kTileSize = 16;
 // Largest accepted image side (pixels); larger images are refused with a clear error.
 inline constexpr long kMaxImageSide = 16384;
 
+// ---- metrics (docs/metrics.md) -----------------------------------------------------------------------------
+// Images are compared on values in [0, 1]: PSNR, SSIM's C1/C2 and LPIPS's 2v - 1 mapping assume this range.
+inline constexpr double kImageDataRange = 1.0;
+// SSIM as Wang et al. (2004) and every reference implementation we match: 11 x 11 Gaussian window, sigma 1.5,
+// C1 = (K1 L)^2, C2 = (K2 L)^2.
+inline constexpr int kSsimWindowSize = 11;
+inline constexpr double kSsimSigma = 1.5;
+inline constexpr double kSsimK1 = 0.01;
+inline constexpr double kSsimK2 = 0.03;
+// LPIPS v0.1 (richzhang/PerceptualSimilarity): the ScalingLayer's ImageNet shift and scale for R, G, B, and
+// the epsilon added outside the square root when feature vectors are unit-normalised.
+inline constexpr double kLpipsShift[3] = {-0.030, -0.088, -0.188};
+inline constexpr double kLpipsScale[3] = {0.458, 0.448, 0.450};
+inline constexpr double kLpipsNormEpsilon = 1e-10;
+// Squared feature norms are floored here before the square root: where every channel of a tap is 0 (all ReLUs
+// off), d sqrt(s)/ds is infinite and autograd would turn 0 * inf into NaN. The floor only acts where every
+// feature is below 1e-15 and moves a normalised feature there by at most 1e-10.
+inline constexpr double kLpipsMinSquaredNorm = 1e-30;
+// A floating mask counts a pixel as inside when its value exceeds this (mask IoU of soft masks).
+inline constexpr double kMaskInsideThreshold = 0.5;
+// 8-bit images: a value v in [0, 1] is stored as v * kEightBitMax.
+inline constexpr double kEightBitMax = 255.0;
+// Nearest-neighbour search by brute force (the CUDA path) works on blocks of at most this many query-target
+// distances, so 167k x 167k point sets need ~128 MB (float64) at a time instead of 224 GB.
+inline constexpr long kNearestNeighbourBlockElements = 1L << 24;
+
+// ---- body models (docs/body_models.md) --------------------------------------------------------------------
+// Below this rotation angle (radians) axis-angle <-> matrix conversions use Taylor series (to 8th order, exact
+// in float64) instead of sin(t)/t and atan2(n, w)/n, whose float32 gradients lose their digits to cancellation.
+inline constexpr double kRotationSeriesAngle = 0.1;
+// Norms below this count as zero when the 6D rotation representation is orthonormalised (Gram-Schmidt).
+inline constexpr double kMinRotation6dNorm = 1e-12;
+// Skinning weights of a loaded model must sum to 1 per vertex within this tolerance (official files: ~1e-7).
+inline constexpr double kSkinningWeightSumTolerance = 1e-4;
+// The official MANO_LEFT shares its shapedirs x components with MANO_RIGHT (vchoutas/smplx#48): when the two
+// agree within this fraction of the right model's sum |shapedirs[:, 0, :]|, the left x components are negated.
+inline constexpr double kManoLeftShapedirsBugTolerance = 1e-6;
+
+// ---- avatar model (docs/avatar.md) ------------------------------------------------------------------------
+// The feature planes are read at the points' positions in SFGS's star ("big") pose: both hips rotated this far
+// (radians) about the forward axis, so the inner thighs no longer share plane texels.
+inline constexpr double kStarPoseHipAngle = 1.0;
+// A Gaussian's initial standard deviation is this fraction of the mean length of its mesh edges: neighbours
+// overlap at about one standard deviation, so the initial surface renders closed.
+inline constexpr double kInitialScaleEdgeFraction = 0.5;
+// Standard deviation of the random initial plane features: non-zero so points differ from the first step (the
+// authors start at zero), small so the MLPs start in their near-linear range.
+inline constexpr double kPlaneInitStd = 0.1;
+// GroupNorm of the authors' head MLPs: channel groups, and the epsilon of torch.nn.GroupNorm.
+inline constexpr long kMlpGroupNormGroups = 4;
+inline constexpr double kMlpGroupNormEpsilon = 1e-5;
+// Hidden width of the MANO hand-residual MLP (the authors' 64).
+inline constexpr long kHandResidualHiddenWidth = 64;
+// The MANO shape fitted to the subject's SMPL-X hand should match it to millimetres; beyond this RMS (metres) the
+// files are probably swapped or meant for another model, and the avatar warns.
+inline constexpr double kHandFitWarningRms = 0.01;
+// Summed face normals shorter than this (a vertex on degenerate faces only) give a zero vertex normal.
+inline constexpr double kMinNormalLength = 1e-12;
+
 }  // namespace sfgs

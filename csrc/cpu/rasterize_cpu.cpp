@@ -145,8 +145,8 @@ ForwardOutputs forward_typed(const SplatInputs& in, const CameraSpec& spec, cons
       p[kMeanX] = g.mean[0]; p[kMeanY] = g.mean[1];
       p[kConicA] = g.conic[0]; p[kConicB] = g.conic[1]; p[kConicC] = g.conic[2];
       p[kOpacity] = g.opacity; p[kDepth] = g.depth; p[kLevel] = g.level;
-      rad[2 * i] = static_cast<int32_t>(std::min<T>(ceil_of(radius[0]), T(INT32_MAX)));
-      rad[2 * i + 1] = static_cast<int32_t>(std::min<T>(ceil_of(radius[1]), T(INT32_MAX)));
+      rad[2 * i] = pixel_radius(radius[0]);
+      rad[2 * i + 1] = pixel_radius(radius[1]);
     }
   });
 
@@ -198,12 +198,12 @@ ForwardOutputs forward_typed(const SplatInputs& in, const CameraSpec& spec, cons
   const int64_t h = grid.height, w = grid.width;
   at::Tensor image = at::empty({h, w, channels}, real);
   at::Tensor alpha = at::empty({h, w}, real);
-  at::Tensor depth_sum = at::empty({h, w}, real);
+  at::Tensor expected_depth = at::empty({h, w}, real);
   at::Tensor final_t = at::empty({h, w}, real);
   at::Tensor contributors = at::empty({h, w}, real.dtype(at::kInt));
   T* img = image.data_ptr<T>();
   T* alp = alpha.data_ptr<T>();
-  T* dep = depth_sum.data_ptr<T>();
+  T* dep = expected_depth.data_ptr<T>();
   T* fin = final_t.data_ptr<T>();
   int32_t* con = contributors.data_ptr<int32_t>();
   const T* bg = in.background.data_ptr<T>();
@@ -257,7 +257,7 @@ ForwardOutputs forward_typed(const SplatInputs& in, const CameraSpec& spec, cons
           for (int64_t ch = 0; ch < channels; ++ch)
             img[pix * channels + ch] = colour[size_t(p * channels + ch)] + transmittance[p] * bg[ch];
           alp[pix] = T(1) - transmittance[p];
-          dep[pix] = depth[p];
+          dep[pix] = expected_depth_of(depth[p], T(1) - transmittance[p]);
           fin[pix] = transmittance[p];
           con[pix] = last[p];
         }
@@ -267,7 +267,7 @@ ForwardOutputs forward_typed(const SplatInputs& in, const CameraSpec& spec, cons
   ForwardOutputs out;
   out.image = image;
   out.alpha = alpha;
-  out.depth_sum = depth_sum;
+  out.depth = expected_depth;
   out.radii = radii;
   out.saved.resize(kSavedCount);
   out.saved[kSavedProjected] = projected;

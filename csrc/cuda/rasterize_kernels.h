@@ -4,17 +4,28 @@
 // comes through a stream-ordered allocator callback, so it too can come from torch's caching allocator.
 //
 // Forward, in this order on one stream:
-//   project_gaussians  projection, radii, tile rectangles, exact per-Gaussian tile counts (tile_touches) and their
-//                      inclusive prefix sum: gaussian_offsets[N] is the intersection count.
-//   sort_by_depth      every Gaussian's rank in (depth, index) order, by a stable radix sort of depth bits.
-//   -- the caller reads gaussian_offsets[N]: the forward pass's one host synchronisation (it sizes the buffers) --
-//   bin_and_blend      one key (tile << rank_bits | depth rank) per intersection, radix sort of the keys, tile
-//                      ranges, front-to-back blend. Ranks are unique, so the per-tile order is (depth, index)
-//                      exactly as in the CPU reference, in float and in double.
-// Backward: per tile, the blend is replayed front to back; one warp per 32 consecutive Gaussians of the tile then
-// streams the tile's pixels through its lanes (each lane owns one Gaussian), so each lane sums its Gaussian's
-// gradient over the tile in registers. Lanes flush once per (tile, Gaussian): with atomics, or, in deterministic
-// mode, into that intersection's own slot, which a per-Gaussian kernel sums in a fixed order before the projection VJP.
+//   project_gaussians  projection, radii, tile rectangles and, with the exact ellipse/tile test, each Gaussian's
+//                      touched tiles (a bit mask over its tile rectangle when that has at most 64 tiles) and each
+//                      tile's intersection count, spread over 32 counters per tile (Gaussian i counts in i % 32) so
+//                      that the atomics do not queue on one address; a scan of the counters gives every bucket's
+//                      offset, and one block derives the tiles' offsets, the blends' tile order (longest first) and
+//                      BinStats (intersection count, longest tile) in buffers.bin_stats.
+//   -- the caller reads BinStats: the forward pass's one host synchronisation (it sizes the buffers) --
+//   bin_intersections  each Gaussian writes a (depth bits, index) record into the next slot of its bucket of each
+//                      touched tile's run, and one block per tile radix sorts its run in shared memory by depth
+//                      bits relative to the tile's nearest, carrying the index, with ties re-sorted by index: the
+//                      order is (depth, index) exactly as in the CPU reference, in float and in double. A tile longer than the shared-memory sort holds sends the whole pass to the radix
+//                      path: a global depth sort gives every Gaussian a unique rank, keys (tile << rank_bits | rank)
+//                      are radix sorted and cut into tile ranges. Both paths give the same lists.
+//   blend              front-to-back blend, one CTA per tile (longest tiles first); each warp covers a compact 8 x 4 pixel block and
+//                      skips, with one ballot per 32 Gaussians, those whose ellipse misses its block
+//                      (pixel_block_touched, the tile test on the block: bit-identical per pixel).
+// Backward: one thread per pixel replays the tile's blend front to back (the forward's transmittances, no division);
+// warps skip, with the same ballot, the Gaussians that miss their block or lie beyond their pixels' last blended
+// Gaussian, and with one vote those that none of their pixels blended. A warp sums its pixels' contributions to a
+// Gaussian with a transposing shuffle reduction, and the contributing warps' sums are added in warp order, once per
+// (tile, Gaussian): into per-Gaussian accumulators with atomics, or, in deterministic mode, into that
+// intersection's own slot, which a per-Gaussian kernel sums in a fixed order before the projection VJP.
 #include <cstddef>
 #include <cstdint>
 #include <functional>
@@ -58,22 +69,36 @@ template <typename T> struct SplatScene {
   int channels;          // C
 };
 
+// What the caller reads after project_gaussians to size the rest of the pass.
+struct BinStats {
+  int64_t intersections;      // (Gaussian, tile) pairs that pass the tile test
+  int64_t max_tile_length;    // intersections of the busiest tile
+};
+
 template <typename T> struct ForwardBuffers {
   // Per Gaussian.
   T* projected;               // (N, kProjectedWidth); rows of culled Gaussians are not written
   TileRect* tile_rects;       // (N)
   int32_t* radii;             // (N, 2)
-  int64_t* gaussian_offsets;  // (N + 1)
-  int32_t* depth_order;       // (N) Gaussian at each depth rank
-  int32_t* depth_rank;        // (N) depth rank of each Gaussian
-  // Per intersection, in sorted order; given once the intersection count is known.
-  int32_t* isect_gaussian;
-  // Per tile: start of each tile's run of sorted intersections, (tiles + 1).
+  // Per tile: start of each tile's run of sorted intersections, (tiles + 1); the last entry is the count.
   int64_t* tile_offsets;
-  // Per pixel.
+  // Device copy of BinStats, written by project_gaussians; the caller reads it.
+  BinStats* bin_stats;
+  // Per intersection, in sorted order; given once the intersection count is known. An entry of -1 (only where the
+  // tile test could ever disagree between two evaluations) is a Gaussian that touches nothing.
+  int32_t* isect_gaussian;
+  // Per tile: the order in which the blends take the tiles (longest runs first, empty tiles last), (tiles).
+  int32_t* tile_order;
+  // Scratch shared by project_gaussians and bin_intersections (set by project_gaussians).
+  uint64_t* touched_masks;              // (N) touched tiles of each Gaussian's tile rectangle, if it has <= 64 tiles
+  int64_t* gaussian_tile_counts;        // (N) tiles each Gaussian touches
+  unsigned long long* bucket_counts;    // (tiles * buckets + 1) intersections per tile bucket
+  int64_t* bucket_offsets;              // (tiles * buckets + 1) exclusive scan of bucket_counts
+  // Per pixel; needed by blend only.
   T* image;                // (H, W, C)
   T* alpha;                // (H, W)
-  T* depth_sum;            // (H, W)
+  T* depth_sum;            // (H, W) sum of depth * blend weight (kept for backward)
+  T* depth;                // (H, W) expected depth (expected_depth_of)
   T* final_transmittance;  // (H, W)
   int32_t* contributors;   // (H, W) index + 1 (within the tile's run) of the last blended Gaussian, 0 for none
 };
@@ -81,9 +106,9 @@ template <typename T> struct ForwardBuffers {
 template <typename T> struct BackwardInputs {
   const T* projected;
   const TileRect* tile_rects;
-  const int32_t* depth_rank;
   const int32_t* isect_gaussian;
   const int64_t* tile_offsets;
+  const int32_t* tile_order;
   int64_t intersection_count;
   const T* image;
   const T* depth_sum;
@@ -105,23 +130,36 @@ template <typename T> struct Gradients {
   T* background;
 };
 
+// Sets buffers' scratch pointers (from `scratch`, which must outlive bin_intersections) and fills bin_stats.
 template <typename T>
-void project_gaussians(const SplatScene<T>& scene, const ForwardBuffers<T>& buffers, const ScratchAllocator& scratch,
+void project_gaussians(const SplatScene<T>& scene, ForwardBuffers<T>& buffers, const ScratchAllocator& scratch,
                        cudaStream_t stream);
+// stats: the values project_gaussians wrote to buffers.bin_stats.
 template <typename T>
-void sort_by_depth(const SplatScene<T>& scene, const ForwardBuffers<T>& buffers, const ScratchAllocator& scratch,
-                   cudaStream_t stream);
-template <typename T>
-void bin_and_blend(const SplatScene<T>& scene, const ForwardBuffers<T>& buffers, int64_t intersection_count,
-                   const ScratchAllocator& scratch, cudaStream_t stream);
+void bin_intersections(const SplatScene<T>& scene, const ForwardBuffers<T>& buffers, const BinStats& stats,
+                       const ScratchAllocator& scratch, cudaStream_t stream);
+template <typename T> void blend(const SplatScene<T>& scene, const ForwardBuffers<T>& buffers, cudaStream_t stream);
 // deterministic: bit-identical gradients across runs (per-intersection slots, fixed-order sums) at the cost of
 // (7 + C) values of memory per intersection.
 template <typename T>
 void backward(const SplatScene<T>& scene, const BackwardInputs<T>& inputs, const Gradients<T>& gradients,
               bool deterministic, const ScratchAllocator& scratch, cudaStream_t stream);
 
+// Which binning path bin_intersections takes: the per-tile shared-memory sort when every tile fits it (kAuto), or
+// always the radix path (kRadix), for tests and benchmarks that compare the two. Global, not thread-safe.
+enum class Binning { kAuto, kRadix };
+void set_binning(Binning binning);
+// The path the latest bin_intersections call took (kAuto: the per-tile sort).
+Binning last_binning();
+
+// The order in which the blends take the tiles: longest runs first (the default), or row-major, for benchmarks that
+// measure what the ordering gains. Global, not thread-safe.
+enum class TileOrder { kLongestFirst, kRowMajor };
+void set_tile_order(TileOrder order);
+
 // Benchmarks time the pipeline's stages by recording their own events when these are called; the stages are named
-// "project", "depth sort", "emit", "tile sort", "tile ranges", "blend", "blend backward" and "project backward".
+// "project", "emit", "tile sort", "blend", "blend backward" and "project backward", and on the radix path
+// "depth sort" and "tile ranges" too.
 class StageObserver {
  public:
   virtual void begin(const char* stage, cudaStream_t stream) = 0;

@@ -10,6 +10,7 @@
 #include "common/atomic_file.h"
 #include "data/json_values.h"
 #include "data/neuman.h"
+#include "data/xhumans.h"
 
 namespace sfgs::data {
 namespace fs = std::filesystem;
@@ -237,8 +238,10 @@ Dataset read_dataset(const std::string& folder) {
   TORCH_CHECK(fs::is_directory(folder), "dataset folder '", folder, "' does not exist");
   if (fs::exists(fs::path(folder) / kIndexFile)) return read_sfgs_dataset(folder);
   if (fs::exists(fs::path(folder) / "sparse" / "cameras.txt")) return read_neuman(folder);
-  TORCH_CHECK(false, "'", folder, "' is not a dataset folder: expected dataset.json (sfgs) or sparse/cameras.txt "
-              "(NeuMan)");
+  if (fs::is_directory(fs::path(folder) / "train") || fs::is_directory(fs::path(folder) / "test"))
+    return read_xhumans(folder);
+  TORCH_CHECK(false, "'", folder, "' is not a dataset folder: expected dataset.json (sfgs), sparse/cameras.txt "
+              "(NeuMan) or train/ and test/ takes (X-Humans)");
 }
 
 }  // namespace sfgs::data

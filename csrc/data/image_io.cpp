@@ -31,6 +31,12 @@ at::Tensor read_8bit(const std::string& path, int channels) {
 
 }  // namespace
 
+std::pair<int64_t, int64_t> image_size(const std::string& path) {
+  int w = 0, h = 0, channels = 0;
+  TORCH_CHECK(stbi_info(path.c_str(), &w, &h, &channels) != 0, "cannot read image '", path, "': ", stbi_failure_reason());
+  return {w, h};
+}
+
 at::Tensor read_image_rgb(const std::string& path) { return read_8bit(path, 3).to(at::kFloat).div_(255.0f); }
 
 at::Tensor read_mask(const std::string& path, MaskEncoding encoding) {

@@ -51,11 +51,12 @@ struct BackendSettings {
 struct ForwardOutputs {
   at::Tensor image;      // (H, W, C)
   at::Tensor alpha;      // (H, W)
-  at::Tensor depth_sum;  // (H, W): sum of depth * blend weight (expected depth = depth_sum / alpha)
+  at::Tensor depth;      // (H, W): expected depth, expected_depth_of(sum of depth * blend weight, alpha)
   at::Tensor radii;      // (N, 2) int32 half extents in pixels of the alpha >= kMinAlpha ellipse; 0 = culled
   std::vector<at::Tensor> saved;  // backend-private state for backward
 };
 
+// Gradients w.r.t. the image, alpha and the weighted depth sum (the op turns the expected-depth gradient into these).
 struct OutputGradients {
   at::Tensor image, alpha, depth_sum;  // each may be undefined (no gradient flows into it)
 };

@@ -242,6 +242,13 @@ SFGS_HD PixelRect pixel_rect(const ProjectedGaussian<T>& g, T var_x, T var_y, in
   return r;
 }
 
+// Half extent (pixels, rounded up) reported for a Gaussian the projection accepted: at least 1, so "radius > 0"
+// means visible, and clamped so huge footprints cannot overflow an int.
+template <typename T> SFGS_HD int32_t pixel_radius(T radius) {
+  const T up = ceil_of(radius);
+  return up >= T(2147483647) ? 2147483647 : (up < T(1) ? 1 : int32_t(up));
+}
+
 SFGS_HD bool rect_empty(const PixelRect& r) { return r.x0 > r.x1 || r.y0 > r.y1; }
 
 SFGS_HD PixelRect tile_rect(const PixelRect& pixels) {
@@ -372,6 +379,36 @@ SFGS_HD bool tile_touches(const ProjectedGaussian<T>& g, int tile_x, int tile_y,
   return best <= threshold;
 }
 
+// tile_touches for any inclusive rectangle of pixel centres [px0, px1] x [py0, py1] (the caller clips it to the
+// image): whether any of its pixel centres can have sigma <= level. False guarantees that pair_alpha rejects every
+// pixel of the rectangle, with the same slack as the tile test; the CUDA blends use it to skip Gaussians for a
+// warp's block of pixels.
+template <typename T>
+SFGS_HD bool pixel_block_touched(const ProjectedGaussian<T>& g, int px0, int py0, int px1, int py1) {
+  const T x0 = T(px0) + T(kPixelCentre) - g.mean[0], x1 = T(px1) + T(kPixelCentre) - g.mean[0];
+  const T y0 = T(py0) + T(kPixelCentre) - g.mean[1], y1 = T(py1) + T(kPixelCentre) - g.mean[1];
+  if (x0 <= T(0) && x1 >= T(0) && y0 <= T(0) && y1 >= T(0)) return true;
+  const T a = g.conic[0], b = g.conic[1], c = g.conic[2];
+  const T threshold = g.level * T(1 + kTileTestSlack) + T(kTileTestSlack);
+  // Minimum of the quadratic on each edge: at fixed dx over dy in [y0, y1], and at fixed dy over dx in [x0, x1].
+  T best = T(INFINITY);
+  const T xs[2] = {x0, x1};
+  const T ys[2] = {y0, y1};
+  for (int k = 0; k < 2; ++k) {
+    const T dx = xs[k];
+    const T dy = clamp_value(-b * dx / c, y0, y1);
+    const T s = T(0.5) * (a * dx * dx + c * dy * dy) + b * dx * dy;
+    best = s < best ? s : best;
+  }
+  for (int k = 0; k < 2; ++k) {
+    const T dy = ys[k];
+    const T dx = clamp_value(-b * dy / a, x0, x1);
+    const T s = T(0.5) * (a * dx * dx + c * dy * dy) + b * dx * dy;
+    best = s < best ? s : best;
+  }
+  return best <= threshold;
+}
+
 // ---- per pixel-Gaussian pair ----------------------------------------------------------------------------------
 
 template <typename T> struct PairAlpha {
@@ -406,6 +443,12 @@ SFGS_HD void pair_alpha_vjp(const ProjectedGaussian<T>& g, const PairAlpha<T>& p
   grad_conic[2] += T(0.5) * grad_sigma * p.dy * p.dy;
   grad_mean[0] -= grad_sigma * (g.conic[0] * p.dx + g.conic[1] * p.dy);
   grad_mean[1] -= grad_sigma * (g.conic[1] * p.dx + g.conic[2] * p.dy);
+}
+
+// Expected depth of a pixel from its weighted depth sum and its alpha; 0 where nothing was blended. A blended pixel
+// has alpha >= kMinAlpha, so the clamp only keeps the division finite.
+template <typename T> SFGS_HD T expected_depth_of(T depth_sum, T alpha) {
+  return alpha > T(0) ? depth_sum / (alpha > T(kMinAlpha) ? alpha : T(kMinAlpha)) : T(0);
 }
 
 // Gradient of the composite w.r.t. one pair's alpha, walking back to front. transmittance is T before this pair;

@@ -84,7 +84,7 @@ SplatInputs validated_inputs(const Gaussians& g, const at::Tensor& background, c
               "sfgs::render: background must have shape (C) with C = ", channels, " (the feature channels), got ",
               describe(background));
   check_matrix(background.unsqueeze(0), "background", 1, channels, g.means);
-  if (options.check_background)
+  if (background.is_cpu() || options.check_background)
     TORCH_CHECK(background.isfinite().all().item<bool>(), "sfgs::render: background must be finite, got ",
                 background.cpu());
   in.background = background.contiguous();
@@ -117,6 +117,7 @@ constexpr const char* kCameraKey = "camera";
 constexpr const char* kSettingsKey = "settings";
 constexpr const char* kUsesCovariancesKey = "uses_covariances";
 constexpr int kNumInputs = 7;  // means, scales, rotations, covariances, opacities, features, background
+constexpr int kNumSavedBeforeState = kNumInputs + 2;  // the inputs, then the alpha and depth outputs
 
 std::vector<double> pack_camera(const CameraSpec& c) {
   std::vector<double> v(c.world_to_camera.begin(), c.world_to_camera.end());
@@ -153,14 +154,17 @@ class SplatFunction : public torch::autograd::Function<SplatFunction> {
                          covariances.value_or(at::Tensor()), opacities, features, background};
     splat::ForwardOutputs out = means.is_cuda() ? splat::cuda::forward(in, camera, settings)
                                                 : splat::cpu::forward(in, camera, settings);
-    variable_list to_save = {means, in.scales, in.rotations, in.covariances, opacities, features, background};
+    variable_list to_save = {means, in.scales, in.rotations, in.covariances, opacities, features, background,
+                             out.alpha, out.depth};
     to_save.insert(to_save.end(), out.saved.begin(), out.saved.end());
     ctx->save_for_backward(to_save);
     ctx->saved_data[kCameraKey] = pack_camera(camera);
     ctx->saved_data[kSettingsKey] = pack_settings(settings);
     ctx->saved_data[kUsesCovariancesKey] = in.uses_covariances();
     ctx->mark_non_differentiable({out.radii});
-    return {out.image, out.alpha, out.depth_sum, out.radii};
+    // Outputs nobody differentiates (often depth and alpha) arrive as undefined gradients, not zero-filled tensors.
+    ctx->set_materialize_grads(false);
+    return {out.image, out.alpha, out.depth, out.radii};
   }
 
   static variable_list backward(AutogradContext* ctx, variable_list grad_outputs) {
@@ -173,10 +177,19 @@ class SplatFunction : public torch::autograd::Function<SplatFunction> {
       in.covariances = at::Tensor();
     }
     splat::ForwardOutputs fwd;
-    fwd.saved.assign(saved.begin() + kNumInputs, saved.end());
+    fwd.saved.assign(saved.begin() + kNumSavedBeforeState, saved.end());
     const CameraSpec camera = unpack_camera(ctx->saved_data[kCameraKey].toDoubleVector());
     const BackendSettings settings = unpack_settings(ctx->saved_data[kSettingsKey].toDoubleVector());
-    const splat::OutputGradients grads{grad_outputs[0], grad_outputs[1], grad_outputs[2]};
+    splat::OutputGradients grads{grad_outputs[0], grad_outputs[1], at::Tensor()};
+    if (grad_outputs[2].defined()) {
+      // depth = depth_sum / alpha where alpha > 0: d/d depth_sum = 1 / alpha, d/d alpha = -depth / alpha.
+      const at::Tensor& alpha = saved[kNumInputs];
+      const at::Tensor& depth = saved[kNumInputs + 1];
+      const at::Tensor covered = alpha > 0;
+      const at::Tensor per_alpha = at::where(covered, grad_outputs[2] / alpha.clamp_min(kMinAlpha), at::zeros_like(alpha));
+      grads.depth_sum = per_alpha;
+      grads.alpha = grads.alpha.defined() ? grads.alpha - per_alpha * depth : -per_alpha * depth;
+    }
     const splat::InputGradients g = in.means.is_cuda() ? splat::cuda::backward(in, camera, settings, fwd, grads)
                                                        : splat::cpu::backward(in, camera, settings, fwd, grads);
     return {g.means,     g.scales,     g.rotations, g.covariances, g.opacities,
@@ -225,11 +238,9 @@ RenderResult render(const Gaussians& gaussians, const at::Tensor& background, co
   RenderResult result;
   result.image = out[0];
   result.alpha = out[1];
-  // Expected depth = depth_sum / alpha. Covered pixels have alpha >= kMinAlpha, so the clamp never changes them;
-  // it keeps the unselected branch of the where() finite, so its zero gradient stays zero (not 0 * inf).
-  result.depth = at::where(out[1] > 0, out[2] / out[1].clamp_min(kMinAlpha), at::zeros_like(out[2]));
+  result.depth = out[2];
   result.radii = out[3];
-  result.visible = (out[3] > 0).all(1);
+  result.visible = out[3].select(1, 0) > 0;
   return result;
 }
 

@@ -1,49 +1,20 @@
 // Dataset readers and the writer on fixture folders the tests create: sfgs's own format round trip, the
 // ExAvatar-preprocessed NeuMan layout, and clear errors for missing or corrupt files.
 #include <filesystem>
-#include <fstream>
-#include <random>
 
+#include <ATen/ATen.h>
 #include <gtest/gtest.h>
 
 #include "data/dataset.h"
 #include "data/neuman.h"
+#include "test_files.h"
 
 namespace sfgs::data {
 namespace {
 namespace fs = std::filesystem;
-
-class TempFolder {
- public:
-  TempFolder() {
-    std::random_device rd;
-    path_ = fs::temp_directory_path() / ("sfgs_test_" + std::to_string(rd()) + std::to_string(rd()));
-    fs::create_directories(path_);
-  }
-  ~TempFolder() { fs::remove_all(path_); }
-  std::string operator/(const std::string& relative) const {
-    const fs::path p = path_ / relative;
-    fs::create_directories(p.parent_path());
-    return p.string();
-  }
-  std::string str() const { return path_.string(); }
-
- private:
-  fs::path path_;
-};
-
-void write_text(const std::string& path, const std::string& text) { std::ofstream(path) << text; }
-
-template <typename F> void expect_error_mentioning(F&& f, const std::string& needle) {
-  try {
-    f();
-    ADD_FAILURE() << "expected an error mentioning '" << needle << "'";
-  } catch (const c10::Error& e) {
-    EXPECT_NE(std::string(e.what_without_backtrace()).find(needle), std::string::npos) << e.what_without_backtrace();
-  } catch (const std::exception& e) {
-    EXPECT_NE(std::string(e.what()).find(needle), std::string::npos) << e.what();
-  }
-}
+using testing::expect_error_mentioning;
+using testing::TempFolder;
+using testing::write_text;
 
 Dataset small_dataset(const TempFolder& dir) {
   Dataset d;

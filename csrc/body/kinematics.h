@@ -1,0 +1,48 @@
+#pragma once
+// Forward kinematics over a joint tree and linear blend skinning, shared by the SMPL-X and MANO layers.
+#include <cstdint>
+#include <vector>
+
+#include <torch/nn/module.h>
+#include <torch/nn/pimpl.h>
+
+namespace sfgs::body {
+
+struct PosedSkeleton {
+  at::Tensor joints;               // (B, J, 3) posed joint positions
+  at::Tensor joint_transforms;     // (B, J, 4, 4) world frame of each joint: posed rotation and position
+  at::Tensor skinning_transforms;  // (B, J, 4, 4) maps a rest-pose point rigidly attached to joint j to its pose
+};
+
+// A joint tree with parents[0] = -1 and 0 <= parents[j] < j otherwise (the SMPL-family order). Joints of equal
+// depth are composed in one batched step: the 55-joint SMPL-X tree takes 10 steps instead of 54.
+class KinematicTreeImpl : public torch::nn::Module {
+ public:
+  explicit KinematicTreeImpl(std::vector<int64_t> parents);
+
+  int64_t size() const { return static_cast<int64_t>(parents_.size()); }
+  const std::vector<int64_t>& parents() const { return parents_; }
+  // Whether `joint` is `ancestor` or lies below it.
+  bool in_subtree(int64_t ancestor, int64_t joint) const;
+
+  // Local joint rotations (B, J, 3, 3) about rest joints (B, J, 3); `translation` (B, 3) moves the root.
+  PosedSkeleton pose(const at::Tensor& rotations, const at::Tensor& rest_joints, const at::Tensor& translation) const;
+
+ private:
+  std::vector<int64_t> parents_;
+  // Per depth level >= 1: its joints, and where their parents sit in the depth-ordered concatenation.
+  std::vector<at::Tensor> level_joints_, level_parent_slots_;
+  at::Tensor root_, parent_or_self_, depth_order_inverse_;
+};
+TORCH_MODULE(KinematicTree);
+
+// Posed vertices sum_j w_ij A_j [v_i; 1] of rest vertices (B, V, 3) with weights (V, J), dense or sparse COO (each
+// vertex follows a few joints: the sparse product costs a few multiply-adds per vertex instead of J), and
+// transforms (B, J, 4, 4). Differentiable with respect to the vertices and the transforms.
+at::Tensor linear_blend_skinning(const at::Tensor& rest_vertices, const at::Tensor& weights,
+                                 const at::Tensor& skinning_transforms);
+
+// The SMPL pose-corrective feature: R_j - I of every non-root joint, (B, J, 3, 3) -> (B, 9 (J - 1)).
+at::Tensor pose_feature(const at::Tensor& rotations);
+
+}  // namespace sfgs::body

@@ -1,0 +1,137 @@
+#include "body/mesh.h"
+
+#include <tuple>
+
+#include <ATen/Functions.h>
+#include <ATen/TensorOperators.h>
+
+#include "body/tensor_checks.h"
+
+namespace sfgs::body {
+
+at::Tensor checked_faces(const at::Tensor& faces, int64_t num_vertices, const std::string& what) {
+  TORCH_CHECK(faces.defined() && faces.dim() == 2 && faces.size(1) == 3 &&
+                  at::isIntegralType(faces.scalar_type(), /*includeBool=*/false),
+              what, " must be an integer (F, 3) tensor, got ", describe(faces));
+  at::Tensor result = faces.to(at::kCPU, at::kLong).contiguous();
+  if (result.numel() > 0) {
+    const int64_t low = result.min().item<int64_t>(), high = result.max().item<int64_t>();
+    TORCH_CHECK(low >= 0 && high < num_vertices, what, " index vertices ", low, "..", high, ", but there are ",
+                num_vertices, " vertices");
+  }
+  return result;
+}
+
+MeshEdges mesh_edges(const at::Tensor& faces, int64_t num_vertices) {
+  const at::Tensor f = checked_faces(faces, num_vertices, "faces");
+  const int64_t face_count = f.size(0);
+  const at::Tensor v0 = f.select(1, 0), v1 = f.select(1, 1), v2 = f.select(1, 2);
+  // Slot k of a face is the edge opposite corner k: (v1, v2), (v2, v0), (v0, v1).
+  const at::Tensor a = at::cat({v1, v2, v0}), b = at::cat({v2, v0, v1});
+  const at::Tensor key = at::minimum(a, b) * num_vertices + at::maximum(a, b);
+  const auto [sorted_key, order] = key.sort();
+  const auto [unique_key, sorted_inverse, counts] = at::unique_consecutive(sorted_key, /*return_inverse=*/true);
+  const at::Tensor inverse = at::empty_like(sorted_inverse).scatter_(0, order, sorted_inverse);
+  MeshEdges result;
+  result.edges = at::stack({unique_key.div(num_vertices, "floor"), unique_key.remainder(num_vertices)}, 1);
+  result.face_edges = inverse.view({3, face_count}).t().contiguous();
+  return result;
+}
+
+at::Tensor append_edge_midpoints(const at::Tensor& values, const at::Tensor& edges, int64_t dim) {
+  const at::Tensor e = edges.to(values.device());
+  const at::Tensor first = values.index_select(dim, e.select(1, 0));
+  const at::Tensor second = values.index_select(dim, e.select(1, 1));
+  return at::cat({values, 0.5 * (first + second)}, dim);
+}
+
+MidpointSubdivision::MidpointSubdivision(const at::Tensor& faces, int64_t num_vertices) : num_vertices_(num_vertices) {
+  const at::Tensor f = checked_faces(faces, num_vertices, "faces");
+  const MeshEdges topology = mesh_edges(f, num_vertices);
+  edges_ = topology.edges;
+  const at::Tensor e = topology.face_edges + num_vertices;
+  const at::Tensor v0 = f.select(1, 0), v1 = f.select(1, 1), v2 = f.select(1, 2);
+  const at::Tensor e0 = e.select(1, 0), e1 = e.select(1, 1), e2 = e.select(1, 2);
+  fine_faces_ = at::cat(
+      {at::stack({v0, e2, e1}, 1), at::stack({v1, e0, e2}, 1), at::stack({v2, e1, e0}, 1), at::stack({e0, e1, e2}, 1)});
+}
+
+at::Tensor MidpointSubdivision::interpolate(const at::Tensor& values, int64_t dim) const {
+  TORCH_CHECK(values.defined() && values.dim() > 0,
+              "MidpointSubdivision::interpolate: values must have a vertex "
+              "dimension, got ",
+              describe(values));
+  const int64_t d = dim < 0 ? dim + values.dim() : dim;
+  TORCH_CHECK(d >= 0 && d < values.dim() && values.size(d) == num_vertices_,
+              "MidpointSubdivision::interpolate: values must have ", num_vertices_, " entries along dimension ", dim,
+              ", got ", describe(values));
+  TORCH_CHECK(at::isFloatingType(values.scalar_type()),
+              "MidpointSubdivision::interpolate: values must be floating (use interpolate_labels for labels), got ",
+              describe(values));
+  return append_edge_midpoints(values, edges_, d);
+}
+
+at::Tensor MidpointSubdivision::interpolate_labels(const at::Tensor& labels) const {
+  TORCH_CHECK(labels.defined() && labels.dim() == 1 && labels.size(0) == num_vertices_,
+              "MidpointSubdivision::interpolate_labels: labels must have shape (", num_vertices_, "), got ",
+              describe(labels));
+  const at::Tensor e = edges_.to(labels.device());
+  return at::cat({labels, at::maximum(labels.index_select(0, e.select(1, 0)), labels.index_select(0, e.select(1, 1)))});
+}
+
+std::vector<MidpointSubdivision> midpoint_subdivisions(const at::Tensor& faces, int64_t num_vertices, int64_t levels) {
+  TORCH_CHECK(levels >= 0, "midpoint_subdivisions: levels must be >= 0, got ", levels);
+  std::vector<MidpointSubdivision> chain;
+  at::Tensor f = faces;
+  int64_t v = num_vertices;
+  for (int64_t level = 0; level < levels; ++level) {
+    chain.emplace_back(f, v);
+    f = chain.back().fine_faces();
+    v = chain.back().fine_vertex_count();
+  }
+  return chain;
+}
+
+VertexNeighbors vertex_neighbors(const at::Tensor& faces, int64_t num_vertices, int64_t max_neighbors) {
+  TORCH_CHECK(max_neighbors == -1 || max_neighbors > 0, "vertex_neighbors: max_neighbors must be -1 (all) or > 0, got ",
+              max_neighbors);
+  const at::Tensor edges = mesh_edges(faces, num_vertices).edges;
+  const at::Tensor source = at::cat({edges.select(1, 0), edges.select(1, 1)});
+  const at::Tensor target = at::cat({edges.select(1, 1), edges.select(1, 0)});
+  const at::Tensor order = std::get<1>((source * num_vertices + target).sort());
+  const at::Tensor s = source.index_select(0, order), t = target.index_select(0, order);
+  const at::Tensor valence = at::bincount(s, {}, num_vertices);
+  const at::Tensor first_slot = valence.cumsum(0) - valence;
+  const at::Tensor slot = at::arange(s.size(0), s.options()) - first_slot.index_select(0, s);
+  const int64_t widest = num_vertices > 0 && s.size(0) > 0 ? valence.max().item<int64_t>() : 0;
+  const int64_t k = max_neighbors < 0 ? widest : std::min(widest, max_neighbors);
+  VertexNeighbors result;
+  result.indices = at::arange(num_vertices, s.options()).unsqueeze(1).repeat({1, std::max<int64_t>(k, 1)});
+  const at::Tensor kept = slot < k;
+  result.indices.view(-1).index_copy_(0, (s * result.indices.size(1) + slot).masked_select(kept),
+                                      t.masked_select(kept));
+  result.counts = valence.clamp_max(k);
+  return result;
+}
+
+at::Tensor uniform_laplacian(const VertexNeighbors& neighbors, const at::Tensor& values) {
+  const int64_t v = neighbors.counts.size(0);
+  TORCH_CHECK(values.defined() && (values.dim() == 2 || values.dim() == 3) && values.size(-2) == v &&
+                  at::isFloatingType(values.scalar_type()),
+              "uniform_laplacian: values must be floating with shape (", v, ", C) or (B, ", v, ", C), got ",
+              describe(values));
+  const at::Tensor indices = neighbors.indices.to(values.device());
+  const at::Tensor counts = neighbors.counts.to(values.device());
+  const int64_t k = indices.size(1);
+  const at::Tensor valid = (at::arange(k, indices.options()).unsqueeze(0) < counts.unsqueeze(1))
+                               .to(values.scalar_type())
+                               .unsqueeze(-1);  // (V, K, 1)
+  auto shape = values.sizes().vec();
+  shape.insert(shape.end() - 1, k);  // (..., V, K, C)
+  const at::Tensor gathered = values.index_select(values.dim() - 2, indices.flatten()).view(shape);
+  const at::Tensor mean = (gathered * valid).sum(-2) / counts.clamp_min(1).to(values.scalar_type()).unsqueeze(-1);
+  const at::Tensor isolated = (counts == 0).unsqueeze(-1);
+  return at::where(isolated, at::zeros_like(values), values - mean);
+}
+
+}  // namespace sfgs::body

@@ -1,0 +1,80 @@
+#include "cli/arguments.h"
+
+#include <stdexcept>
+
+namespace sfgs::cli {
+
+Arguments::Arguments(const std::vector<std::string>& args, const std::set<std::string>& flags) {
+  for (size_t i = 0; i < args.size(); ++i) {
+    const std::string& a = args[i];
+    if (a.rfind("--", 0) != 0) throw std::invalid_argument("unexpected argument '" + a + "' (options start with --)");
+    const std::string name = a.substr(2);
+    if (flags.count(name)) {
+      flags_.insert(name);
+    } else {
+      if (i + 1 >= args.size()) throw std::invalid_argument("option --" + name + " needs a value");
+      values_[name] = args[++i];
+    }
+  }
+}
+
+std::string Arguments::text(const std::string& name, const std::string& fallback) {
+  read_.insert(name);
+  const auto it = values_.find(name);
+  return it == values_.end() ? fallback : it->second;
+}
+
+std::string Arguments::required(const std::string& name) {
+  read_.insert(name);
+  const auto it = values_.find(name);
+  if (it == values_.end()) throw std::invalid_argument("missing required option --" + name);
+  return it->second;
+}
+
+int64_t Arguments::integer(const std::string& name, int64_t fallback, int64_t lo, int64_t hi) {
+  const std::string v = text(name, "");
+  if (v.empty()) return fallback;
+  size_t used = 0;
+  int64_t x = 0;
+  try {
+    x = std::stoll(v, &used);
+  } catch (const std::exception&) {
+    used = 0;
+  }
+  if (used != v.size() || x < lo || x > hi)
+    throw std::invalid_argument("--" + name + " expects an integer in [" + std::to_string(lo) + ", " + std::to_string(hi) +
+                                "], got '" + v + "'");
+  return x;
+}
+
+double Arguments::real(const std::string& name, double fallback, double lo, double hi) {
+  const std::string v = text(name, "");
+  if (v.empty()) return fallback;
+  size_t used = 0;
+  double x = 0;
+  try {
+    x = std::stod(v, &used);
+  } catch (const std::exception&) {
+    used = 0;
+  }
+  if (used != v.size() || !(x >= lo && x <= hi))
+    throw std::invalid_argument("--" + name + " expects a number in [" + std::to_string(lo) + ", " + std::to_string(hi) +
+                                "], got '" + v + "'");
+  return x;
+}
+
+bool Arguments::flag(const std::string& name) {
+  read_.insert(name);
+  return flags_.count(name) > 0;
+}
+
+void Arguments::finish() const {
+  std::string unknown;
+  for (const auto& [name, value] : values_)
+    if (!read_.count(name)) unknown += " --" + name;
+  for (const auto& name : flags_)
+    if (!read_.count(name)) unknown += " --" + name;
+  if (!unknown.empty()) throw std::invalid_argument("unknown option(s):" + unknown);
+}
+
+}  // namespace sfgs::cli

@@ -1,0 +1,31 @@
+#pragma once
+// Command-line options of the sfgs subcommands: `--name value` pairs and `--flag` switches, each read once;
+// anything unread is reported as unknown, so a typo never passes silently.
+#include <cstdint>
+#include <map>
+#include <set>
+#include <string>
+#include <vector>
+
+namespace sfgs::cli {
+
+class Arguments {
+ public:
+  // argv after the subcommand; `flags` names the options that take no value.
+  Arguments(const std::vector<std::string>& args, const std::set<std::string>& flags);
+  std::string text(const std::string& name, const std::string& fallback);
+  std::string required(const std::string& name);
+  int64_t integer(const std::string& name, int64_t fallback, int64_t lo, int64_t hi);
+  double real(const std::string& name, double fallback, double lo, double hi);
+  bool flag(const std::string& name);
+  bool has(const std::string& name) const { return values_.count(name) > 0 || flags_.count(name) > 0; }
+  // Throws naming every option that was given but never read.
+  void finish() const;
+
+ private:
+  std::map<std::string, std::string> values_;
+  std::set<std::string> flags_;
+  std::set<std::string> read_;
+};
+
+}  // namespace sfgs::cli

@@ -1,0 +1,231 @@
+#include "data/synthetic.h"
+
+#include <array>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <random>
+
+#include <ATen/ATen.h>
+#include <ATen/CPUGeneratorImpl.h>
+
+#include "body/procedural_body.h"
+#include "body/smplx.h"
+#include "data/mesh_renderer.h"
+#include "io/npz.h"
+
+namespace sfgs::data {
+namespace fs = std::filesystem;
+
+namespace {
+
+constexpr double kTwoPi = 6.283185307179586;
+constexpr double kMotionHz = 0.5;            // base frequency of the motion
+constexpr int64_t kSynthBetas = 10;          // shape coefficients drawn for the subject
+constexpr int64_t kSynthExpressions = 10;    // expression coefficients animated
+constexpr double kSubjectFill = 0.8;         // share of the image height the subject spans
+constexpr double kFocalPerPixel = 1.2;       // focal length in units of the larger image side
+constexpr double kOrbitRadians = 0.6;        // the camera drifts +-this far around the subject
+constexpr double kHandShakeMetres = 0.02;    // amplitude of the camera's hand-held wobble
+constexpr int64_t kPatternSize = 256;        // side of the generated texture
+
+// Axis-angle components of the motion, in radians. Joint numbers follow SMPL-X (body_pose holds joints 1..21).
+void set_body(at::Tensor& body_pose, int64_t joint, int axis, double value) {
+  body_pose[joint - 1][axis] = float(value);
+}
+
+// A hand-held camera: a smooth, seeded wobble from a few incommensurate sinusoids.
+struct HandShake {
+  std::array<double, 9> phase, frequency;
+  explicit HandShake(uint64_t seed) {
+    std::mt19937_64 rng(seed);
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    for (size_t k = 0; k < phase.size(); ++k) {
+      phase[k] = kTwoPi * u(rng);
+      frequency[k] = 0.3 + 1.2 * u(rng);
+    }
+  }
+  std::array<double, 3> at(double t) const {
+    std::array<double, 3> offset{};
+    for (size_t k = 0; k < phase.size(); ++k) offset[k % 3] += kHandShakeMetres / 3 * std::sin(kTwoPi * frequency[k] * t + phase[k]);
+    return offset;
+  }
+};
+
+// OpenCV look-at: z towards the target, x to the right, y down, for a world whose up is +y.
+std::array<double, 16> look_at(const std::array<double, 3>& eye, const std::array<double, 3>& target) {
+  auto normalise = [](std::array<double, 3> v) {
+    const double n = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+    return std::array<double, 3>{v[0] / n, v[1] / n, v[2] / n};
+  };
+  auto cross = [](const std::array<double, 3>& a, const std::array<double, 3>& b) {
+    return std::array<double, 3>{a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
+  };
+  const auto z = normalise({target[0] - eye[0], target[1] - eye[1], target[2] - eye[2]});
+  const auto x = normalise(cross(z, {0.0, 1.0, 0.0}));
+  const auto y = cross(z, x);
+  std::array<double, 16> m{};
+  for (int c = 0; c < 3; ++c) {
+    m[size_t(c)] = x[size_t(c)];
+    m[size_t(4 + c)] = y[size_t(c)];
+    m[size_t(8 + c)] = z[size_t(c)];
+  }
+  for (int r = 0; r < 3; ++r) m[size_t(4 * r + 3)] = -(m[size_t(4 * r)] * eye[0] + m[size_t(4 * r + 1)] * eye[1] + m[size_t(4 * r + 2)] * eye[2]);
+  m[15] = 1;
+  return m;
+}
+
+// A colourful pattern with detail at several scales, so the avatar has something to learn on any UV layout.
+at::Tensor generated_texture() {
+  const at::Tensor u = (at::arange(kPatternSize, at::kFloat) + 0.5f) / kPatternSize;
+  const at::Tensor uu = u.unsqueeze(0).expand({kPatternSize, kPatternSize});
+  const at::Tensor vv = u.flip(0).unsqueeze(1).expand({kPatternSize, kPatternSize});
+  const at::Tensor checker = at::remainder(at::floor(uu * 16) + at::floor(vv * 16), 2.0);
+  const at::Tensor r = 0.55 + 0.3 * at::sin(kTwoPi * 3 * uu) + 0.1 * checker;
+  const at::Tensor g = 0.5 + 0.3 * at::sin(kTwoPi * 2 * vv + 1.0) - 0.1 * checker;
+  const at::Tensor b = 0.5 + 0.3 * at::cos(kTwoPi * 2 * (uu + vv));
+  return at::stack({r, g, b}, 2).clamp(0, 1).contiguous();
+}
+
+at::Tensor stack_field(const std::vector<SmplxPose>& poses, at::Tensor SmplxPose::*field) {
+  std::vector<at::Tensor> parts;
+  for (const SmplxPose& p : poses) parts.push_back((p.*field).reshape({-1}));
+  return at::stack(parts);
+}
+
+}  // namespace
+
+SmplxPose synthetic_pose(int64_t index, double frames_per_second, int64_t expression_count) {
+  const double t = double(index) / frames_per_second;
+  const double w = kTwoPi * kMotionHz;
+  SmplxPose p = SmplxPose::zeros(expression_count);
+  const double swing = std::sin(w * t);
+  // Arms lowered from the T-pose and swinging, elbows bending.
+  set_body(p.body_pose, 16, 2, -1.1 + 0.25 * swing);
+  set_body(p.body_pose, 16, 0, 0.3 * swing);
+  set_body(p.body_pose, 17, 2, 1.1 + 0.25 * swing);
+  set_body(p.body_pose, 17, 0, -0.3 * swing);
+  set_body(p.body_pose, 18, 1, -0.5 - 0.4 * std::sin(w * t + 1.0));
+  set_body(p.body_pose, 19, 1, 0.5 + 0.4 * std::sin(w * t + 2.0));
+  // Legs stepping, torso twisting, head nodding and turning.
+  set_body(p.body_pose, 1, 0, -0.35 * swing);
+  set_body(p.body_pose, 2, 0, 0.35 * swing);
+  set_body(p.body_pose, 4, 0, 0.4 + 0.35 * std::sin(w * t + kTwoPi / 4));
+  set_body(p.body_pose, 5, 0, 0.4 - 0.35 * std::sin(w * t + kTwoPi / 4));
+  for (int64_t spine : {3, 6, 9}) set_body(p.body_pose, spine, 1, 0.12 * std::sin(0.5 * w * t));
+  set_body(p.body_pose, 12, 0, 0.12 * std::sin(w * t + 0.5));
+  set_body(p.body_pose, 15, 1, 0.3 * std::sin(0.7 * w * t));
+  p.global_orient[1] = float(0.35 * std::sin(0.25 * w * t));
+  p.transl[0] = float(0.05 * std::sin(0.5 * w * t));
+  p.transl[1] = float(0.02 * std::sin(2 * w * t));
+  // Jaw opening, eyes looking around, fingers curling finger by finger, expressions changing.
+  p.jaw_pose[0] = float(0.12 + 0.12 * std::sin(1.3 * w * t));
+  p.left_eye_pose[1] = p.right_eye_pose[1] = float(0.2 * std::sin(0.9 * w * t));
+  for (int64_t k = 0; k < 15; ++k) {
+    const double curl = 0.45 + 0.45 * std::sin(1.5 * w * t + 0.6 * double(k / 3));
+    p.left_hand_pose[k][2] = float(-curl);
+    p.right_hand_pose[k][2] = float(curl);
+  }
+  for (int64_t k = 0; k < expression_count; ++k)
+    p.expression[k] = float(0.8 * std::sin(w * t * (0.7 + 0.13 * double(k)) + double(k)));
+  return p;
+}
+
+Dataset write_synthetic_video(const std::string& folder, const SyntheticVideoOptions& options) {
+  TORCH_CHECK(options.frames >= 1, "sfgs synth: --frames must be at least 1, got ", options.frames);
+  TORCH_CHECK(options.width >= 16 && options.height >= 16 && options.width <= kMaxImageSide &&
+                  options.height <= kMaxImageSide,
+              "sfgs synth: image sides must be in [16, ", kMaxImageSide, "], got ", options.width, " x ", options.height);
+  TORCH_CHECK(options.frames_per_second > 0, "sfgs synth: frames per second must be positive");
+  fs::create_directories(fs::path(folder) / "images");
+  fs::create_directories(fs::path(folder) / "masks");
+  fs::create_directories(fs::path(folder) / "meshes");
+
+  const body::SmplxModelData model = options.body_model.empty() ? body::make_procedural_body().smplx
+                                                                : body::SmplxModelData::load(options.body_model);
+  body::SmplxOptions layer_options;
+  layer_options.num_betas = std::min<int64_t>(kSynthBetas, model.shapedirs.size(2));
+  layer_options.num_expression_coeffs = std::min<int64_t>(kSynthExpressions, model.exprdirs.size(2));
+  layer_options.use_pca = false;
+  layer_options.flat_hand_mean = true;  // the motion's hand poses are the hands' rotations
+  const body::Smplx smplx(model, layer_options);
+  const int64_t expressions = smplx->options().num_expression_coeffs;
+
+  at::Generator gen = at::make_generator<at::CPUGeneratorImpl>(options.seed);
+  const at::Tensor betas = at::empty({smplx->options().num_betas}).normal_(0.0, 0.6, gen);
+  std::vector<SmplxPose> poses;
+  for (int64_t i = 0; i < options.frames; ++i) poses.push_back(synthetic_pose(i, options.frames_per_second, expressions));
+  body::SmplxInput input;
+  input.betas = betas.unsqueeze(0).expand({options.frames, -1}).contiguous();
+  input.global_orient = stack_field(poses, &SmplxPose::global_orient);
+  input.body_pose = stack_field(poses, &SmplxPose::body_pose);
+  input.jaw_pose = stack_field(poses, &SmplxPose::jaw_pose);
+  input.leye_pose = stack_field(poses, &SmplxPose::left_eye_pose);
+  input.reye_pose = stack_field(poses, &SmplxPose::right_eye_pose);
+  input.left_hand_pose = stack_field(poses, &SmplxPose::left_hand_pose);
+  input.right_hand_pose = stack_field(poses, &SmplxPose::right_hand_pose);
+  input.expression = stack_field(poses, &SmplxPose::expression);
+  input.transl = stack_field(poses, &SmplxPose::transl);
+  const at::Tensor vertices = smplx->forward(input).vertices.detach().to(at::kFloat);
+
+  TexturedMesh mesh;
+  mesh.faces = smplx->faces();
+  if (smplx->uvs().defined()) {
+    mesh.uvs = smplx->uvs();
+    mesh.face_uvs = smplx->uv_faces();
+    mesh.texture = options.texture.empty() ? generated_texture() : read_image_rgb(options.texture);
+  } else {
+    TORCH_CHECK(options.texture.empty(), "sfgs synth: '", options.body_model, "' has no UVs (vt/ft), so --texture cannot apply");
+  }
+
+  // Frame the subject of the first frame; the camera keeps that distance while it drifts.
+  const at::Tensor first = vertices[0];
+  const at::Tensor lo = std::get<0>(first.min(0)), hi = std::get<0>(first.max(0));
+  const at::Tensor centre = (lo + hi) / 2;
+  const double extent_y = (hi[1] - lo[1]).item<double>(), extent_x = (hi[0] - lo[0]).item<double>();
+  const double focal = kFocalPerPixel * double(std::max(options.width, options.height));
+  const double distance = focal * std::max(extent_y / (kSubjectFill * double(options.height)),
+                                           extent_x / (kSubjectFill * double(options.width)));
+  const std::array<double, 3> target{centre[0].item<double>(), centre[1].item<double>(), centre[2].item<double>()};
+  const HandShake shake(options.seed);
+  const double duration = double(options.frames) / options.frames_per_second;
+
+  Dataset d;
+  d.source = folder;
+  d.format = "sfgs";
+  d.sequences = {"synthetic"};
+  d.betas = betas;
+  const at::Tensor white = at::ones({3});
+  io::write_npy((fs::path(folder) / "meshes" / "faces.npy").string(), mesh.faces, options.overwrite);
+  for (int64_t i = 0; i < options.frames; ++i) {
+    const double t = double(i) / options.frames_per_second;
+    const double angle = kOrbitRadians * std::sin(kTwoPi * t / std::max(duration, 1e-9));
+    const auto wobble = shake.at(t);
+    const std::array<double, 3> eye{target[0] + distance * std::sin(angle) + wobble[0],
+                                    target[1] + 0.1 * distance * std::sin(0.5 * kTwoPi * t / std::max(duration, 1e-9)) + wobble[1],
+                                    target[2] + distance * std::cos(angle) + wobble[2]};
+    FrameRecord r;
+    char name[16];
+    std::snprintf(name, sizeof(name), "%06lld", static_cast<long long>(i));
+    r.name = name;
+    r.time = t;
+    r.camera = Camera::looking_forward(focal, options.width, options.height);
+    r.camera.world_to_camera = look_at(eye, {target[0] + 0.3 * wobble[0], target[1] + 0.3 * wobble[1], target[2]});
+    r.pose = poses[size_t(i)];
+    r.image_path = (fs::path(folder) / "images" / (r.name + ".png")).string();
+    r.mask_path = (fs::path(folder) / "masks" / (r.name + ".png")).string();
+    r.mesh_path = (fs::path(folder) / "meshes" / (r.name + ".npy")).string();
+    mesh.vertices = vertices[i];
+    const MeshImage frame = render_mesh(mesh, r.camera, white);
+    write_png(r.image_path, frame.image, options.overwrite);
+    write_png(r.mask_path, frame.mask, options.overwrite);
+    io::write_npy(r.mesh_path, vertices[i], options.overwrite);
+    const Split split = i % 10 == 4 ? Split::kVal : (i % 10 == 9 ? Split::kTest : Split::kTrain);
+    d.splits[split].push_back(i);
+    d.frames.push_back(std::move(r));
+  }
+  write_sfgs_dataset(d, folder, options.overwrite);
+  return d;
+}
+
+}  // namespace sfgs::data

@@ -1,0 +1,115 @@
+#include "model/mlp.h"
+
+#include <cmath>
+#include <string>
+#include <utility>
+
+#include <ATen/Functions.h>
+#include <ATen/TensorOperators.h>
+
+#include "common/constants.h"
+
+namespace sfgs::model {
+namespace {
+
+// torch.nn.Linear's default initialisation: weight and bias uniform in +-1/sqrt(fan_in).
+at::Tensor uniform_parameter(at::IntArrayRef shape, int64_t fan_in) {
+  const double bound = 1.0 / std::sqrt(static_cast<double>(fan_in));
+  return at::empty(shape).uniform_(-bound, bound);
+}
+
+}  // namespace
+
+MlpImpl::MlpImpl(MlpShape shape) : shape_(std::move(shape)) {
+  TORCH_CHECK(!shape_.input_widths.empty(), "Mlp: at least one input group is needed");
+  int64_t fan_in = 0;
+  for (int64_t w : shape_.input_widths) {
+    TORCH_CHECK(w > 0, "Mlp: input widths must be positive, got ", w);
+    fan_in += w;
+  }
+  TORCH_CHECK(shape_.output_width > 0, "Mlp: output width must be positive, got ", shape_.output_width);
+  for (int64_t w : shape_.hidden_widths) {
+    TORCH_CHECK(w > 0, "Mlp: hidden widths must be positive, got ", w);
+    TORCH_CHECK(!shape_.group_norm || w % kMlpGroupNormGroups == 0, "Mlp: hidden width ", w,
+                " must be a multiple of the ", kMlpGroupNormGroups, " GroupNorm groups");
+  }
+  const bool has_hidden = !shape_.hidden_widths.empty();
+  const int64_t first_width = has_hidden ? shape_.hidden_widths.front() : shape_.output_width;
+  const bool zero_first = !has_hidden && shape_.zero_output;
+
+  for (size_t g = 0; g < shape_.input_widths.size(); ++g) {
+    at::Tensor w = uniform_parameter({first_width, shape_.input_widths[g]}, fan_in);
+    if (zero_first) w.zero_();
+    input_weights_.push_back(register_parameter("input" + std::to_string(g) + "_weight", w));
+  }
+  at::Tensor bias = uniform_parameter({first_width}, fan_in);
+  if (zero_first) bias.zero_();
+  input_bias_ = register_parameter("input_bias", bias);
+
+  for (size_t k = 0; k < shape_.hidden_widths.size(); ++k) {
+    const int64_t width = shape_.hidden_widths[k];
+    if (shape_.group_norm) {
+      norm_weights_.push_back(register_parameter("norm" + std::to_string(k) + "_weight", at::ones({width})));
+      norm_biases_.push_back(register_parameter("norm" + std::to_string(k) + "_bias", at::zeros({width})));
+    }
+    if (k == 0) continue;
+    const int64_t previous = shape_.hidden_widths[k - 1];
+    hidden_weights_.push_back(
+        register_parameter("hidden" + std::to_string(k) + "_weight", uniform_parameter({width, previous}, previous)));
+    hidden_biases_.push_back(
+        register_parameter("hidden" + std::to_string(k) + "_bias", uniform_parameter({width}, previous)));
+  }
+  if (has_hidden) {
+    const int64_t last = shape_.hidden_widths.back();
+    at::Tensor w = uniform_parameter({shape_.output_width, last}, last);
+    at::Tensor b = uniform_parameter({shape_.output_width}, last);
+    if (shape_.zero_output) {
+      w.zero_();
+      b.zero_();
+    }
+    output_weight_ = register_parameter("output_weight", w);
+    output_bias_ = register_parameter("output_bias", b);
+  }
+}
+
+at::Tensor MlpImpl::project(size_t group, const at::Tensor& input) const {
+  TORCH_CHECK(group < input_weights_.size(), "Mlp::project: group ", group, " of ", input_weights_.size());
+  TORCH_CHECK(input.dim() == 2 && input.size(1) == shape_.input_widths[group], "Mlp::project: group ", group,
+              " must have shape (N, ", shape_.input_widths[group], "), got ", input.sizes());
+  return group == 0 ? at::linear(input, input_weights_[0], input_bias_) : at::linear(input, input_weights_[group]);
+}
+
+at::Tensor MlpImpl::activate(size_t layer, const at::Tensor& x) const {
+  if (!shape_.group_norm) return at::relu(x);
+  return at::relu(at::group_norm(x, kMlpGroupNormGroups, norm_weights_[layer], norm_biases_[layer],
+                                 kMlpGroupNormEpsilon, /*cudnn_enabled=*/true));
+}
+
+at::Tensor MlpImpl::finish(const at::Tensor& first_layer) const {
+  if (shape_.hidden_widths.empty()) return first_layer;
+  at::Tensor x = activate(0, first_layer);
+  for (size_t k = 1; k < shape_.hidden_widths.size(); ++k)
+    x = activate(k, at::linear(x, hidden_weights_[k - 1], hidden_biases_[k - 1]));
+  return at::linear(x, output_weight_, output_bias_);
+}
+
+at::Tensor MlpImpl::forward(const std::vector<at::Tensor>& inputs) const {
+  TORCH_CHECK(inputs.size() == input_weights_.size(), "Mlp: expected ", input_weights_.size(),
+              " input groups, got ", inputs.size());
+  at::Tensor first = project(0, inputs[0]);
+  for (size_t g = 1; g < inputs.size(); ++g) first = first + project(g, inputs[g]);
+  return finish(first);
+}
+
+int64_t MlpImpl::parameter_count(const MlpShape& shape) {
+  int64_t in = 0;
+  for (int64_t w : shape.input_widths) in += w;
+  int64_t count = 0;
+  for (int64_t w : shape.hidden_widths) {
+    count += (in + 1) * w + (shape.group_norm ? 2 * w : 0);
+    in = w;
+  }
+  return count + (in + 1) * shape.output_width;
+}
+
+}  // namespace sfgs::model

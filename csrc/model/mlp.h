@@ -1,0 +1,50 @@
+#pragma once
+// The multilayer perceptron every avatar module is built from. Its input may come in groups: the first layer is
+// then a sum of one linear map per group, which is the same function as one linear layer on the concatenated
+// groups, but lets a group that changes rarely (a point's fused feature) be projected once and reused while
+// another group (a pose) changes every frame.
+#include <cstdint>
+#include <vector>
+
+#include <torch/nn/module.h>
+#include <torch/nn/pimpl.h>
+
+namespace sfgs::model {
+
+struct MlpShape {
+  std::vector<int64_t> input_widths;   // one per input group, in the order of the concatenation
+  std::vector<int64_t> hidden_widths;  // each hidden layer: linear, GroupNorm when group_norm, ReLU
+  int64_t output_width = 0;            // no hidden layers: the first layer is the (linear) output
+  bool group_norm = false;             // GroupNorm(kMlpGroupNormGroups) before every ReLU, as the authors' heads
+  bool zero_output = false;            // the output layer starts at zero, so the network starts as the constant 0
+};
+
+// Parameters are initialised as torch.nn.Linear's (uniform in +-1/sqrt(fan in)); GroupNorm as identity.
+class MlpImpl : public torch::nn::Module {
+ public:
+  explicit MlpImpl(MlpShape shape);
+
+  // (N, input_widths[group]) -> (N, first layer width): group 0 carries the first layer's bias.
+  at::Tensor project(size_t group, const at::Tensor& input) const;
+  // The sum of the projections of every group -> (N, output_width).
+  at::Tensor finish(const at::Tensor& first_layer) const;
+  // All groups at once.
+  at::Tensor forward(const std::vector<at::Tensor>& inputs) const;
+
+  const MlpShape& shape() const { return shape_; }
+  // Parameters of a network of this shape (the formula docs/avatar.md gives).
+  static int64_t parameter_count(const MlpShape& shape);
+
+ private:
+  at::Tensor activate(size_t layer, const at::Tensor& x) const;
+
+  MlpShape shape_;
+  std::vector<at::Tensor> input_weights_;  // per group (first width, input width)
+  at::Tensor input_bias_;
+  std::vector<at::Tensor> hidden_weights_, hidden_biases_;  // layers after the first hidden one
+  std::vector<at::Tensor> norm_weights_, norm_biases_;      // per hidden layer, when group_norm
+  at::Tensor output_weight_, output_bias_;                  // undefined without hidden layers
+};
+TORCH_MODULE(Mlp);
+
+}  // namespace sfgs::model

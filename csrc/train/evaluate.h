@@ -1,0 +1,32 @@
+#pragma once
+// Evaluating and exporting a trained avatar: the ExAvatar/SFGS protocol over a dataset split, and the posed or
+// canonical Gaussians as a standard 3D Gaussian Splatting .ply.
+#include <string>
+#include <vector>
+
+#include "data/dataset.h"
+#include "metrics/evaluation.h"
+#include "model/avatar.h"
+
+namespace sfgs::train {
+
+struct AvatarEvaluation {
+  metrics::EvaluationSummary summary;
+  std::vector<std::string> frame_names;
+  std::vector<metrics::FrameMetrics> frames;
+  double render_milliseconds = 0;  // mean time of avatar forward + rasterisation per frame
+};
+
+// Renders every frame of the split on white and scores it against the ground truth composited on white outside the
+// evaluation mask (per-frame metrics averaged; tc-LPIPS within each sequence). `save_folder` (may be empty) receives
+// the rendered PNGs.
+AvatarEvaluation evaluate_avatar(const data::Dataset& dataset, data::Split split, model::Avatar& avatar,
+                                 const metrics::EvaluationOptions& options, const std::string& save_folder,
+                                 bool overwrite);
+
+// The avatar's Gaussians in one frame's pose (or its canonical pose when frame < 0) as a binary little-endian
+// 3DGS .ply (x y z, normals, f_dc_0..2, opacity logit, log scales, rotation quaternion), written atomically.
+void export_ply(model::Avatar& avatar, const data::Dataset* dataset, int64_t frame, const std::string& path,
+                bool overwrite);
+
+}  // namespace sfgs::train

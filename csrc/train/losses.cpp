@@ -1,0 +1,114 @@
+#include "train/losses.h"
+
+#include <ATen/ATen.h>
+
+#include "body/mesh.h"
+#include "body/parts.h"
+#include "metrics/image_metrics.h"
+
+namespace sfgs::train {
+namespace {
+
+// Per-Gaussian weights from per-part weights.
+at::Tensor part_weights(const at::Tensor& labels, const PartWeights& p, at::Device device) {
+  const at::Tensor table = at::tensor({p.body, p.face, p.hands, p.hands}, at::kFloat);
+  return table.index_select(0, labels.to(at::kLong).cpu()).to(device);
+}
+
+at::Tensor srgb_to_linear(const at::Tensor& c) {
+  const at::Tensor clamped = c.clamp(0, 1);
+  return at::where(clamped <= 0.04045, clamped / 12.92, at::pow((clamped + 0.055) / 1.055, 2.4));
+}
+
+at::Tensor lab_f(const at::Tensor& t) {
+  constexpr double kEpsilon = 216.0 / 24389.0;
+  // The cube root's slope is infinite at 0; the linear branch covers t <= kEpsilon, so clamping there is exact.
+  return at::where(t > kEpsilon, at::pow(t.clamp_min(kEpsilon), 1.0 / 3.0), (24389.0 / 27.0 * t + 16.0) / 116.0);
+}
+
+}  // namespace
+
+at::Tensor rgb_to_lab(const at::Tensor& rgb) {
+  TORCH_CHECK(rgb.size(-1) == 3, "rgb_to_lab: the last axis must hold RGB, got ", rgb.sizes());
+  const at::Tensor lin = srgb_to_linear(rgb);
+  const at::Tensor r = lin.select(-1, 0), g = lin.select(-1, 1), b = lin.select(-1, 2);
+  const at::Tensor x = (0.412453 * r + 0.357580 * g + 0.180423 * b) / 0.95047;
+  const at::Tensor y = 0.212671 * r + 0.715160 * g + 0.072169 * b;
+  const at::Tensor z = (0.019334 * r + 0.119193 * g + 0.950227 * b) / 1.08883;
+  const at::Tensor fx = lab_f(x), fy = lab_f(y), fz = lab_f(z);
+  return at::stack({(116.0 * fy - 16.0) / 100.0, 500.0 * (fx - fy) / 110.0, 200.0 * (fy - fz) / 110.0}, -1);
+}
+
+ImageLoss::ImageLoss(const LossWeights& weights, at::Device device) : weights_(weights) {
+  if (!weights.use_lpips) {
+    lpips_status_ = "LPIPS loss disabled by the config (loss.use_lpips: false)";
+    return;
+  }
+  const std::string dir = weights.lpips_weights.empty() ? metrics::default_lpips_weights_dir() : weights.lpips_weights;
+  try {
+    lpips_ = metrics::Lpips::load(metrics::LpipsNet::alex, metrics::lpips_weights_file(metrics::LpipsNet::alex, dir))
+                 .to(device, at::kFloat);
+    lpips_status_ = "LPIPS loss: AlexNet weights from " + dir;
+  } catch (const c10::Error& e) {
+    lpips_status_ = std::string("LPIPS loss skipped: ") + e.what_without_backtrace();
+  }
+}
+
+void ImageLoss::add_terms(const at::Tensor& prediction, const at::Tensor& target, LossTerms& terms) const {
+  TORCH_CHECK(prediction.sizes() == target.sizes() && prediction.dim() == 3 && prediction.size(2) == 3,
+              "ImageLoss: prediction and target must both be (H, W, 3), got ", prediction.sizes(), " and ",
+              target.sizes());
+  const at::Tensor l1 = (prediction - target).abs().mean();
+  const at::Tensor ssim = 1 - metrics::ssim(prediction, target, metrics::SsimBorder::zero);
+  at::Tensor photometric = l1 + ssim;
+  terms["l1"] = l1.detach();
+  terms["ssim"] = ssim.detach();
+  if (lpips_ && std::min(prediction.size(0), prediction.size(1)) >= lpips_->min_image_side()) {
+    const at::Tensor lpips = (*lpips_)(prediction, target);
+    terms["lpips"] = lpips.detach();
+    photometric = photometric + lpips;
+  }
+  terms["image"] = weights_.image * photometric;
+  terms["lab"] = weights_.lab * (rgb_to_lab(prediction) - rgb_to_lab(target)).abs().mean();
+  const auto dx = [](const at::Tensor& t) { return t.slice(1, 1) - t.slice(1, 0, -1); };
+  const auto dy = [](const at::Tensor& t) { return t.slice(0, 1) - t.slice(0, 0, -1); };
+  terms["gradient"] = weights_.gradient * ((dx(prediction) - dx(target)).abs().mean() + (dy(prediction) - dy(target)).abs().mean());
+}
+
+Regularisers::Regularisers(const LossWeights& weights, const at::Tensor& part_labels, const at::Tensor& faces,
+                           at::Device device)
+    : weights_(weights) {
+  mean_part_weight_ = part_weights(part_labels, weights.mean_offset_parts, device);
+  scale_part_weight_ = part_weights(part_labels, weights.scale_parts, device);
+  laplacian_part_weight_ = part_weights(part_labels, weights.laplacian_mean_parts, device);
+  const body::VertexNeighbors n = body::vertex_neighbors(faces, part_labels.size(0));
+  neighbours_ = n.indices.to(device);
+  neighbour_counts_ = n.counts.to(device);
+}
+
+void Regularisers::add_terms(const model::AvatarOutput& out, LossTerms& terms) const {
+  const at::Tensor offsets = out.mean_offset + out.structure_offset;
+  terms["mean_offset"] = weights_.mean_offset *
+                         ((out.mean_offset.square().sum(1) + out.structure_offset.square().sum(1)) * mean_part_weight_).mean();
+  const at::Tensor scales = out.log_scales.exp();
+  terms["scale"] = weights_.scale * ((scales.square() + out.scale_offset.square()) * scale_part_weight_).mean();
+  // The Laplacian is linear, so L(rest + offsets) - L(rest) = L(offsets): only the offsets' roughness is penalised.
+  const body::VertexNeighbors n{neighbours_, neighbour_counts_};
+  terms["laplacian_mean"] =
+      weights_.laplacian_mean * (body::uniform_laplacian(n, offsets).square().sum(1) * laplacian_part_weight_).mean();
+  terms["laplacian_scale"] = weights_.laplacian_scale * body::uniform_laplacian(n, scales.unsqueeze(1)).square().mean();
+}
+
+at::Tensor total_loss(LossTerms& terms) {
+  at::Tensor total;
+  for (const char* key : {"image", "lab", "gradient", "face", "mean_offset", "scale", "laplacian_mean", "laplacian_scale",
+                          "joint_drift"}) {
+    const auto it = terms.find(key);
+    if (it == terms.end()) continue;
+    total = total.defined() ? total + it->second : it->second;
+  }
+  terms["total"] = total;
+  return total;
+}
+
+}  // namespace sfgs::train

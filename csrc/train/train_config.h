@@ -1,0 +1,68 @@
+#pragma once
+// Everything a training run is configured by, read from YAML (configs/*.yaml). Unknown keys are errors, so a typo
+// never silently falls back to a default. docs/training.md lists every key.
+#include <string>
+#include <vector>
+
+#include "model/avatar.h"
+
+namespace sfgs::train {
+
+// Per body part weights of a regulariser (body::BodyPart order: body, face, left hand, right hand).
+struct PartWeights {
+  double body = 1, face = 1, hands = 1;
+};
+
+struct LossWeights {
+  double image = 0.8;       // lambda_1 on (L1 + (1 - SSIM) + LPIPS)
+  double lab = 0.3;         // lambda_a on L1 in CIELAB
+  double gradient = 0.01;   // lambda_g on L1 of image gradients
+  bool use_lpips = true;    // AlexNet LPIPS (the shared weights); skipped, with a log line, when unavailable
+  std::string lpips_weights;  // folder holding lpips_alex.safetensors; empty: the default search
+  double face = 0.8;        // face-texture loss; applied only when the dataset has a face texture
+  // Regularisers.
+  double mean_offset = 1.0;
+  PartWeights mean_offset_parts{10, 1, 1000};
+  double scale = 1.0;
+  PartWeights scale_parts{1, 10, 1000};
+  double laplacian_mean = 1e5;
+  PartWeights laplacian_mean_parts{1, 50, 1};
+  double laplacian_scale = 1e5;
+  double joint_drift = 1.0;
+};
+
+struct Schedule {
+  int64_t iterations = 3000;
+  int64_t warmup_iterations = 100;    // learning rates ramp linearly from 0
+  std::vector<double> decay_at{0.75, 0.95};    // fractions of the run
+  std::vector<double> decay_factor{0.1, 0.01};  // learning-rate factor from each point on
+  double learning_rate = 1e-3;        // feature planes, networks, embeddings
+  double colour_learning_rate = 1e-3;
+  double adam_epsilon = 1e-15;
+};
+
+// Which body model drives the avatar: empty smplx means the built-in procedural body (with its MANO-layout hands).
+struct BodyFiles {
+  std::string smplx;
+  std::string mano_left, mano_right, hand_vertex_ids, face_vertex_ids;  // optional
+};
+
+struct TrainConfig {
+  BodyFiles body;
+  model::AvatarConfig avatar;
+  LossWeights loss;
+  Schedule schedule;
+  uint64_t seed = 1;
+  std::string device = "cpu";
+  int64_t log_every = 10;
+  int64_t validate_every = 500;
+  int64_t checkpoint_every = 1000;
+  int64_t validation_frames = 4;  // validation PSNR over at most this many val frames
+
+  static TrainConfig from_yaml_file(const std::string& path);
+  static TrainConfig from_yaml_text(const std::string& text, const std::string& source = "<text>");
+  std::string to_yaml() const;
+  void validate() const;
+};
+
+}  // namespace sfgs::train

@@ -1,0 +1,237 @@
+#include "train/trainer.h"
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <sstream>
+
+#include <ATen/ATen.h>
+#include <nlohmann/json.hpp>
+#include <torch/optim/adam.h>
+#include <torch/serialize/archive.h>
+#include <unistd.h>
+
+#include "common/atomic_file.h"
+#include "metrics/image_metrics.h"
+#include "train/losses.h"
+#include "train/progress.h"
+
+namespace sfgs::train {
+namespace fs = std::filesystem;
+
+namespace {
+
+// Frames kept decoded in memory (8-bit) up to this many bytes; beyond it they are read from disk when drawn.
+constexpr int64_t kFrameCacheBytes = int64_t(2) << 30;
+
+at::Tensor string_tensor(const std::string& s) {
+  return at::from_blob(const_cast<char*>(s.data()), {int64_t(s.size())}, at::kByte).clone();
+}
+
+std::string tensor_string(const at::Tensor& t) {
+  const at::Tensor c = t.contiguous();
+  return std::string(reinterpret_cast<const char*>(c.data_ptr<uint8_t>()), size_t(c.numel()));
+}
+
+// Training frames as 8-bit tensors (image and mask in one (H, W, 4)), decoded once.
+class FrameCache {
+ public:
+  explicit FrameCache(const data::Dataset& dataset) : dataset_(dataset) {}
+  std::pair<at::Tensor, at::Tensor> get(int64_t index, at::Device device) {
+    auto it = frames_.find(index);
+    at::Tensor packed;
+    if (it != frames_.end()) {
+      packed = it->second;
+    } else {
+      const data::Frame f = dataset_.load(index);
+      packed = at::cat({f.image, f.mask.unsqueeze(2)}, 2).mul(255).round().to(at::kByte);
+      if (bytes_ + packed.numel() <= kFrameCacheBytes) {
+        bytes_ += packed.numel();
+        frames_[index] = packed;
+      }
+    }
+    const at::Tensor values = packed.to(device).to(at::kFloat).div_(255.0f);
+    return {values.slice(2, 0, 3), values.select(2, 3)};
+  }
+
+ private:
+  const data::Dataset& dataset_;
+  std::map<int64_t, at::Tensor> frames_;
+  int64_t bytes_ = 0;
+};
+
+struct Checkpoint {
+  int64_t iteration = 0;
+  std::string rng_state;
+};
+
+void save_checkpoint(const RunFolder& run, const TrainConfig& config, const data::Dataset& dataset,
+                     const model::Avatar& avatar, torch::optim::Adam& optimizer, const Checkpoint& state) {
+  torch::serialize::OutputArchive archive, avatar_archive, optimizer_archive;
+  avatar->save(avatar_archive);
+  optimizer.save(optimizer_archive);
+  archive.write("avatar", avatar_archive);
+  archive.write("optimizer", optimizer_archive);
+  archive.write("iteration", at::tensor({state.iteration}, at::kLong));
+  archive.write("rng", string_tensor(state.rng_state));
+  archive.write("config", string_tensor(config.to_yaml()));
+  archive.write("dataset", string_tensor(dataset.source));
+  archive.write("betas", dataset.betas.cpu());
+  std::ostringstream bytes;
+  archive.save_to(bytes);
+  const std::string data = bytes.str();
+  write_file_atomically(run.checkpoint_file(), std::vector<unsigned char>(data.begin(), data.end()), true);
+}
+
+double psnr_of(const at::Tensor& prediction, const at::Tensor& target) {
+  return metrics::psnr(prediction.detach(), target).item<double>();
+}
+
+}  // namespace
+
+double learning_rate_factor(const Schedule& schedule, int64_t iteration) {
+  double factor = 1.0;
+  if (schedule.warmup_iterations > 0 && iteration < schedule.warmup_iterations)
+    factor = double(iteration + 1) / double(schedule.warmup_iterations);
+  for (size_t i = 0; i < schedule.decay_at.size(); ++i)
+    if (double(iteration) >= schedule.decay_at[i] * double(schedule.iterations)) factor = schedule.decay_factor[i];
+  return factor;
+}
+
+TrainSummary train_avatar(const data::Dataset& dataset, const TrainConfig& config, const RunFolder& run,
+                          const TrainOptions& options) {
+  config.validate();
+  const std::vector<int64_t>& train_frames = dataset.split(data::Split::kTrain);
+  TORCH_CHECK(!train_frames.empty(), "dataset '", dataset.source, "' has no training frames");
+  const at::Device device(config.device == "cuda" ? at::kCUDA : at::kCPU);
+  TORCH_CHECK(!device.is_cuda() || cuda_backend_available(),
+              "run.device is cuda but this build of sfgs has no CUDA backend");
+  fs::create_directories(run.path);
+  const bool has_checkpoint = fs::exists(run.checkpoint_file());
+  TORCH_CHECK(!has_checkpoint || options.resume || options.overwrite, "run folder '", run.path,
+              "' already holds a checkpoint: pass --resume to continue it or --force to start afresh");
+  const bool resuming = has_checkpoint && options.resume;
+  const std::string config_text = config.to_yaml();
+  write_file_atomically(run.config_file(), std::vector<unsigned char>(config_text.begin(), config_text.end()), true);
+
+  torch::manual_seed(config.seed);
+  model::Avatar avatar = make_avatar(config, dataset.betas, device);
+  std::vector<torch::optim::OptimizerParamGroup> groups;
+  {
+    std::vector<at::Tensor> colour, other;
+    for (const auto& p : avatar->named_parameters()) {
+      (p.key().find("colour") != std::string::npos || p.key().find("rgb") != std::string::npos ? colour : other)
+          .push_back(p.value());
+    }
+    groups.emplace_back(other, std::make_unique<torch::optim::AdamOptions>(config.schedule.learning_rate));
+    if (!colour.empty())
+      groups.emplace_back(colour, std::make_unique<torch::optim::AdamOptions>(config.schedule.colour_learning_rate));
+  }
+  torch::optim::Adam optimizer(groups, torch::optim::AdamOptions(config.schedule.learning_rate).eps(config.schedule.adam_epsilon));
+  for (auto& g : optimizer.param_groups()) static_cast<torch::optim::AdamOptions&>(g.options()).eps(config.schedule.adam_epsilon);
+  std::vector<double> base_rates;
+  for (auto& g : optimizer.param_groups()) base_rates.push_back(static_cast<torch::optim::AdamOptions&>(g.options()).lr());
+
+  std::mt19937_64 rng(config.seed);
+  int64_t start = 0;
+  if (resuming) {
+    torch::serialize::InputArchive archive, avatar_archive, optimizer_archive;
+    archive.load_from(run.checkpoint_file());
+    archive.read("avatar", avatar_archive);
+    archive.read("optimizer", optimizer_archive);
+    avatar->load(avatar_archive);
+    optimizer.load(optimizer_archive);
+    at::Tensor iteration, rng_state;
+    archive.read("iteration", iteration);
+    archive.read("rng", rng_state);
+    start = iteration.item<int64_t>();
+    std::istringstream(tensor_string(rng_state)) >> rng;
+  } else {
+    std::remove(run.log_file().c_str());
+  }
+
+  const ImageLoss image_loss(config.loss, device);
+  const Regularisers regularisers(config.loss, avatar->part_labels(), avatar->faces(), device);
+  JsonLinesLog log(run.log_file());
+  log.write({{"event", "start"}, {"iteration", start}, {"dataset", dataset.source}, {"frames", dataset.size()},
+             {"gaussians", avatar->gaussian_count()}, {"device", config.device}, {"lpips", image_loss.lpips_status()},
+             {"face_loss", "skipped: the dataset has no face texture"}});
+  FrameCache cache(dataset);
+  std::uniform_int_distribution<size_t> pick(0, train_frames.size() - 1);
+  std::uniform_real_distribution<float> colour(0.0f, 1.0f);
+  ProgressBar bar(config.schedule.iterations, options.progress);
+  TrainSummary summary;
+  summary.validation_psnr = std::nan("");
+  const auto started = std::chrono::steady_clock::now();
+
+  const auto validate = [&](int64_t iteration) {
+    const std::vector<int64_t>& val = dataset.split(data::Split::kVal);
+    if (val.empty()) return;
+    at::NoGradGuard no_grad;
+    double sum = 0;
+    const int64_t count = std::min<int64_t>(config.validation_frames, int64_t(val.size()));
+    for (int64_t k = 0; k < count; ++k) {
+      const int64_t f = val[size_t(k * int64_t(val.size()) / count)];
+      const data::Frame frame = dataset.load(f);
+      const model::AvatarOutput out = avatar->forward(avatar_pose(dataset, f, device));
+      Gaussians g{out.means, {}, {}, out.covariances, out.opacities, out.colours};
+      const at::Tensor white = at::ones({3}, out.means.options());
+      const RenderResult r = render(g, white, render_camera(dataset.frames[size_t(f)]));
+      const at::Tensor mask = frame.eval_mask.to(device).unsqueeze(2);
+      const at::Tensor gt = frame.image.to(device) * mask + (1 - mask);
+      sum += psnr_of(r.image * mask + (1 - mask), gt);
+    }
+    summary.validation_psnr = sum / double(count);
+    log.write({{"event", "validation"}, {"iteration", iteration}, {"val_psnr", summary.validation_psnr}});
+  };
+
+  for (int64_t it = start; it < config.schedule.iterations; ++it) {
+    const double factor = learning_rate_factor(config.schedule, it);
+    for (size_t g = 0; g < base_rates.size(); ++g)
+      static_cast<torch::optim::AdamOptions&>(optimizer.param_groups()[g].options()).lr(base_rates[g] * factor);
+    const int64_t f = train_frames[pick(rng)];
+    const auto [image, mask] = cache.get(f, device);
+    const float bg_values[3] = {colour(rng), colour(rng), colour(rng)};
+    const at::Tensor background = at::tensor(std::vector<float>(bg_values, bg_values + 3), at::kFloat).to(device);
+    const at::Tensor m = mask.unsqueeze(2);
+    const at::Tensor target = image * m + background * (1 - m);
+
+    const model::AvatarOutput out = avatar->forward(avatar_pose(dataset, f, device));
+    Gaussians g{out.means, {}, {}, out.covariances, out.opacities, out.colours};
+    const RenderResult r = render(g, background, render_camera(dataset.frames[size_t(f)]));
+    LossTerms terms;
+    image_loss.add_terms(r.image, target, terms);
+    regularisers.add_terms(out, terms);
+    const at::Tensor loss = total_loss(terms);
+    optimizer.zero_grad();
+    loss.backward();
+    optimizer.step();
+
+    const int64_t done = it + 1;
+    if (done % config.log_every == 0 || done == config.schedule.iterations) {
+      nlohmann::json entry{{"event", "step"}, {"iteration", done}, {"lr_factor", factor},
+                           {"psnr", psnr_of(r.image, target)}, {"seconds", bar.elapsed_seconds()}};
+      for (const auto& [name, value] : terms) entry["loss"][name] = value.item<double>();
+      log.write(entry);
+      summary.final_loss = terms["total"].item<double>();
+      bar.update(done, summary.final_loss, entry["psnr"].get<double>());
+    }
+    if (done % config.validate_every == 0 || done == config.schedule.iterations) validate(done);
+    if (done % config.checkpoint_every == 0 || done == config.schedule.iterations) {
+      std::ostringstream rng_state;
+      rng_state << rng;
+      save_checkpoint(run, config, dataset, avatar, optimizer, Checkpoint{done, rng_state.str()});
+    }
+  }
+  bar.finish();
+  summary.iterations = config.schedule.iterations;
+  summary.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();
+  log.write({{"event", "end"}, {"iteration", summary.iterations}, {"seconds", summary.seconds},
+             {"val_psnr", summary.validation_psnr}});
+  return summary;
+}
+
+}  // namespace sfgs::train

@@ -1,0 +1,167 @@
+#!/usr/bin/env bash
+# Checks the CUDA backend on a GPU machine: configures and builds against the machine's CUDA LibTorch, runs the CUDA
+# tests, compute-sanitizer memcheck and racecheck on the small CudaSanitizer.* scenes, and the benchmark.
+#
+#   bash scripts/device_check.sh [build] [test] [sanitize] [bench] [profile]   (no argument: all, in this order)
+#
+# profile: GPU time of every kernel of three forward + backward steps at 167,390 and 1M Gaussians, 800 x 1200
+# (Nsight Compute, clocks left alone), as CSV.
+#
+# Logs go to $OUT (the device tool's output folder) or ./device-logs. The device image lacks some dependencies; they
+# travel in the git-ignored .device folder (name it in the device tool's carry):
+#   .device/include     /usr/include/glm, /usr/include/stb, /usr/include/nlohmann, /usr/include/zip.h and zipconf.h
+#   .device/lib         libzip.so.4.0 with its links libzip.so.4 and libzip.so
+#   .device/libdeps     libbz2.so.1.0 and libcrypto.so.3 (libzip's own dependencies), used only where the image
+#                       lacks them
+#   .device/googletest  /usr/src/googletest
+# The whole project is configured and built (sfgs_core holds every module). Should that build fail (another module's
+# dependency missing or a module not compiling), a splat-only CMake project (the op, both backends, the CUDA tests
+# and benchmark) is built instead so that the CUDA checks still run; the build step is reported failed either way.
+# SFGS_DEVICE_SPLAT_ONLY=1 builds only the splat-only project (minutes faster). Each step has a time
+# limit so that one call of the device tool (10 minutes) always returns its logs.
+set -uo pipefail
+
+root=$(cd "$(dirname "$0")/.." && pwd)
+out=${OUT:-$root/device-logs}
+build=${SFGS_DEVICE_BUILD:-/tmp/sfgs-device-build}
+jobs=${SFGS_DEVICE_JOBS:-16}
+mkdir -p "$out"
+steps=("$@")
+[ ${#steps[@]} -eq 0 ] && steps=(build test sanitize bench profile)
+failed=()
+
+# run NAME LIMIT_SECONDS COMMAND...: full log in $out/NAME.log, its end on stdout.
+run() {
+  local name=$1 limit=$2
+  shift 2
+  echo "== $name: $*"
+  local start=$SECONDS
+  timeout --kill-after=10 "$limit" "$@" >>"$out/$name.log" 2>&1
+  local rc=$?
+  echo "== $name: exit $rc after $((SECONDS - start)) s"
+  [ $rc -eq 0 ] || failed+=("$name")
+  return $rc
+}
+
+wants() {
+  local s
+  for s in "${steps[@]}"; do [ "$s" = "$1" ] && return 0; done
+  return 1
+}
+
+# Carried libraries: libzip always, its dependencies only where the image has none.
+if [ -d "$root/.device/lib" ]; then
+  (cd "$root/.device/lib" && [ -e libzip.so.4.0 ] && ln -sf libzip.so.4.0 libzip.so.4 && ln -sf libzip.so.4 libzip.so)
+  extra_libs=$root/.device/lib
+  for dep in libbz2.so.1.0 libcrypto.so.3; do
+    if ! ldconfig -p | grep -q "$dep" && [ -e "$root/.device/libdeps/$dep" ]; then
+      extra_libs=$extra_libs:$root/.device/libdeps
+      break
+    fi
+  done
+  export LD_LIBRARY_PATH=$extra_libs${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}
+fi
+
+{
+  nvidia-smi --query-gpu=name,driver_version,memory.total,clocks.sm,clocks.max.sm --format=csv
+  nvcc --version | tail -n 2
+  python3 -c 'import torch; print("torch", torch.__version__, "cuda", torch.version.cuda)'
+  cmake --version | head -n 1
+  echo "LD_LIBRARY_PATH=${LD_LIBRARY_PATH:-}"
+} >"$out/environment.log" 2>&1
+cat "$out/environment.log"
+
+# The splat-only fallback project: the op, both backends and the CUDA tests and benchmark, nothing else.
+write_splat_project() {
+  local dir=$1
+  mkdir -p "$dir"
+  cat >"$dir/CMakeLists.txt" <<EOF
+cmake_minimum_required(VERSION 3.22)
+project(sfgs_splat_only LANGUAGES CXX CUDA)
+set(CMAKE_CXX_STANDARD 17)
+set(CMAKE_CUDA_STANDARD 17)
+set(CMAKE_CUDA_ARCHITECTURES 90)
+find_package(Torch REQUIRED)
+add_library(sfgs_core STATIC $root/csrc/splat/splat.cpp $root/csrc/cpu/rasterize_cpu.cpp
+            $root/csrc/cuda/rasterize_kernels.cu $root/csrc/cuda/splat_cuda.cpp)
+target_include_directories(sfgs_core PUBLIC $root/csrc $root/.device/include)
+target_link_libraries(sfgs_core PUBLIC \${TORCH_LIBRARIES})
+target_compile_options(sfgs_core PRIVATE "\$<\$<COMPILE_LANGUAGE:CUDA>:--expt-relaxed-constexpr;-diag-suppress=20012;-lineinfo>")
+target_compile_definitions(sfgs_core PUBLIC SFGS_WITH_CUDA=1)
+set(INSTALL_GTEST OFF CACHE BOOL "" FORCE)
+add_subdirectory($root/.device/googletest \${CMAKE_BINARY_DIR}/googletest EXCLUDE_FROM_ALL)
+add_executable(sfgs_cuda_tests $root/tests/cuda/test_splat_cuda.cpp $root/tests/cpp/splat_test_utils.cpp)
+target_include_directories(sfgs_cuda_tests PRIVATE $root/tests/cpp)
+target_link_libraries(sfgs_cuda_tests PRIVATE sfgs_core gtest_main)
+add_executable(bench_splat_cuda $root/bench/bench_splat_cuda.cpp)
+target_link_libraries(bench_splat_cuda PRIVATE sfgs_core)
+set_target_properties(bench_splat_cuda PROPERTIES RUNTIME_OUTPUT_DIRECTORY \${CMAKE_BINARY_DIR}/bench)
+set_target_properties(sfgs_cuda_tests PROPERTIES RUNTIME_OUTPUT_DIRECTORY \${CMAKE_BINARY_DIR}/tests)
+EOF
+}
+
+tests=$build/tests/sfgs_cuda_tests
+bench=$build/bench/bench_splat_cuda
+if wants build; then
+  torch_prefix=$(python3 -c 'import torch; print(torch.utils.cmake_prefix_path)')
+  full_ok=0
+  if [ "${SFGS_DEVICE_SPLAT_ONLY:-0}" != 1 ]; then
+    run build 330 cmake -S "$root" -B "$build" -G Ninja -DCMAKE_BUILD_TYPE=Release \
+      -DCMAKE_PREFIX_PATH="$torch_prefix" -DSFGS_CUDA=ON -DSFGS_BUILD_PYTHON=OFF \
+      -DSFGS_EXTRA_INCLUDE_DIRS="$root/.device/include" -DSFGS_GTEST_SOURCE_DIR="$root/.device/googletest" &&
+      run build 330 cmake --build "$build" -j "$jobs" --target sfgs_cuda_tests bench_splat_cuda && full_ok=1
+    [ $full_ok -eq 1 ] || grep -E "error|Error|FAILED" "$out/build.log" | head -n 40
+  fi
+  if [ $full_ok -ne 1 ]; then
+    echo "== building the splat-only project"
+    splat=/tmp/sfgs-splat-build
+    write_splat_project "$splat/src"
+    run build-splat 300 cmake -S "$splat/src" -B "$splat" -G Ninja -DCMAKE_BUILD_TYPE=Release \
+      -DCMAKE_PREFIX_PATH="$torch_prefix" &&
+      run build-splat 300 cmake --build "$splat" -j "$jobs" --target sfgs_cuda_tests bench_splat_cuda ||
+      { grep -E "error|Error|FAILED" "$out/build-splat.log" | head -n 40; exit 1; }
+    tests=$splat/tests/sfgs_cuda_tests
+    bench=$splat/bench/bench_splat_cuda
+  fi
+fi
+
+if wants test; then
+  run test 150 env OMP_NUM_THREADS="$jobs" "$tests" --gtest_color=no
+  grep -E "^\[parity\]|^\[  FAILED|^\[  PASSED|Failure|Expected|Which is|actual|ms total\)" "$out/test.log" | cut -c1-400
+fi
+
+if wants sanitize; then
+  for tool in memcheck racecheck; do
+    run sanitize 150 compute-sanitizer --tool "$tool" --error-exitcode 99 "$tests" --gtest_filter='CudaSanitizer.*' \
+      --gtest_color=no
+  done
+  grep -E "ERROR SUMMARY|RACECHECK SUMMARY|^\[  PASSED|^\[  FAILED|Invalid|Race reported" "$out/sanitize.log" | head -n 20
+fi
+
+if wants bench; then
+  run bench 200 "$bench"
+  cat "$out/bench.log"
+fi
+
+if wants profile; then
+  ncu=$(command -v ncu || echo /usr/local/cuda/bin/ncu)
+  for n in 167390 1000000; do
+    run profile 120 "$ncu" --clock-control none --metrics gpu__time_duration.sum --csv \
+      "$bench" --profile "$n" 800 1200
+  done
+  grep -c '"gpu__time_duration.sum"' "$out/profile.log"
+  # The third step's projection, emission, tile sort and blends at 167,390 Gaussians, every section of the detailed
+  # set (throughput, occupancy, warp stalls, instruction mix), and the blends' machine code.
+  run profile-detail 150 "$ncu" --clock-control none --set detailed \
+    -k 'regex:blend_|sort_tiles|emit_tile|project_kernel' --launch-skip 10 --launch-count 5 \
+    "$bench" --profile 167390 800 1200
+  cuobjdump -sass "$bench" | awk '/Function : .*blend_(forward|backward)_kernelIfLi3E/ {p = 1} \
+    /Function : / && !/blend_(forward|backward)_kernelIfLi3E/ {p = 0} p' >"$out/sass.log" 2>&1
+  wc -l "$out/sass.log"
+fi
+
+if [ ${#failed[@]} -ne 0 ]; then
+  echo "device_check: failed steps: ${failed[*]}"
+  exit 1
+fi
+echo "device_check: all steps passed"

@@ -1,0 +1,142 @@
+// The avatar's MANO hand residual and its bodies: the residual is MANO's geometry against SMPL-X's in the canonical
+// frame relative to the wrist, carried by the skinning; the left-hand shapedirs repair; AvatarBody::load from the
+// official file layouts (the procedural body written out, and the CC0 Anny stand-ins when present).
+#include <string>
+
+#include <ATen/Functions.h>
+#include <ATen/TensorOperators.h>
+#include <gtest/gtest.h>
+
+#include "body/parts.h"
+#include "body/procedural_body.h"
+#include "body/skeleton.h"
+#include "model/avatar.h"
+#include "test_avatar_utils.h"
+#include "test_body_utils.h"
+
+namespace sfgs::testing {
+namespace {
+
+using model::Avatar;
+using model::AvatarBody;
+using model::AvatarConfig;
+using model::AvatarOutput;
+using model::AvatarPose;
+
+constexpr double kBump = 0.003;  // metres
+
+// The procedural body whose right MANO hand has a bump of kBump along +y on its 20 most distal vertices (none of
+// them used by the wrist regressor) and no shape space, so the fitted MANO shape is its template.
+struct BumpedHand {
+  AvatarBody body;
+  at::Tensor bumped;  // (20) MANO vertex indices
+};
+
+BumpedHand bumped_right_hand() {
+  BumpedHand b{procedural_avatar_body(), {}};
+  body::ManoModelData& right = b.body.mano_right;
+  const at::Tensor free_of_wrist = right.j_regressor[0].eq(0);
+  const at::Tensor x = right.v_template.select(1, 0).masked_fill(free_of_wrist.logical_not(), 1e9);
+  b.bumped = std::get<1>(x.topk(20, 0, /*largest=*/false));  // the right hand reaches towards -x
+  right.v_template = right.v_template.clone();
+  right.v_template.select(1, 1).index_add_(0, b.bumped, at::full({20}, kBump, at::kDouble));
+  right.shapedirs = at::zeros_like(right.shapedirs);
+  return b;
+}
+
+TEST(AvatarHands, ResidualIsMANOMinusSMPLXInTheCanonicalFrame) {
+  const BumpedHand b = bumped_right_hand();
+  AvatarConfig config = small_config();
+  config.flat_hand_mean = true;
+  Avatar avatar(b.body, at::zeros({10}), config);
+  const at::Tensor bumped = b.body.hand_vertex_ids.right.index_select(0, b.bumped);
+  at::Tensor expected = at::zeros({avatar->gaussian_count(), 3});
+  expected.select(1, 1).index_fill_(0, bumped, kBump);
+
+  // Rest pose: the residual is the bump, and the Gaussians sit on the bumped hand.
+  AvatarPose rest;
+  rest.left_hand_pose = at::zeros({15, 3});
+  rest.right_hand_pose = at::zeros({15, 3});
+  const AvatarOutput at_rest = avatar->forward(rest);
+  EXPECT_LT(max_abs_difference(at_rest.hand_residual, expected), 1e-6);
+  EXPECT_LT(max_abs_difference(at_rest.means - at_rest.posed_vertices, expected), 1e-6);
+
+  // Posed: the canonical residual is unchanged (the procedural hands have no pose correctives) and the skinning
+  // carries it rigidly with the fingertips.
+  const AvatarPose posed = test_pose(31, 0.5, /*hands=*/true);
+  const AvatarOutput out = avatar->forward(posed);
+  EXPECT_LT(max_abs_difference(out.hand_residual, expected), 1e-6);
+  const at::Tensor moved = (out.means - out.posed_vertices).index_select(0, bumped);
+  const at::Tensor length = moved.pow(2).sum(1).sqrt();  // blending two finger joints may shorten it a little
+  EXPECT_GT(length.min().item<double>(), 0.8 * kBump);
+  EXPECT_LT(length.max().item<double>(), kBump * (1 + 1e-4));
+  EXPECT_GT(max_abs_difference(moved, expected.index_select(0, bumped)), 1e-4);  // it turned with the fingers
+}
+
+TEST(AvatarHands, ResidualIgnoresWhereTheMANOModelSits) {
+  AvatarBody shifted = procedural_avatar_body();
+  for (body::ManoModelData* mano : {&shifted.mano_left, &shifted.mano_right})
+    mano->v_template = mano->v_template + at::tensor({0.05, -0.3, 0.2}, at::kDouble);
+  Avatar avatar(shifted, subject_betas(), small_config());
+  EXPECT_LT(avatar->forward(test_pose(32, 0.5, true)).hand_residual.abs().max().item<double>(), 1e-5);
+}
+
+TEST(AvatarHands, LeftShapedirsAreRepaired) {
+  AvatarBody broken = procedural_avatar_body();
+  broken.mano_left.shapedirs = broken.mano_left.shapedirs.clone();
+  broken.mano_left.shapedirs.select(1, 0).copy_(broken.mano_right.shapedirs.select(1, 0));
+  body::ManoModelData check = broken.mano_left;
+  ASSERT_TRUE(body::repair_left_mano_shapedirs(check, broken.mano_right));  // the official files' bug
+
+  Avatar good(procedural_avatar_body(), subject_betas(), small_config());
+  randomise_parameters(*good, 0.1, 33);
+  Avatar repaired(broken, subject_betas(), small_config());
+  copy_parameters(*good, *repaired);
+  const AvatarPose pose = test_pose(33, 0.5, true);
+  EXPECT_LT(max_abs_difference(good->forward(pose).hand_residual, repaired->forward(pose).hand_residual), 1e-6);
+}
+
+TEST(AvatarHands, LoadsTheOfficialFileLayouts) {
+  const ScratchFolder folder;
+  body::write_procedural_body(procedural_body(), folder.str(), /*overwrite=*/false);
+  const std::string smplx = folder.file("procedural_smplx.npz"), left = folder.file("procedural_mano_left.npz"),
+                    right = folder.file("procedural_mano_right.npz"),
+                    ids = folder.file("procedural_MANO_SMPLX_vertex_ids.npz"),
+                    face = folder.file("procedural_face_vertex_ids.npy");
+  const AvatarBody loaded = AvatarBody::load(smplx, left, right, ids, face);
+  ASSERT_TRUE(loaded.has_mano);
+  EXPECT_TRUE(loaded.hand_vertex_ids.left.equal(procedural_avatar_body().hand_vertex_ids.left));
+  EXPECT_TRUE(loaded.face_vertex_ids.equal(procedural_avatar_body().face_vertex_ids));
+
+  Avatar built(procedural_avatar_body(), subject_betas(), small_config());
+  randomise_parameters(*built, 0.1, 34);
+  Avatar from_files(loaded, subject_betas(), small_config());
+  copy_parameters(*built, *from_files);
+  const AvatarPose pose = test_pose(34, 0.5, true);
+  const AvatarOutput a = built->forward(pose), b = from_files->forward(pose);
+  EXPECT_LT(max_abs_difference(a.means, b.means), 1e-6);
+  EXPECT_LT(max_abs_difference(a.colours, b.colours), 1e-6);
+
+  expect_error([&] { AvatarBody::load(smplx, left, "", ids, ""); }, {"all three", "right ''"});
+}
+
+TEST(AvatarHands, AnnyStandInsGiveASmallHandResidual) {
+  SFGS_SKIP_WITHOUT_SHARED_BODIES();
+  const std::string dir = shared_bodies_folder();
+  const AvatarBody anny =
+      AvatarBody::load(dir + "/anny_smplx_layout.npz", dir + "/anny_mano_left.npz", dir + "/anny_mano_right.npz",
+                       dir + "/MANO_SMPLX_vertex_ids.npz", dir + "/FLAME_SMPLX_vertex_ids.npy");
+  Avatar avatar(anny, subject_betas(), small_config());
+  const AvatarOutput out = avatar->forward(test_pose(35, 0.5, true));
+  EXPECT_TRUE(at::isfinite(out.means).all().item<bool>());
+  // MANO's shape space fitted to the subject's hand leaves millimetres; the residual stays on the hands.
+  const double residual = out.hand_residual.abs().max().item<double>();
+  EXPECT_LT(residual, 5e-3);
+  const at::Tensor hands = avatar->part_labels().ge(static_cast<int64_t>(body::BodyPart::kLeftHand));
+  EXPECT_EQ(out.hand_residual.index_select(0, hands.logical_not().nonzero().flatten()).abs().max().item<double>(),
+            0.0);
+  EXPECT_LT(max_abs_difference(out.means, out.posed_vertices), residual + 1e-5);
+}
+
+}  // namespace
+}  // namespace sfgs::testing
