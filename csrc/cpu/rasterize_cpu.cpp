@@ -19,23 +19,11 @@
 namespace sfgs::splat::cpu {
 namespace {
 
-// Layout of one projected Gaussian in the saved (N, kProjectedWidth) tensor.
-enum ProjectedField { kMeanX, kMeanY, kConicA, kConicB, kConicC, kOpacity, kDepth, kLevel, kProjectedWidth };
 // Layout of one intersection's gradient slot, followed by the C feature gradients.
 enum SlotField { kGradMeanX, kGradMeanY, kGradConicA, kGradConicB, kGradConicC, kGradOpacity, kGradDepth, kSlotWidth };
 // Indices into ForwardOutputs::saved.
 enum SavedField { kSavedProjected, kSavedGaussianOffsets, kSavedIsectGaussian, kSavedTileOffsets, kSavedTileOrder,
                   kSavedFinalT, kSavedContributors, kSavedCount };
-
-template <typename T> ProjectedGaussian<T> load_projected(const T* p) {
-  ProjectedGaussian<T> g;
-  g.mean = Vec2<T>(p[kMeanX], p[kMeanY]);
-  g.conic = Vec3<T>(p[kConicA], p[kConicB], p[kConicC]);
-  g.opacity = p[kOpacity];
-  g.depth = p[kDepth];
-  g.level = p[kLevel];
-  return g;
-}
 
 template <typename T> Mat3<T> world_covariance(const SplatInputs& in, int64_t i, bool& usable) {
   Mat3<T> cov(T(0));
@@ -141,10 +129,7 @@ ForwardOutputs forward_typed(const SplatInputs& in, const CameraSpec& spec, cons
       if (touched == 0) continue;
       tiles[i] = t;
       tiles_touched[i] = touched;
-      T* p = proj + i * kProjectedWidth;
-      p[kMeanX] = g.mean[0]; p[kMeanY] = g.mean[1];
-      p[kConicA] = g.conic[0]; p[kConicB] = g.conic[1]; p[kConicC] = g.conic[2];
-      p[kOpacity] = g.opacity; p[kDepth] = g.depth; p[kLevel] = g.level;
+      store_projected(g, proj + i * kProjectedWidth);
       rad[2 * i] = pixel_radius(radius[0]);
       rad[2 * i + 1] = pixel_radius(radius[1]);
     }

@@ -194,15 +194,6 @@ template <typename T> __device__ bool features_finite(const SplatScene<T>& s, in
   return true;
 }
 
-template <typename T> __device__ ProjectedGaussian<T> load_projected(const T* p) {
-  ProjectedGaussian<T> g;
-  g.mean = Vec2<T>(p[kMeanX], p[kMeanY]);
-  g.conic = Vec3<T>(p[kConicA], p[kConicB], p[kConicC]);
-  g.opacity = p[kOpacity];
-  g.depth = p[kDepth];
-  g.level = p[kLevel];
-  return g;
-}
 
 __device__ bool rect_has_tiles(const TileRect& r) { return r.x0 <= r.x1 && r.y0 <= r.y1; }
 
@@ -253,15 +244,7 @@ __global__ void project_kernel(const SplatScene<T> s, const ForwardBuffers<T> b,
           if (masked) mask |= uint64_t(1) << ((ty - t.y0) * width + (tx - t.x0));
         }
     if (touched > 0) {
-      T* p = b.projected + i * kProjectedWidth;
-      p[kMeanX] = g.mean[0];
-      p[kMeanY] = g.mean[1];
-      p[kConicA] = g.conic[0];
-      p[kConicB] = g.conic[1];
-      p[kConicC] = g.conic[2];
-      p[kOpacity] = g.opacity;
-      p[kDepth] = g.depth;
-      p[kLevel] = g.level;
+      store_projected(g, b.projected + i * kProjectedWidth);
       rect = TileRect{int16_t(t.x0), int16_t(t.y0), int16_t(t.x1), int16_t(t.y1)};
       radius_x = pixel_radius(radius[0]);
       radius_y = pixel_radius(radius[1]);

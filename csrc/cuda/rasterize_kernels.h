@@ -40,8 +40,6 @@ namespace sfgs::splat::cuda_kernels {
 // allocation is released (the glue releases it when the backend call returns).
 using ScratchAllocator = std::function<void*(std::size_t bytes)>;
 
-// Layout of one projected Gaussian (the CPU backend uses the same one).
-enum ProjectedField : int { kMeanX, kMeanY, kConicA, kConicB, kConicC, kOpacity, kDepth, kLevel, kProjectedWidth };
 // Gradient w.r.t. one projected Gaussian, summed over the pixels it was blended into; the feature gradients follow
 // it in a deterministic-mode intersection slot.
 enum ProjectedGradField : int {

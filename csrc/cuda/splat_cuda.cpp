@@ -124,7 +124,7 @@ ForwardOutputs forward_typed(const SplatInputs& in, const CameraSpec& camera, co
   out.saved.resize(kSavedCount);
   static_assert(sizeof(kernels::TileRect) == 4 * sizeof(int16_t), "TileRect is saved as an (N, 4) int16 tensor");
   static_assert(sizeof(kernels::BinStats) == 2 * sizeof(int64_t), "BinStats is read as two int64 values");
-  const at::Tensor projected = out.saved[kSavedProjected] = at::empty({n, kernels::kProjectedWidth}, real);
+  const at::Tensor projected = out.saved[kSavedProjected] = at::empty({n, kProjectedWidth}, real);
   const at::Tensor tile_rects = out.saved[kSavedTileRects] = at::empty({n, 4}, real.dtype(at::kShort));
   const at::Tensor tile_offsets = out.saved[kSavedTileOffsets] = at::empty({tile_count(camera) + 1}, i64);
   const at::Tensor tile_order = out.saved[kSavedTileOrder] = at::empty({tile_count(camera)}, i32);

@@ -48,6 +48,30 @@ template <typename T> struct ProjectedGaussian {
   T level;         // sigma = 0.5 d^T conic d above which alpha < kMinAlpha: ln(opacity / kMinAlpha)
 };
 
+// How both backends store a projected Gaussian between projection and blending: kProjectedWidth values per row.
+enum ProjectedField : int { kMeanX, kMeanY, kConicA, kConicB, kConicC, kOpacity, kDepth, kLevel, kProjectedWidth };
+
+template <typename T> SFGS_HD ProjectedGaussian<T> load_projected(const T* p) {
+  ProjectedGaussian<T> g;
+  g.mean = Vec2<T>(p[kMeanX], p[kMeanY]);
+  g.conic = Vec3<T>(p[kConicA], p[kConicB], p[kConicC]);
+  g.opacity = p[kOpacity];
+  g.depth = p[kDepth];
+  g.level = p[kLevel];
+  return g;
+}
+
+template <typename T> SFGS_HD void store_projected(const ProjectedGaussian<T>& g, T* p) {
+  p[kMeanX] = g.mean[0];
+  p[kMeanY] = g.mean[1];
+  p[kConicA] = g.conic[0];
+  p[kConicB] = g.conic[1];
+  p[kConicC] = g.conic[2];
+  p[kOpacity] = g.opacity;
+  p[kDepth] = g.depth;
+  p[kLevel] = g.level;
+}
+
 // Inclusive pixel and tile rectangles touched by a projected Gaussian (empty when x0 > x1).
 struct PixelRect {
   int x0, y0, x1, y1;
@@ -348,41 +372,10 @@ SFGS_HD void project_gaussian_vjp(const PinholeCamera<T>& cam, const ProjectionS
 
 // ---- tiles --------------------------------------------------------------------------------------------------
 
-// Whether any pixel centre of the tile can have sigma <= level: the minimum of the quadratic over the rectangle of
-// the tile's (image-clipped) pixel centres, evaluated exactly on the rectangle's edges.
-template <typename T>
-SFGS_HD bool tile_touches(const ProjectedGaussian<T>& g, int tile_x, int tile_y, int width, int height) {
-  const int px0 = tile_x * kTileSize, py0 = tile_y * kTileSize;
-  const int px1 = (px0 + kTileSize < width ? px0 + kTileSize : width) - 1;
-  const int py1 = (py0 + kTileSize < height ? py0 + kTileSize : height) - 1;
-  const T x0 = T(px0) + T(kPixelCentre) - g.mean[0], x1 = T(px1) + T(kPixelCentre) - g.mean[0];
-  const T y0 = T(py0) + T(kPixelCentre) - g.mean[1], y1 = T(py1) + T(kPixelCentre) - g.mean[1];
-  if (x0 <= T(0) && x1 >= T(0) && y0 <= T(0) && y1 >= T(0)) return true;
-  const T a = g.conic[0], b = g.conic[1], c = g.conic[2];
-  const T threshold = g.level * T(1 + kTileTestSlack) + T(kTileTestSlack);
-  T best = T(INFINITY);
-  // Edges at fixed dx: minimise over dy in [y0, y1]; edges at fixed dy likewise.
-  const T xs[2] = {x0, x1};
-  const T ys[2] = {y0, y1};
-  for (int k = 0; k < 2; ++k) {
-    const T dx = xs[k];
-    const T dy = clamp_value(-b * dx / c, y0, y1);
-    const T s = T(0.5) * (a * dx * dx + c * dy * dy) + b * dx * dy;
-    best = s < best ? s : best;
-  }
-  for (int k = 0; k < 2; ++k) {
-    const T dy = ys[k];
-    const T dx = clamp_value(-b * dy / a, x0, x1);
-    const T s = T(0.5) * (a * dx * dx + c * dy * dy) + b * dx * dy;
-    best = s < best ? s : best;
-  }
-  return best <= threshold;
-}
-
-// tile_touches for any inclusive rectangle of pixel centres [px0, px1] x [py0, py1] (the caller clips it to the
-// image): whether any of its pixel centres can have sigma <= level. False guarantees that pair_alpha rejects every
-// pixel of the rectangle, with the same slack as the tile test; the CUDA blends use it to skip Gaussians for a
-// warp's block of pixels.
+// Whether any pixel centre of the inclusive rectangle [px0, px1] x [py0, py1] (clipped to the image by the caller)
+// can have sigma <= level: the minimum of the quadratic over the rectangle, exact on its edges. False guarantees
+// that pair_alpha rejects every pixel of the rectangle; kTileTestSlack keeps rounding from dropping one it accepts.
+// The CUDA blends also use it to skip Gaussians for a warp's block of pixels.
 template <typename T>
 SFGS_HD bool pixel_block_touched(const ProjectedGaussian<T>& g, int px0, int py0, int px1, int py1) {
   const T x0 = T(px0) + T(kPixelCentre) - g.mean[0], x1 = T(px1) + T(kPixelCentre) - g.mean[0];
@@ -407,6 +400,15 @@ SFGS_HD bool pixel_block_touched(const ProjectedGaussian<T>& g, int px0, int py0
     best = s < best ? s : best;
   }
   return best <= threshold;
+}
+
+// The tile test: pixel_block_touched on the tile's image-clipped pixel centres.
+template <typename T>
+SFGS_HD bool tile_touches(const ProjectedGaussian<T>& g, int tile_x, int tile_y, int width, int height) {
+  const int px0 = tile_x * kTileSize, py0 = tile_y * kTileSize;
+  const int px1 = (px0 + kTileSize < width ? px0 + kTileSize : width) - 1;
+  const int py1 = (py0 + kTileSize < height ? py0 + kTileSize : height) - 1;
+  return pixel_block_touched(g, px0, py0, px1, py1);
 }
 
 // ---- per pixel-Gaussian pair ----------------------------------------------------------------------------------
