@@ -120,9 +120,9 @@ int run_demo(Arguments& args) {
   args.finish();
   TORCH_CHECK(force || !fs::exists(out), "'", out, "' exists: pass --force to replace the demo there");
   data::SyntheticVideoOptions video;
-  video.frames = 100;
-  video.width = 128;
-  video.height = 128;
+  video.frames = 40;
+  video.width = 96;
+  video.height = 96;
   video.overwrite = true;
   const std::string data_folder = (fs::path(out) / "data").string();
   std::printf("sfgs demo 1/4: synthesising %lld frames of %lld x %lld into %s\n", (long long)video.frames,
@@ -138,7 +138,7 @@ int run_demo(Arguments& args) {
   std::printf("  %s\n", metrics::to_string(e.summary).c_str());
   std::printf("sfgs demo 4/4: rendering a novel-view, novel-pose video\n");
   const std::string render_folder = (fs::path(out) / "novel").string();
-  Arguments render_args({"--run", run.path, "--out", render_folder, "--frames", "48", "--force"}, {"force"});
+  Arguments render_args({"--run", run.path, "--out", render_folder, "--frames", "24", "--force"}, {"force"});
   run_render(render_args);
   std::printf("sfgs demo: done. Test PSNR %.2f dB, SSIM %.4f; renders in %s, video %s/render.mp4\n", e.summary.psnr,
               e.summary.ssim, (fs::path(out) / "test_renders").string().c_str(), render_folder.c_str());
