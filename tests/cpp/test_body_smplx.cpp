@@ -256,8 +256,8 @@ TEST(BodySmplx, OffsetsMoveTheTemplateAndTheJoints) {
 
 TEST(BodySmplx, ConvertingAModuleLeavesTheModelDataAndOtherModulesAlone) {
   const SmplxModelData d = tiny_model();
-  const Smplx converted(d, double_options(10, 10, true, false, 1)),
-      untouched(d, double_options(10, 10, true, false, 1));
+  Smplx converted(d, double_options(10, 10, true, false, 1));
+  const Smplx untouched(d, double_options(10, 10, true, false, 1));
   converted->to(at::kFloat);
   EXPECT_EQ(converted->dtype(), at::kFloat);
   EXPECT_EQ(untouched->dtype(), at::kDouble);
