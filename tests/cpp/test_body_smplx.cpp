@@ -254,27 +254,6 @@ TEST(BodySmplx, OffsetsMoveTheTemplateAndTheJoints) {
   EXPECT_LT(max_error(out.joints, d.j_regressor.matmul(d.v_template + in.vertex_offsets) + in.joint_offsets), 1e-12);
 }
 
-TEST(BodySmplx, ConvertingAModuleLeavesTheModelDataAndOtherModulesAlone) {
-  const SmplxModelData d = tiny_model();
-  Smplx converted(d, double_options(10, 10, true, false, 1));
-  const Smplx untouched(d, double_options(10, 10, true, false, 1));
-  converted->to(at::kFloat);
-  EXPECT_EQ(converted->dtype(), at::kFloat);
-  EXPECT_EQ(untouched->dtype(), at::kDouble);
-  for (const at::Tensor* t : {&d.v_template, &d.j_regressor, &d.weights, &d.posedirs, &d.hands_mean_left})
-    EXPECT_EQ(t->scalar_type(), at::kDouble);
-  SmplxInput in = random_input(2, 10, 10, 6, 0.3, 45), as_float;
-  for (const auto& [source, target] :
-       std::vector<std::pair<const at::Tensor*, at::Tensor*>>{{&in.betas, &as_float.betas},
-                                                              {&in.body_pose, &as_float.body_pose},
-                                                              {&in.left_hand_pose, &as_float.left_hand_pose},
-                                                              {&in.expression, &as_float.expression}}) {
-    *target = source->to(at::kFloat);
-  }
-  in.global_orient = in.jaw_pose = in.leye_pose = in.reye_pose = in.right_hand_pose = in.transl = at::Tensor();
-  EXPECT_LT(max_error(converted->forward(as_float).vertices.to(at::kDouble), untouched->forward(in).vertices), 1e-5);
-}
-
 TEST(BodySmplx, BatchesAreIndependent) {
   const Smplx model(procedural_body().smplx, double_options(10, 8, true, false));
   const SmplxInput in = random_input(3, 10, 8, 6, 0.5, 41);
