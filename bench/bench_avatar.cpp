@@ -136,15 +136,17 @@ int main(int argc, char** argv) {
   config.subdivision_levels = args.levels >= 0 ? args.levels : closest_level(body.smplx);
   const auto build_start = std::chrono::steady_clock::now();
   sfgs::model::Avatar avatar(body, at::zeros({10}), config);
-  const double build_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - build_start).count();
+  const double build_ms =
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - build_start).count();
   avatar->to(device);
 
   int64_t parameters = 0;
   for (const at::Tensor& p : avatar->parameters()) parameters += p.numel();
-  std::printf("sfgs avatar benchmark: procedural body (%ld vertices) subdivided %ld times = %ld Gaussians "
-              "(SMPL-X at 2 levels: %ld), %s, %d threads, median (min-max) of %d runs after 1 warm-up\n",
-              long(body.smplx.v_template.size(0)), long(config.subdivision_levels), long(avatar->gaussian_count()),
-              long(kSmplxPointCount), args.device.c_str(), at::get_num_threads(), args.repeats);
+  std::printf(
+      "sfgs avatar benchmark: procedural body (%ld vertices) subdivided %ld times = %ld Gaussians "
+      "(SMPL-X at 2 levels: %ld), %s, %d threads, median (min-max) of %d runs after 1 warm-up\n",
+      long(body.smplx.v_template.size(0)), long(config.subdivision_levels), long(avatar->gaussian_count()),
+      long(kSmplxPointCount), args.device.c_str(), at::get_num_threads(), args.repeats);
   std::printf("built in %.0f ms; parameters: %ld (formula: %ld)\n", build_ms, long(parameters),
               long(sfgs::model::parameter_count(config, body.has_mano)));
   for (const auto& child : avatar->named_children()) {

@@ -1,9 +1,14 @@
-// Python bindings: `import sfgs` exposes the splatting op; tensors it returns carry the C++ autograd node, so
-// torch.autograd (gradcheck included) works through it.
+// Python bindings: `import sfgs` exposes the splatting op and trained avatars (load a run, pose it, render it);
+// tensors it returns carry the C++ autograd nodes, so torch.autograd (gradcheck included) works through them.
+#include <algorithm>
+#include <optional>
+
 #include <torch/extension.h>
 
+#include "data/dataset.h"
 #include "scene/builtin_scene.h"
 #include "splat/splat.h"
+#include "train/run_folder.h"
 
 namespace py = pybind11;
 
@@ -36,6 +41,144 @@ py::dict render(const at::Tensor& means, const at::Tensor& opacities, const at::
   out["visible"] = r.visible;
   return out;
 }
+
+// The pose fields an avatar takes, by their SMPL-X names.
+constexpr const char* kPoseKeys[] = {"global_orient", "body_pose", "jaw_pose", "left_eye_pose", "right_eye_pose",
+                                     "left_hand_pose", "right_hand_pose", "expression", "transl"};
+
+at::Tensor* pose_field(sfgs::model::AvatarPose& p, const std::string& key) {
+  if (key == "global_orient") return &p.global_orient;
+  if (key == "body_pose") return &p.body_pose;
+  if (key == "jaw_pose") return &p.jaw_pose;
+  if (key == "left_eye_pose") return &p.left_eye_pose;
+  if (key == "right_eye_pose") return &p.right_eye_pose;
+  if (key == "left_hand_pose") return &p.left_hand_pose;
+  if (key == "right_hand_pose") return &p.right_hand_pose;
+  if (key == "expression") return &p.expression;
+  if (key == "transl") return &p.transl;
+  return nullptr;
+}
+
+py::dict camera_dict(const sfgs::Camera& c) {
+  py::dict d;
+  d["world_to_camera"] = at::tensor(std::vector<double>(c.world_to_camera.begin(), c.world_to_camera.end()),
+                                    at::kDouble)
+                             .view({4, 4});
+  d["fx"] = c.fx;
+  d["fy"] = c.fy;
+  d["cx"] = c.cx;
+  d["cy"] = c.cy;
+  d["width"] = c.width;
+  d["height"] = c.height;
+  return d;
+}
+
+sfgs::Camera camera_from_dict(const py::dict& d) {
+  for (const char* key : {"world_to_camera", "fx", "fy", "cx", "cy", "width", "height"})
+    TORCH_CHECK(d.contains(key), "camera: expected a dict with world_to_camera, fx, fy, cx, cy, width and height; '",
+                key, "' is missing");
+  return sfgs::Camera::from_tensor(d["world_to_camera"].cast<at::Tensor>(), d["fx"].cast<double>(),
+                                   d["fy"].cast<double>(), d["cx"].cast<double>(), d["cy"].cast<double>(),
+                                   d["width"].cast<int64_t>(), d["height"].cast<int64_t>());
+}
+
+// A trained avatar for experiments: the run's checkpoint with its config, and the dataset it was trained on
+// (read when first needed).
+class TrainedAvatar {
+ public:
+  TrainedAvatar(const std::string& run, const std::string& device)
+      : device_(device == "cuda" ? at::kCUDA : at::kCPU) {
+    TORCH_CHECK(device == "cpu" || device == "cuda", "load_avatar: device must be 'cpu' or 'cuda', got '", device, "'");
+    TORCH_CHECK(device_.is_cpu() || sfgs::cuda_backend_available(),
+                "load_avatar: device 'cuda' but this build of sfgs has no CUDA backend");
+    t_ = sfgs::train::load_trained_avatar(sfgs::train::RunFolder{run}, device_);
+    t_.avatar->eval();
+  }
+
+  // Posed Gaussians and the canonical quantities, as a dict of tensors.
+  py::dict gaussians(const py::dict& pose) {
+    const sfgs::model::AvatarOutput o = t_.avatar->forward(to_pose(pose));
+    py::dict d;
+    d["means"] = o.means;
+    d["covariances"] = o.covariances;
+    d["opacities"] = o.opacities;
+    d["colours"] = o.colours;
+    d["canonical_means"] = o.canonical_means;
+    d["log_scales"] = o.log_scales;
+    d["posed_vertices"] = o.posed_vertices;
+    return d;
+  }
+
+  py::dict render(const py::dict& camera, const py::dict& pose, const c10::optional<at::Tensor>& background) {
+    const sfgs::model::AvatarOutput o = t_.avatar->forward(to_pose(pose));
+    const at::Tensor bg = background ? background->to(o.means.options()) : at::ones({3}, o.means.options());
+    const sfgs::RenderResult r =
+        sfgs::render({o.means, {}, {}, o.covariances, o.opacities, o.colours}, bg, camera_from_dict(camera));
+    py::dict d;
+    d["image"] = r.image;
+    d["alpha"] = r.alpha;
+    d["depth"] = r.depth;
+    return d;
+  }
+
+  // Frame `index` of the training dataset: its pose (with time), camera and split.
+  py::dict frame(int64_t index) {
+    const sfgs::data::Dataset& d = dataset();
+    TORCH_CHECK(index >= 0 && index < d.size(), "frame: index must be in [0, ", d.size(), "), got ", index);
+    sfgs::model::AvatarPose p = sfgs::train::avatar_pose(d, index, at::kCPU);
+    py::dict pose;
+    for (const char* key : kPoseKeys) {
+      const at::Tensor* t = pose_field(p, key);
+      if (t->defined()) pose[key] = *t;
+    }
+    pose["time"] = p.time;
+    py::dict out;
+    out["pose"] = pose;
+    out["camera"] = camera_dict(sfgs::train::render_camera(d.frames[size_t(index)]));
+    const char* names[] = {"train", "val", "test"};
+    for (const auto split : {sfgs::data::Split::kTrain, sfgs::data::Split::kVal, sfgs::data::Split::kTest}) {
+      const auto& members = d.split(split);
+      if (std::find(members.begin(), members.end(), index) != members.end()) out["split"] = names[int(split)];
+    }
+    return out;
+  }
+
+  int64_t frame_count() { return dataset().size(); }
+  void set_cached(bool cached) {
+    if (cached)
+      t_.avatar->cache_static_features();
+    else
+      t_.avatar->clear_cache();
+  }
+
+  const sfgs::train::TrainedAvatar& trained() const { return t_; }
+
+ private:
+  sfgs::model::AvatarPose to_pose(const py::dict& pose) const {
+    sfgs::model::AvatarPose p;
+    for (const auto& item : pose) {
+      const std::string key = item.first.cast<std::string>();
+      if (key == "time") {
+        p.time = item.second.cast<double>();
+        continue;
+      }
+      at::Tensor* field = pose_field(p, key);
+      TORCH_CHECK(field, "pose: unknown key '", key, "'; expected time or one of global_orient, body_pose, jaw_pose, ",
+                  "left_eye_pose, right_eye_pose, left_hand_pose, right_hand_pose, expression, transl");
+      *field = item.second.cast<at::Tensor>().to(device_);
+    }
+    return p;
+  }
+
+  const sfgs::data::Dataset& dataset() {
+    if (!dataset_) dataset_ = sfgs::data::read_dataset(t_.dataset);
+    return *dataset_;
+  }
+
+  at::Device device_;
+  sfgs::train::TrainedAvatar t_;
+  std::optional<sfgs::data::Dataset> dataset_;
+};
 
 }  // namespace
 
@@ -73,6 +216,29 @@ Differentiable w.r.t. means, scales, rotations, covariances, opacities, features
       },
       py::arg("count") = 20000, py::arg("width") = 320, py::arg("height") = 240, py::arg("seed") = 7,
       py::arg("double_precision") = false, "The built-in demo scene as a dict of tensors and camera values");
+  py::class_<TrainedAvatar>(m, "Avatar", "A trained SFGS avatar: pose it, render it, read its training frames")
+      .def(py::init<const std::string&, const std::string&>(), py::arg("run"), py::arg("device") = "cpu")
+      .def("gaussians", &TrainedAvatar::gaussians, py::arg("pose") = py::dict(),
+           R"(Posed Gaussians for a pose dict (SMPL-X names: global_orient (3), body_pose (21,3), jaw_pose, left_eye_pose,
+right_eye_pose (3), left_hand_pose, right_hand_pose (15,3) axis-angle, expression (E), transl (3), time in [-1, 1];
+missing keys are at rest). Returns means (N,3), covariances (N,6), opacities (N), colours (N,3), canonical_means,
+log_scales, posed_vertices. Differentiable w.r.t. the pose tensors unless torch.no_grad() is active.)")
+      .def("render", &TrainedAvatar::render, py::arg("camera"), py::arg("pose") = py::dict(),
+           py::arg("background") = py::none(),
+           R"(Render the avatar in `pose` from `camera` (a dict: world_to_camera (4,4), fx, fy, cx, cy, width, height;
+frame(i)["camera"] gives one). Background white unless given (3). Returns image (H,W,3), alpha, depth.)")
+      .def("frame", &TrainedAvatar::frame, py::arg("index"),
+           "Training-dataset frame `index`: {'pose': dict, 'camera': dict, 'split': 'train'|'val'|'test'}")
+      .def_property_readonly("frame_count", &TrainedAvatar::frame_count)
+      .def("set_cached", &TrainedAvatar::set_cached, py::arg("cached"),
+           "Cache the pose-independent features for fast inference (True) or drop the cache (False)")
+      .def_property_readonly("iteration", [](const TrainedAvatar& a) { return a.trained().iteration; })
+      .def_property_readonly("gaussian_count", [](const TrainedAvatar& a) { return a.trained().avatar->gaussian_count(); })
+      .def_property_readonly("config_yaml", [](const TrainedAvatar& a) { return a.trained().config.to_yaml(); })
+      .def_property_readonly("dataset_path", [](const TrainedAvatar& a) { return a.trained().dataset; });
+  m.def(
+      "load_avatar", [](const std::string& run, const std::string& device) { return TrainedAvatar(run, device); },
+      py::arg("run"), py::arg("device") = "cpu", "Load a trained avatar from a run folder (sfgs train --out RUN)");
   m.attr("LOW_PASS_VARIANCE_PX2") = sfgs::kLowPassVariancePx2;
   m.attr("MIN_ALPHA") = sfgs::kMinAlpha;
   m.attr("MAX_ALPHA") = sfgs::kMaxAlpha;

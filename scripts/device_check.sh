@@ -2,7 +2,8 @@
 # Checks the CUDA backend on a GPU machine: configures and builds against the machine's CUDA LibTorch, runs the CUDA
 # tests, compute-sanitizer memcheck and racecheck on the small CudaSanitizer.* scenes, and the benchmark.
 #
-#   bash scripts/device_check.sh [build] [test] [sanitize] [bench] [profile]   (no argument: all, in this order)
+#   bash scripts/device_check.sh [build] [test] [sanitize] [bench] [profile] [avatar] [train]
+#   (no argument: the first five, in this order)
 #
 # profile: GPU time of every kernel of three forward + backward steps at 167,390 and 1M Gaussians, 800 x 1200
 # (Nsight Compute, clocks left alone), as CSV.
@@ -14,6 +15,13 @@
 #   .device/libdeps     libbz2.so.1.0 and libcrypto.so.3 (libzip's own dependencies), used only where the image
 #                       lacks them
 #   .device/googletest  /usr/src/googletest
+#   .device/include/yaml-cpp and .device/lib/libyaml-cpp.so.0.7.0 (the training configs)
+#   .device/shared      ../shared/bodies and ../shared/lpips (avatar and train steps)
+#
+# avatar: the avatar benchmark on the GPU and the avatar and trainer tests (CPU, with the GPU build).
+# train: synthesise the Anny scene (SFGS_DEVICE_TRAIN_SIZE, default 800x1200; SFGS_DEVICE_TRAIN_FRAMES, default
+# 100) and train, evaluate (with LPIPS) and render it on CUDA with configs/device_anny.yaml
+# (SFGS_DEVICE_TRAIN_ITERATIONS overrides its iterations).
 # The whole project is configured and built (sfgs_core holds every module). Should that build fail (another module's
 # dependency missing or a module not compiling), a splat-only CMake project (the op, both backends, the CUDA tests
 # and benchmark) is built instead so that the CUDA checks still run; the build step is reported failed either way.
@@ -52,6 +60,8 @@ wants() {
 # Carried libraries: libzip always, its dependencies only where the image has none.
 if [ -d "$root/.device/lib" ]; then
   (cd "$root/.device/lib" && [ -e libzip.so.4.0 ] && ln -sf libzip.so.4.0 libzip.so.4 && ln -sf libzip.so.4 libzip.so)
+  (cd "$root/.device/lib" && [ -e libyaml-cpp.so.0.7.0 ] && ln -sf libyaml-cpp.so.0.7.0 libyaml-cpp.so.0.7 &&
+    ln -sf libyaml-cpp.so.0.7 libyaml-cpp.so)
   extra_libs=$root/.device/lib
   for dep in libbz2.so.1.0 libcrypto.so.3; do
     if ! ldconfig -p | grep -q "$dep" && [ -e "$root/.device/libdeps/$dep" ]; then
@@ -109,7 +119,8 @@ if wants build; then
     run build 330 cmake -S "$root" -B "$build" -G Ninja -DCMAKE_BUILD_TYPE=Release \
       -DCMAKE_PREFIX_PATH="$torch_prefix" -DSFGS_CUDA=ON -DSFGS_BUILD_PYTHON=OFF \
       -DSFGS_EXTRA_INCLUDE_DIRS="$root/.device/include" -DSFGS_GTEST_SOURCE_DIR="$root/.device/googletest" &&
-      run build 330 cmake --build "$build" -j "$jobs" --target sfgs_cuda_tests bench_splat_cuda && full_ok=1
+      run build 400 cmake --build "$build" -j "$jobs" --target sfgs_cuda_tests bench_splat_cuda sfgs sfgs_tests \
+        bench_avatar -- -k 0 && full_ok=1
     [ $full_ok -eq 1 ] || grep -E "error|Error|FAILED" "$out/build.log" | head -n 40
   fi
   if [ $full_ok -ne 1 ]; then
@@ -158,6 +169,61 @@ if wants profile; then
   cuobjdump -sass "$bench" | awk '/Function : .*blend_(forward|backward)_kernelIfLi3E/ {p = 1} \
     /Function : / && !/blend_(forward|backward)_kernelIfLi3E/ {p = 0} p' >"$out/sass.log" 2>&1
   wc -l "$out/sass.log"
+fi
+
+if wants avatar; then
+  run avatar 200 "$build/bench/bench_avatar" --device cuda --repeats 20
+  run avatar 200 "$build/bench/bench_avatar" --device cuda --repeats 20 --levels 1
+  cat "$out/avatar.log"
+  run avatar-tests 200 env SFGS_SHARED_DIR="$root/.device/shared" OMP_NUM_THREADS="$jobs" "$build/tests/sfgs_tests" \
+    --gtest_color=no
+  grep -E "^\[  FAILED|^\[  PASSED|Failure|^\[ RUN" "$out/avatar-tests.log" | tail -n 20
+  if grep -q "Segmentation\|exit 139" "$out/avatar-tests.log" || ! grep -q "PASSED" "$out/avatar-tests.log"; then
+    command -v gdb >/dev/null && gdb -batch -ex run -ex bt --args "$build/tests/sfgs_tests" --gtest_filter='Trainer*' \
+      2>&1 | grep -E "^#|signal" | head -n 30
+    for t in Trainer.ResumedRunEqualsUninterruptedRun Trainer.ErrorCurveHoldsEveryValidation \
+      Trainer.NeverOverwritesARunUnasked; do
+      "$build/tests/sfgs_tests" --gtest_filter="$t" >"$out/one-test.log" 2>&1
+      echo "$t: exit $?"
+      tail -n 4 "$out/one-test.log"
+    done
+  fi
+fi
+
+if wants train; then
+  shared=$root/.device/shared
+  export SFGS_SHARED_DIR=$shared  # LPIPS weights for the loss and the evaluation
+  size=${SFGS_DEVICE_TRAIN_SIZE:-800x1200}
+  scene=/tmp/sfgs-anny
+  run train-synth 240 "$build/sfgs" synth --out "$scene/data" --body "$shared/bodies/anny_smplx_layout.npz" \
+    --texture "$shared/bodies/anny_albedo.png" --frames "${SFGS_DEVICE_TRAIN_FRAMES:-80}" --width "${size%x*}" \
+    --height "${size#*x}" --force
+  tail -n 3 "$out/train-synth.log"
+  sed "s|@SHARED@|$shared|g" "$root/configs/device_anny.yaml" >"$scene/config.yaml"
+  iterations=()
+  [ -n "${SFGS_DEVICE_TRAIN_ITERATIONS:-}" ] && iterations=(--iterations "$SFGS_DEVICE_TRAIN_ITERATIONS")
+  nvidia-smi --query-gpu=memory.used --format=csv,noheader -lms 500 >"$out/train-memory.log" &
+  smi=$!
+  run train "${SFGS_DEVICE_TRAIN_LIMIT:-420}" "$build/sfgs" train --data "$scene/data" --out "$scene/run" --config "$scene/config.yaml" \
+    "${iterations[@]}" --force
+  kill $smi
+  tail -n 4 "$out/train.log"
+  echo "peak GPU memory used during training (whole device): $(sort -n "$out/train-memory.log" | tail -n 1)"
+  cp "$scene/run/log.jsonl" "$scene/run/curve.csv" "$out/" 2>/dev/null
+  cp "$scene/run/curve.png" "$out/" 2>/dev/null
+  run train-eval 200 "$build/sfgs" eval --run "$scene/run" --data "$scene/data" --device cuda --save-images --force
+  tail -n 4 "$out/train-eval.log"
+  cp "$scene/run/metrics.json" "$out/" 2>/dev/null
+  run train-render 120 "$build/sfgs" render --run "$scene/run" --out "$scene/render" --frames 96 --device cuda --force
+  tail -n 2 "$out/train-render.log"
+  mkdir -p "$out/renders" && cp "$scene"/run/eval_images/*.png "$out/renders/" 2>/dev/null
+  cp "$scene/render/frame_0000.png" "$scene/render/frame_0048.png" "$scene/render/render.mp4" "$out/renders/" 2>/dev/null
+fi
+
+# The device tool returns only a few files: everything travels as one archive.
+if [ "${SFGS_DEVICE_PACK:-1}" = 1 ]; then
+  (cd "$out" && tar czf /tmp/device-results.tgz --exclude=device-results.tgz . && find . -mindepth 1 -delete &&
+    mv /tmp/device-results.tgz .)
 fi
 
 if [ ${#failed[@]} -ne 0 ]; then

@@ -7,6 +7,7 @@ packages=(
   pybind11-dev python3-pybind11 python3-pytest
   libopencv-dev libglm-dev libgtest-dev
   nlohmann-json3-dev libstb-dev libzip-dev libyaml-cpp-dev python3-numpy
+  libopenblas0-openmp  # an optimised BLAS for LibTorch's CPU matrix products (Debian's default is the reference BLAS)
 )
 sudo_cmd=()
 if [ "$(id -u)" -ne 0 ]; then sudo_cmd=(sudo); fi

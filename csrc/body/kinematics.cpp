@@ -18,7 +18,29 @@ at::Tensor homogeneous(const at::Tensor& rotation, const at::Tensor& translation
   return at::cat({top, bottom}, -2);
 }
 
+// Casts the floating-point parameters and buffers of `module` (not its children) to `dtype` and moves them all
+// to `device`.
+void convert_own_tensors(torch::nn::Module& module, const c10::optional<torch::Device>& device, torch::Dtype dtype,
+                         bool non_blocking) {
+  const auto convert = [&](at::Tensor& t) {
+    const at::ScalarType target = at::isFloatingType(t.scalar_type()) ? dtype : t.scalar_type();
+    t.set_data(t.to(device.value_or(t.device()), target, non_blocking));
+  };
+  for (auto& parameter : module.named_parameters(/*recurse=*/false)) convert(parameter.value());
+  for (auto& buffer : module.named_buffers(/*recurse=*/false)) convert(buffer.value());
+}
+
 }  // namespace
+
+void BodyModule::to(torch::Device device, torch::Dtype dtype, bool non_blocking) {
+  for (const auto& child : children()) child->to(device, dtype, non_blocking);
+  convert_own_tensors(*this, device, dtype, non_blocking);
+}
+
+void BodyModule::to(torch::Dtype dtype, bool non_blocking) {
+  for (const auto& child : children()) child->to(dtype, non_blocking);
+  convert_own_tensors(*this, c10::nullopt, dtype, non_blocking);
+}
 
 KinematicTreeImpl::KinematicTreeImpl(std::vector<int64_t> parents) : parents_(std::move(parents)) {
   TORCH_CHECK(!parents_.empty() && parents_[0] == -1, "KinematicTree: joint 0 must be the root (parent -1)");
@@ -124,6 +146,14 @@ at::Tensor linear_blend_skinning(const at::Tensor& rest_vertices, const at::Tens
   at::Tensor posed = blended.select(3, 3);
   for (int64_t c = 0; c < 3; ++c) posed = posed + blended.select(3, c) * p.select(2, c);
   return posed.transpose(0, 1).contiguous();
+}
+
+at::Tensor sparse_skinning_weights(const at::Tensor& weights) {
+  TORCH_CHECK(weights.dim() == 2 && at::isFloatingType(weights.scalar_type()) && !weights.is_sparse(),
+              "sparse_skinning_weights: weights must be a dense floating (V, J) tensor, got ", describe(weights));
+  // nonzero() and masked_select() both walk the weights in row-major order, so indices and values pair up.
+  const at::Tensor used = weights != 0;
+  return at::sparse_coo_tensor(used.nonzero().t(), weights.masked_select(used), weights.sizes()).coalesce();
 }
 
 at::Tensor pose_feature(const at::Tensor& rotations) {

@@ -8,6 +8,15 @@
 
 namespace sfgs::body {
 
+// The base of the body-model modules. torch::nn::Module::to(dtype) casts every buffer, integer index buffers
+// included; these modules cast only their floating-point buffers and move all of them.
+class BodyModule : public torch::nn::Module {
+ public:
+  using torch::nn::Module::to;
+  void to(torch::Device device, torch::Dtype dtype, bool non_blocking = false) override;
+  void to(torch::Dtype dtype, bool non_blocking = false) override;
+};
+
 struct PosedSkeleton {
   at::Tensor joints;               // (B, J, 3) posed joint positions
   at::Tensor joint_transforms;     // (B, J, 4, 4) world frame of each joint: posed rotation and position
@@ -16,7 +25,7 @@ struct PosedSkeleton {
 
 // A joint tree with parents[0] = -1 and 0 <= parents[j] < j otherwise (the SMPL-family order). Joints of equal
 // depth are composed in one batched step: the 55-joint SMPL-X tree takes 10 steps instead of 54.
-class KinematicTreeImpl : public torch::nn::Module {
+class KinematicTreeImpl : public BodyModule {
  public:
   explicit KinematicTreeImpl(std::vector<int64_t> parents);
 
@@ -41,6 +50,9 @@ TORCH_MODULE(KinematicTree);
 // transforms (B, J, 4, 4). Differentiable with respect to the vertices and the transforms.
 at::Tensor linear_blend_skinning(const at::Tensor& rest_vertices, const at::Tensor& weights,
                                  const at::Tensor& skinning_transforms);
+
+// Dense (V, J) skinning weights as the sparse COO matrix linear_blend_skinning multiplies fastest with.
+at::Tensor sparse_skinning_weights(const at::Tensor& weights);
 
 // The SMPL pose-corrective feature: R_j - I of every non-root joint, (B, J, 3, 3) -> (B, 9 (J - 1)).
 at::Tensor pose_feature(const at::Tensor& rotations);

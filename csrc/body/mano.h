@@ -60,7 +60,7 @@ struct ManoOutput : BodyOutput {
   at::Tensor full_pose;  // (B, 16, 3) axis-angle after PCA and hand mean; undefined with rotations
 };
 
-class ManoImpl : public torch::nn::Module {
+class ManoImpl : public BodyModule {
  public:
   explicit ManoImpl(const ManoModelData& data, ManoOptions options = {});
   explicit ManoImpl(const std::string& path, ManoOptions options = {});

@@ -318,7 +318,6 @@ struct CageBuild {
   std::vector<int64_t> mouth_corners, brows, cheeks;  // left, right cage vertices for the expression directions
   int64_t upper_lip = -1;
   Vec3 head_centre;
-  double mouth_height = 0;
 };
 
 struct RingShape {
@@ -486,7 +485,6 @@ void build_head(CageBuild& b, const std::vector<int64_t>& neck, int64_t head_cha
   b.cheeks = {rings[3][3], rings[3][mirrored_slot(3)]};
   b.upper_lip = rings[3][0];
   b.head_centre = at_height(0.0, 1.64, z_centre);
-  b.mouth_height = kMouthHeight;
 
   // The mouth: the hole's rim leads into a bag, upper half on the head, lower half on the jaw.
   const std::vector<int64_t> rim = {rings[3][15], rings[3][0], rings[3][1],  rings[2][1],

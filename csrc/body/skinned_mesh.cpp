@@ -62,11 +62,13 @@ SkinnedMeshImpl::SkinnedMeshImpl(const SkinnedMeshData& data, at::ScalarType dty
     faces_ = step.fine_faces();
   }
   weights_ = register_buffer("weights", buffer_copy(weights, dtype));
-  // nonzero() and masked_select() both walk the weights in row-major order, so indices and values pair up.
-  const at::Tensor used = weights != 0;
-  sparse_weights_ = register_buffer(
-      "sparse_weights",
-      at::sparse_coo_tensor(used.nonzero().t(), weights.masked_select(used), weights.sizes()).coalesce().to(dtype));
+}
+
+const at::Tensor& SkinnedMeshImpl::sparse_weights() const {
+  if (!sparse_weights_.defined() || sparse_weights_.device() != weights_.device() ||
+      sparse_weights_.scalar_type() != weights_.scalar_type())
+    sparse_weights_ = sparse_skinning_weights(weights_);
+  return sparse_weights_;
 }
 
 BodyOutput SkinnedMeshImpl::forward(const at::Tensor& coefficients, const at::Tensor& rotations,
@@ -105,7 +107,7 @@ BodyOutput SkinnedMeshImpl::forward(const at::Tensor& coefficients, const at::Te
 
   const PosedSkeleton skeleton = tree_->pose(rotations, rest_joints, translation);
   BodyOutput out;
-  out.vertices = linear_blend_skinning(rest, sparse_weights_, skeleton.skinning_transforms);
+  out.vertices = linear_blend_skinning(rest, sparse_weights(), skeleton.skinning_transforms);
   out.joints = skeleton.joints;
   out.joint_transforms = skeleton.joint_transforms;
   out.skinning_transforms = skeleton.skinning_transforms;

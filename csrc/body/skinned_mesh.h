@@ -39,7 +39,7 @@ struct BodyOutput {
 // correctives are linear, this equals evaluating a model whose every attribute was subdivided first (body/smplx.h
 // `subdivide`) while storing only the fine weights. Constant products (regressor times template and blend shapes)
 // are computed once, in float64, at construction.
-class SkinnedMeshImpl : public torch::nn::Module {
+class SkinnedMeshImpl : public BodyModule {
  public:
   SkinnedMeshImpl(const SkinnedMeshData& data, at::ScalarType dtype, int64_t subdivision_levels);
 
@@ -65,7 +65,10 @@ class SkinnedMeshImpl : public torch::nn::Module {
   int64_t coefficient_count_ = 0;
   KinematicTree tree_{nullptr};
   at::Tensor v_template_, blend_shapes_, j_regressor_, joint_template_, joint_blend_shapes_, posedirs_, weights_;
-  at::Tensor sparse_weights_;  // the same weights as sparse COO: what skinning multiplies with
+  // The same weights as sparse COO, what skinning multiplies with. Not a buffer: serialisation and Module::to
+  // cannot handle sparse tensors, so it is derived again whenever weights_ moves or changes type.
+  mutable at::Tensor sparse_weights_;
+  const at::Tensor& sparse_weights() const;
   std::vector<at::Tensor> subdivision_edges_;
   at::Tensor faces_;
 };

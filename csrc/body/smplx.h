@@ -81,7 +81,7 @@ struct SmplxOutput : BodyOutput {
   at::Tensor full_pose;  // (B, 55, 3) axis-angle of every joint after hand PCA and hand mean; undefined with rotations
 };
 
-class SmplxImpl : public torch::nn::Module {
+class SmplxImpl : public BodyModule {
  public:
   explicit SmplxImpl(const SmplxModelData& data, SmplxOptions options = {});
   explicit SmplxImpl(const std::string& path, SmplxOptions options = {});

@@ -26,7 +26,13 @@ namespace {
 constexpr double kTwoPi = 6.283185307179586;
 constexpr int64_t kNovelMotionOffset = 1000;  // synthetic-motion frames far past any training video: novel poses
 
-at::Device pick_device(const std::string& name) {
+// --device, or else the device the run was trained on where this build has it, else the CPU.
+at::Device pick_device(const std::string& name, const train::RunFolder& run) {
+  if (name.empty()) {
+    std::string trained_on = "cpu";
+    if (fs::exists(run.config_file())) trained_on = train::TrainConfig::from_yaml_file(run.config_file()).device;
+    return trained_on == "cuda" && cuda_backend_available() ? at::kCUDA : at::kCPU;
+  }
   if (name == "cpu") return at::kCPU;
   if (name == "cuda" && cuda_backend_available()) return at::kCUDA;
   throw std::invalid_argument("--device expects cpu or cuda (with a CUDA build), got '" + name + "'");
@@ -66,7 +72,7 @@ int run_eval(Arguments& args) {
   options.eight_bit_round_trip = args.flag("eight-bit");
   const bool save = args.flag("save-images");
   const bool force = args.flag("force");
-  const at::Device device = pick_device(args.text("device", "cpu"));
+  const at::Device device = pick_device(args.text("device", ""), run);
   args.finish();
   train::TrainedAvatar t = train::load_trained_avatar(run, device);
   const data::Dataset dataset = data::read_dataset(data_folder.empty() ? t.dataset : data_folder);
@@ -86,7 +92,7 @@ int run_render(Arguments& args) {
   const int64_t frames = args.integer("frames", 48, 1, 100000);
   const std::string motion = args.text("motion", "synthetic");
   const bool force = args.flag("force");
-  const at::Device device = pick_device(args.text("device", "cpu"));
+  const at::Device device = pick_device(args.text("device", ""), run);
   args.finish();
   train::TrainedAvatar t = train::load_trained_avatar(run, device);
   const data::Dataset trained_on = data::read_dataset(t.dataset);
@@ -157,9 +163,9 @@ int run_render(Arguments& args) {
     data::write_png((fs::path(out) / name).string(), image, force);
     video.add(image);
   }
-  video.close();
+  const bool wrote_video = video.close();
   std::printf("sfgs render: %lld frames to %s (%s); %.1f frames/s (avatar + rasterisation, cached static features)\n",
-              (long long)frames, out.c_str(), video.available() ? "PNG + render.mp4" : "PNG only: no OpenCV video",
+              (long long)frames, out.c_str(), wrote_video ? "PNG + render.mp4" : "PNG only: no OpenCV video",
               double(frames) / seconds);
   return 0;
 }

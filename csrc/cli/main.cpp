@@ -1,6 +1,7 @@
 // The sfgs command: synthesise data, train an avatar, evaluate, render, export, run the ablation, the demo and the
 // benchmark. `sfgs help` lists everything.
 #include <algorithm>
+#include <cstdio>
 #include <cstdlib>
 #include <functional>
 #include <iostream>
@@ -26,11 +27,11 @@ commands:
            --out DIR  --body SMPLX.npz (built-in body)  --texture PNG  --frames N (60)  --width W (256)
            --height H (256)  --seed S (1)  --force
   train    train an avatar: --data DATASET --out RUN  --config FILE  --iterations N  --device cpu|cuda
-           --resume  --force  --quiet
+           --resume  --stop-at N (pause there, resumable)  --force  --quiet
   eval     evaluate a run on a split (ExAvatar/SFGS protocol): --run RUN  --data DATASET (the training one)
-           --split test|val|train (test)  --eight-bit  --save-images  --force
+           --split test|val|train (test)  --device cpu|cuda (the run's)  --eight-bit  --save-images  --force
   render   orbit views in novel poses to PNG frames and an MP4: --run RUN --out DIR  --frames N (48)
-           --motion synthetic|DATASET  --force
+           --motion synthetic|DATASET  --device cpu|cuda (the run's)  --force
   export   the avatar as a standard 3DGS .ply: --run RUN --out FILE.ply  --frame K (canonical)  --force
   ablate   the paper's ablation table: --data DATASET --out DIR  --config FILE  --iterations N  --force
   bench    render the built-in Gaussian scene and print forward/backward timings
@@ -42,6 +43,8 @@ commands:
 }  // namespace
 
 int main(int argc, char** argv) {
+  // Line-buffered even into a pipe or file, so the step messages interleave with the progress lines on stderr.
+  std::setvbuf(stdout, nullptr, _IOLBF, 0);
   // OpenMP may start with one thread; use every core unless the user chose with OMP_NUM_THREADS.
   if (!std::getenv("OMP_NUM_THREADS")) at::set_num_threads(int(std::max(1u, std::thread::hardware_concurrency())));
   const std::string command = argc > 1 ? argv[1] : "help";
@@ -55,7 +58,10 @@ int main(int argc, char** argv) {
       {"ablate", {sfgs::cli::run_ablate, {"force"}}},
       {"bench", {sfgs::cli::run_bench, {"force"}}},
   };
-  if (command == "help" || command == "--help" || command == "-h") {
+  const auto asks_for_help = [](const char* a) {
+    return std::string(a) == "help" || std::string(a) == "--help" || std::string(a) == "-h";
+  };
+  if (std::any_of(argv + 1, argv + std::max(argc, 1), asks_for_help) || argc < 2) {
     std::cout << kUsage;
     return 0;
   }

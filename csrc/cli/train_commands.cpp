@@ -9,6 +9,7 @@
 
 #include "cli/commands.h"
 #include "cli/evaluation_report.h"
+#include "cli/plot.h"
 #include "common/atomic_file.h"
 #include "data/synthetic.h"
 #include "train/evaluate.h"
@@ -28,15 +29,22 @@ train::TrainConfig load_config(Arguments& args, const std::string& fallback_file
   return config;
 }
 
-void print_summary(const train::TrainSummary& s) {
-  std::printf("  trained %lld iterations in %.1f s (%.1f ms/iteration); final loss %.4f; validation PSNR %.2f dB\n",
-              (long long)s.iterations, s.seconds, 1000.0 * s.seconds / double(std::max<int64_t>(s.iterations, 1)),
-              s.final_loss, s.validation_psnr);
+// Prints the summary and writes the run's run-time-versus-error curve (curve.csv, curve.png) beside its log.
+void finish_training(const train::RunFolder& run, const train::TrainSummary& s) {
+  char validation[64] = "no validation frames";
+  if (!std::isnan(s.validation_psnr)) std::snprintf(validation, sizeof(validation), "validation PSNR %.2f dB", s.validation_psnr);
+  std::printf("  %lld iterations, %.1f s of training steps (%.1f ms/iteration); final loss %.4f; %s\n",
+              (long long)s.iterations, s.training_seconds,
+              1000.0 * s.training_seconds / double(std::max<int64_t>(s.iterations, 1)), s.final_loss, validation);
+  const std::string csv = (fs::path(run.path) / "curve.csv").string(), png = (fs::path(run.path) / "curve.png").string();
+  const std::vector<train::ErrorCurvePoint> curve = train::write_error_curve_csv(run, csv);
+  const bool plotted = write_error_curve_plot(curve, png, true);
+  std::printf("  run-time versus error: %s%s%s\n", csv.c_str(), plotted ? ", " : "", plotted ? png.c_str() : "");
 }
 
-train::AvatarEvaluation evaluate_run(const train::RunFolder& run, const data::Dataset& dataset, const std::string& images,
-                                     bool overwrite) {
-  train::TrainedAvatar t = train::load_trained_avatar(run, at::kCPU);
+train::AvatarEvaluation evaluate_run(const train::RunFolder& run, const data::Dataset& dataset,
+                                     const std::string& device, const std::string& images, bool overwrite) {
+  train::TrainedAvatar t = train::load_trained_avatar(run, device == "cuda" ? at::kCUDA : at::kCPU);
   t.avatar->eval();
   t.avatar->cache_static_features();
   const train::AvatarEvaluation e =
@@ -61,12 +69,13 @@ int run_train(Arguments& args) {
   options.resume = args.flag("resume");
   options.overwrite = args.flag("force");
   options.progress = !args.flag("quiet");
+  options.stop_at = args.integer("stop-at", 0, 0, 100000000);
   args.finish();
   const data::Dataset dataset = data::read_dataset(data_folder);
   std::printf("sfgs train: %s (%lld frames, %lld for training) -> %s on %s\n", dataset.source.c_str(),
               (long long)dataset.size(), (long long)dataset.split(data::Split::kTrain).size(), run.path.c_str(),
               config.device.c_str());
-  print_summary(train::train_avatar(dataset, config, run, options));
+  finish_training(run, train::train_avatar(dataset, config, run, options));
   return 0;
 }
 
@@ -95,15 +104,15 @@ int run_ablate(Arguments& args) {
     options.overwrite = force;
     std::printf("sfgs ablate: %s\n", name.c_str());
     const train::TrainSummary s = train::train_avatar(dataset, config, run, options);
-    const train::AvatarEvaluation e = evaluate_run(run, dataset, "", force);
+    const train::AvatarEvaluation e = evaluate_run(run, dataset, config.device, "", force);
     char row[256];
     std::snprintf(row, sizeof(row), "| %s | %.2f | %.4f | %s | %.0f |\n", name.c_str(), e.summary.psnr, e.summary.ssim,
-                  e.summary.lpips ? std::to_string(*e.summary.lpips).c_str() : "n/a", s.seconds);
+                  e.summary.lpips ? std::to_string(*e.summary.lpips).c_str() : "n/a", s.training_seconds);
     markdown += row;
     nlohmann::json j = evaluation_json(e);
     j.erase("per_frame");
     j["variant"] = name;
-    j["train_seconds"] = s.seconds;
+    j["train_seconds"] = s.training_seconds;
     table.push_back(j);
   }
   const std::string json_text = table.dump(1) + "\n";
@@ -132,15 +141,16 @@ int run_demo(Arguments& args) {
   std::printf("sfgs demo 2/4: training %lld iterations on %s\n", (long long)config.schedule.iterations, config.device.c_str());
   train::TrainOptions options;
   options.overwrite = true;
-  print_summary(train::train_avatar(dataset, config, run, options));
+  finish_training(run, train::train_avatar(dataset, config, run, options));
   std::printf("sfgs demo 3/4: evaluating the test frames (ExAvatar/SFGS protocol)\n");
-  const train::AvatarEvaluation e = evaluate_run(run, dataset, (fs::path(out) / "test_renders").string(), true);
+  const train::AvatarEvaluation e =
+      evaluate_run(run, dataset, config.device, (fs::path(out) / "test_renders").string(), true);
   std::printf("  %s\n", metrics::to_string(e.summary).c_str());
   std::printf("sfgs demo 4/4: rendering a novel-view, novel-pose video\n");
   const std::string render_folder = (fs::path(out) / "novel").string();
   Arguments render_args({"--run", run.path, "--out", render_folder, "--frames", "24", "--force"}, {"force"});
   run_render(render_args);
-  std::printf("sfgs demo: done. Test PSNR %.2f dB, SSIM %.4f; renders in %s, video %s/render.mp4\n", e.summary.psnr,
+  std::printf("sfgs demo: done. Test PSNR %.2f dB, SSIM %.4f; test renders in %s, novel views in %s\n", e.summary.psnr,
               e.summary.ssim, (fs::path(out) / "test_renders").string().c_str(), render_folder.c_str());
   return 0;
 }

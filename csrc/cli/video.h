@@ -14,8 +14,8 @@ class VideoWriter {
   ~VideoWriter();
   bool available() const;
   void add(const at::Tensor& image);  // (H, W, 3) float in [0, 1]
-  // Finishes the file and moves it into place.
-  void close();
+  // Finishes the file and moves it into place; false when no video could be written.
+  bool close();
 
  private:
   struct State;

@@ -40,10 +40,11 @@ void VideoWriter::add(const at::Tensor& image) {
   state_->writer.write(frame);
 }
 
-void VideoWriter::close() {
-  if (!available()) return;
+bool VideoWriter::close() {
+  if (!available()) return false;
   state_->writer.release();
   std::filesystem::rename(state_->temporary, state_->path);
+  return true;
 }
 
 }  // namespace sfgs::cli

@@ -11,6 +11,6 @@ VideoWriter::VideoWriter(const std::string&, int, int, double, bool) : state_(st
 VideoWriter::~VideoWriter() = default;
 bool VideoWriter::available() const { return false; }
 void VideoWriter::add(const at::Tensor&) {}
-void VideoWriter::close() {}
+bool VideoWriter::close() { return false; }
 
 }  // namespace sfgs::cli

@@ -75,7 +75,8 @@ inline constexpr long kNearestNeighbourBlockElements = 1L << 24;
 inline constexpr double kRotationSeriesAngle = 0.1;
 // Norms below this count as zero when the 6D rotation representation is orthonormalised (Gram-Schmidt).
 inline constexpr double kMinRotation6dNorm = 1e-12;
-// Skinning weights of a loaded model must sum to 1 per vertex within this tolerance (official files: ~1e-7).
+// Skinning weights of a loaded model should sum to 1 per vertex within this tolerance (official files: ~1e-7);
+// beyond it loading warns.
 inline constexpr double kSkinningWeightSumTolerance = 1e-4;
 // The official MANO_LEFT shares its shapedirs x components with MANO_RIGHT (vchoutas/smplx#48): when the two
 // agree within this fraction of the right model's sum |shapedirs[:, 0, :]|, the left x components are negated.

@@ -78,8 +78,8 @@ at::Tensor joint_pose(const at::Tensor& pose, int64_t joints, const char* name, 
   if (!pose.defined()) return at::zeros({joints, 3}, options);
   TORCH_CHECK(at::isFloatingType(pose.scalar_type()) && pose.numel() == 3 * joints &&
                   (pose.dim() == 1 || (pose.dim() == 2 && pose.size(0) == joints)),
-              "Avatar: AvatarPose::", name, " must be a floating (", joints, ", 3) or (", 3 * joints,
-              ") tensor, got ", body::describe(pose));
+              "Avatar: AvatarPose::", name, " must be a floating (", joints, ", 3) or (", 3 * joints, ") tensor, got ",
+              body::describe(pose));
   return pose.reshape({joints, 3}).to(options);
 }
 
@@ -104,20 +104,20 @@ AvatarImpl::AvatarImpl(const AvatarBody& b, const at::Tensor& betas, AvatarConfi
                                           ? normalise_to_box(star.index_select(0, face_points), "face")
                                           : at::zeros({0, 3}, star.options());
   feature_field_ = register_module("feature_field", FeatureField(field_options(config_), normalise_to_box(star, "body"),
-                                                                face_points, face_coordinates));
+                                                                 face_points, face_coordinates));
   const int64_t width = feature_field_->width();
   heads_ = register_module("heads", CanonicalHeads(width, config_.hidden_width));
   if (config_.use_structure_offset)
-    structure_offset_ = register_module(
-        "structure_offset", StructureOffset(width, config_.hidden_width, config_.joint_embedding_size, body_->joints(),
-                                            body_->dominant_joints()));
+    structure_offset_ =
+        register_module("structure_offset", StructureOffset(width, config_.hidden_width, config_.joint_embedding_size,
+                                                            body_->joints(), body_->dominant_joints()));
   if (config_.use_color_offset)
     colour_offset_ = register_module("colour_offset", ColourOffset(width, config_.hidden_width));
   if (config_.use_hand_residual && b.has_mano) {
     body::ManoModelData left = b.mano_left;
     body::repair_left_mano_shapedirs(left, b.mano_right);
-    hand_residual_ = register_module("hand_residual", HandResidual(b.smplx, shaped.vertices, shaped.joints, left,
-                                                                   b.mano_right, b.hand_vertex_ids));
+    hand_residual_ = register_module(
+        "hand_residual", HandResidual(b.smplx, shaped.vertices, shaped.joints, left, b.mano_right, b.hand_vertex_ids));
   }
   opacities_ = register_buffer("opacities", at::ones({n}));
 }
@@ -168,14 +168,13 @@ AvatarOutput AvatarImpl::forward(const AvatarPose& pose) {
   const at::Tensor left_hand = joint_pose(pose.left_hand_pose, body::kHandJointCount, "left_hand_pose", options);
   const at::Tensor right_hand = joint_pose(pose.right_hand_pose, body::kHandJointCount, "right_hand_pose", options);
   const bool add_mean = !config_.flat_hand_mean;
-  const at::Tensor axis_angle =
-      at::cat({joint_pose(pose.global_orient, 1, "global_orient", options),
-               joint_pose(pose.body_pose, body::kSmplxBodyJointCount, "body_pose", options),
-               joint_pose(pose.jaw_pose, 1, "jaw_pose", options),
-               joint_pose(pose.left_eye_pose, 1, "left_eye_pose", options),
-               joint_pose(pose.right_eye_pose, 1, "right_eye_pose", options),
-               add_mean ? left_hand + body_->hand_mean(body::Side::kLeft) : left_hand,
-               add_mean ? right_hand + body_->hand_mean(body::Side::kRight) : right_hand});
+  const at::Tensor axis_angle = at::cat({joint_pose(pose.global_orient, 1, "global_orient", options),
+                                         joint_pose(pose.body_pose, body::kSmplxBodyJointCount, "body_pose", options),
+                                         joint_pose(pose.jaw_pose, 1, "jaw_pose", options),
+                                         joint_pose(pose.left_eye_pose, 1, "left_eye_pose", options),
+                                         joint_pose(pose.right_eye_pose, 1, "right_eye_pose", options),
+                                         add_mean ? left_hand + body_->hand_mean(body::Side::kLeft) : left_hand,
+                                         add_mean ? right_hand + body_->hand_mean(body::Side::kRight) : right_hand});
   const at::Tensor rotations = body::axis_angle_to_matrix(axis_angle);
   at::Tensor expression;
   if (pose.expression.defined() && body_->expression_count() > 0) {
@@ -191,7 +190,8 @@ AvatarOutput AvatarImpl::forward(const AvatarPose& pose) {
   const body::PosedSkeleton skeleton = body_->pose(rotations, body_->rest_joints(expression), translation);
   const at::Tensor blended = blend_transforms(body_->weights(), skeleton.skinning_transforms);
   const at::Tensor displacement = body_->coarse_displacement(expression, rotations);
-  const at::Tensor rest = displacement.defined() ? body_->vertices() + body_->subdivide(displacement) : body_->vertices();
+  const at::Tensor rest =
+      displacement.defined() ? body_->vertices() + body_->subdivide(displacement) : body_->vertices();
 
   // Canonical Gaussians: the rest mesh plus every offset.
   AvatarOutput out;

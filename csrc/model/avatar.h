@@ -31,8 +31,8 @@ struct AvatarConfig {
   int64_t face_plane_resolution = 256;  // dedicated face planes (over the face's own, much smaller, bounding box)
   int64_t hidden_width = 128;           // MLP width (a multiple of the GroupNorm groups, kMlpGroupNormGroups)
   int64_t joint_embedding_size = 16;
-  int64_t num_betas = 10;               // at most the model's shape space
-  int64_t num_expression_coeffs = 10;   // at most the model's expression space
+  int64_t num_betas = 10;              // at most the model's shape space
+  int64_t num_expression_coeffs = 10;  // at most the model's expression space
   // false: the model's mean hand pose is added to AvatarPose's hand poses (SMPL-X's flat_hand_mean = False, the
   // convention of ExAvatar's and SFGS's fits); true: the hand poses are absolute.
   bool flat_hand_mean = false;
@@ -80,19 +80,19 @@ struct AvatarPose {
 
 // The posed Gaussians ready for sfgs::render, plus what the regularisers need.
 struct AvatarOutput {
-  at::Tensor means;          // (N, 3) world
-  at::Tensor covariances;    // (N, 6) world, packed (xx, xy, xz, yy, yz, zz)
-  at::Tensor opacities;      // (N) constant ones (not learned)
-  at::Tensor colours;        // (N, 3) in [0, 1]
+  at::Tensor means;        // (N, 3) world
+  at::Tensor covariances;  // (N, 6) world, packed (xx, xy, xz, yy, yz, zz)
+  at::Tensor opacities;    // (N) constant ones (not learned)
+  at::Tensor colours;      // (N, 3) in [0, 1]
   // Canonical quantities (before skinning) for regularisers and export.
-  at::Tensor canonical_means;  // (N, 3): this frame's rest mesh plus every offset below
-  at::Tensor log_scales;       // (N) isotropic log standard deviation (after the structure offset)
-  at::Tensor mean_offset;      // (N, 3) from the feature head
-  at::Tensor structure_offset; // (N, 3) zeros when switched off
-  at::Tensor scale_offset;     // (N) zeros when switched off
-  at::Tensor colour_offset;    // (N, 3) zeros when switched off
-  at::Tensor hand_residual;    // (N, 3) zeros off the hands or when switched off
-  at::Tensor posed_vertices;   // (N, 3) the skinned mesh points without learned offsets (for geometry metrics)
+  at::Tensor canonical_means;   // (N, 3): this frame's rest mesh plus every offset below
+  at::Tensor log_scales;        // (N) isotropic log standard deviation (after the structure offset)
+  at::Tensor mean_offset;       // (N, 3) from the feature head
+  at::Tensor structure_offset;  // (N, 3) zeros when switched off
+  at::Tensor scale_offset;      // (N) zeros when switched off
+  at::Tensor colour_offset;     // (N, 3) zeros when switched off
+  at::Tensor hand_residual;     // (N, 3) zeros off the hands or when switched off
+  at::Tensor posed_vertices;    // (N, 3) the skinned mesh points without learned offsets (for geometry metrics)
 };
 
 class AvatarImpl : public torch::nn::Module {
@@ -110,8 +110,8 @@ class AvatarImpl : public torch::nn::Module {
   void clear_cache();
 
   int64_t gaussian_count() const;
-  const at::Tensor& part_labels() const;     // (N) uint8 body::BodyPart, on the module's device
-  const at::Tensor& faces() const;           // (F, 3) int64 of the subdivided mesh (Laplacian, export), likewise
+  const at::Tensor& part_labels() const;  // (N) uint8 body::BodyPart, on the module's device
+  const at::Tensor& faces() const;        // (F, 3) int64 of the subdivided mesh (Laplacian, export), likewise
   const AvatarConfig& config() const;
 
  private:

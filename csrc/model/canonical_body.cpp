@@ -24,7 +24,8 @@ at::Tensor initial_log_scales_from_edges(const at::Tensor& vertices, const at::T
   const at::Tensor lengths = (vertices.index_select(0, a) - vertices.index_select(0, b)).pow(2).sum(1).sqrt();
   const at::Tensor ends = at::cat({a, b});
   const at::Tensor total = at::zeros({n}, vertices.options()).index_add_(0, ends, at::cat({lengths, lengths}));
-  const at::Tensor count = at::zeros({n}, vertices.options()).index_add_(0, ends, at::ones({ends.size(0)}, vertices.options()));
+  const at::Tensor count =
+      at::zeros({n}, vertices.options()).index_add_(0, ends, at::ones({ends.size(0)}, vertices.options()));
   const at::Tensor mean = total / count.clamp_min(1);
   TORCH_CHECK(mean.min().item<double>() > 0,
               "Avatar: every point needs mesh edges of positive length to size its Gaussian; the subdivided mesh has "
@@ -68,13 +69,14 @@ CanonicalBodyImpl::CanonicalBodyImpl(const body::SmplxModelData& data, const Sha
                   coarse_part_labels.scalar_type() == at::kByte,
               "Avatar: part labels must be a uint8 (", v, ") tensor, got ", body::describe(coarse_part_labels));
   expression_count_ = std::min(num_expression_coeffs, data.exprdirs.size(2));
-  const at::Tensor expression_dirs = data.exprdirs.narrow(2, 0, expression_count_);                    // (V, 3, E)
+  const at::Tensor expression_dirs = data.exprdirs.narrow(2, 0, expression_count_);  // (V, 3, E)
   joints_ = register_buffer("joints", shaped.joints.to(at::kFloat));
-  expression_dirs_ = register_buffer("expression_dirs", expression_dirs.reshape({v * 3, expression_count_}).to(at::kFloat));
-  joint_expression_dirs_ = register_buffer(
-      "joint_expression_dirs",
-      data.j_regressor.matmul(expression_dirs.reshape({v, 3 * expression_count_})).reshape({j * 3, expression_count_})
-          .to(at::kFloat));
+  expression_dirs_ =
+      register_buffer("expression_dirs", expression_dirs.reshape({v * 3, expression_count_}).to(at::kFloat));
+  joint_expression_dirs_ = register_buffer("joint_expression_dirs",
+                                           data.j_regressor.matmul(expression_dirs.reshape({v, 3 * expression_count_}))
+                                               .reshape({j * 3, expression_count_})
+                                               .to(at::kFloat));
   if (data.posedirs.defined())
     posedirs_ = register_buffer("posedirs", data.posedirs.reshape({v * 3, -1}).t().contiguous().to(at::kFloat));
 
@@ -92,8 +94,10 @@ CanonicalBodyImpl::CanonicalBodyImpl(const body::SmplxModelData& data, const Sha
   faces_ = register_buffer("faces", faces);
   part_labels_ = register_buffer("part_labels", labels);
   dominant_joints_ = register_buffer("dominant_joints", body::dominant_joints(weights));
-  initial_log_scales_ = register_buffer("initial_log_scales", initial_log_scales_from_edges(vertices, faces).to(at::kFloat));
-  hand_mean_left_ = register_buffer("hand_mean_left", data.hands_mean_left.reshape({body::kHandJointCount, 3}).to(at::kFloat));
+  initial_log_scales_ =
+      register_buffer("initial_log_scales", initial_log_scales_from_edges(vertices, faces).to(at::kFloat));
+  hand_mean_left_ =
+      register_buffer("hand_mean_left", data.hands_mean_left.reshape({body::kHandJointCount, 3}).to(at::kFloat));
   hand_mean_right_ =
       register_buffer("hand_mean_right", data.hands_mean_right.reshape({body::kHandJointCount, 3}).to(at::kFloat));
   tree_ = register_module("tree", body::KinematicTree(data.parents));
@@ -140,8 +144,7 @@ at::Tensor CanonicalBodyImpl::star_pose_vertices() const {
   at::Tensor axis_angle = at::zeros({tree_->size(), 3}, options);
   axis_angle[body::smplx_joint::kLeftHip][2] = kStarPoseHipAngle;
   axis_angle[body::smplx_joint::kRightHip][2] = -kStarPoseHipAngle;
-  const body::PosedSkeleton skeleton =
-      pose(body::axis_angle_to_matrix(axis_angle), joints_, at::zeros({3}, options));
+  const body::PosedSkeleton skeleton = pose(body::axis_angle_to_matrix(axis_angle), joints_, at::zeros({3}, options));
   return body::linear_blend_skinning(vertices_.unsqueeze(0), weights_, skeleton.skinning_transforms.unsqueeze(0))
       .squeeze(0);
 }

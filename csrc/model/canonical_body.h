@@ -38,14 +38,14 @@ class CanonicalBodyImpl : public torch::nn::Module {
   int64_t expression_count() const { return expression_count_; }
   bool has_pose_correctives() const { return posedirs_.defined(); }
 
-  const at::Tensor& vertices() const { return vertices_; }                  // (N, 3) shaped rest pose
-  const at::Tensor& weights() const { return weights_; }                    // (N, J) skinning weights
-  const at::Tensor& faces() const { return faces_; }                        // (F, 3) int64
-  const at::Tensor& part_labels() const { return part_labels_; }            // (N) uint8 body::BodyPart
-  const at::Tensor& dominant_joints() const { return dominant_joints_; }    // (N) int64
+  const at::Tensor& vertices() const { return vertices_; }                      // (N, 3) shaped rest pose
+  const at::Tensor& weights() const { return weights_; }                        // (N, J) skinning weights
+  const at::Tensor& faces() const { return faces_; }                            // (F, 3) int64
+  const at::Tensor& part_labels() const { return part_labels_; }                // (N) uint8 body::BodyPart
+  const at::Tensor& dominant_joints() const { return dominant_joints_; }        // (N) int64
   const at::Tensor& initial_log_scales() const { return initial_log_scales_; }  // (N) from local edge lengths
-  const at::Tensor& joints() const { return joints_; }                      // (J, 3) shaped rest joints
-  const at::Tensor& hand_mean(body::Side side) const {                      // (15, 3) the model's mean hand pose
+  const at::Tensor& joints() const { return joints_; }                          // (J, 3) shaped rest joints
+  const at::Tensor& hand_mean(body::Side side) const {                          // (15, 3) the model's mean hand pose
     return side == body::Side::kLeft ? hand_mean_left_ : hand_mean_right_;
   }
 

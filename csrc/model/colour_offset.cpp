@@ -10,8 +10,11 @@ constexpr int64_t kPoseEmbeddingSize = 6;  // a 6D rotation
 }  // namespace
 
 MlpShape ColourOffsetImpl::shape(int64_t feature_width, int64_t hidden_width) {
-  return MlpShape{{feature_width, kPoseEmbeddingSize + 3}, {hidden_width, hidden_width, hidden_width}, 3,
-                  /*group_norm=*/true, /*zero_output=*/true};
+  return MlpShape{{feature_width, kPoseEmbeddingSize + 3},
+                  {hidden_width, hidden_width, hidden_width},
+                  3,
+                  /*group_norm=*/true,
+                  /*zero_output=*/true};
 }
 
 ColourOffsetImpl::ColourOffsetImpl(int64_t feature_width, int64_t hidden_width) {

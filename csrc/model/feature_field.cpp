@@ -21,7 +21,7 @@ MlpShape FeatureFieldImpl::gate_shape(int64_t channels) {
 
 int64_t FeatureFieldImpl::parameter_count(const FeatureFieldOptions& o) {
   const int64_t c = o.channels, r = o.resolution, t = o.time_resolution, rf = o.face_resolution;
-  int64_t count = 3 * c * r * r;                  // triplane
+  int64_t count = 3 * c * r * r;                    // triplane
   if (o.use_face_planes) count += 3 * c * rf * rf;  // face triplane
   if (o.use_hexplane) {
     count += 3 * c * r * r + 3 * c * t * r;  // hexplane: spatial and time planes
@@ -66,12 +66,11 @@ FeatureFieldImpl::FeatureFieldImpl(const FeatureFieldOptions& options, const at:
   if (split_face_) face_triplane_ = register_module("face_triplane", Triplane(c, options_.face_resolution));
   if (options_.use_hexplane) {
     hexplane_space_ = register_module("hexplane_space", Triplane(c, options_.resolution));
-    hexplane_time_ =
-        register_module("hexplane_time", TimePlanes(c, options_.resolution, options_.time_resolution));
+    hexplane_time_ = register_module("hexplane_time", TimePlanes(c, options_.resolution, options_.time_resolution));
     if (split_face_) {
       face_hexplane_space_ = register_module("face_hexplane_space", Triplane(c, options_.face_resolution));
-      face_hexplane_time_ = register_module("face_hexplane_time",
-                                            TimePlanes(c, options_.face_resolution, options_.time_resolution));
+      face_hexplane_time_ =
+          register_module("face_hexplane_time", TimePlanes(c, options_.face_resolution, options_.time_resolution));
     }
     hexplane_to_triplane_ = register_module("hexplane_to_triplane", Mlp(hexplane_to_triplane_shape(c)));
     gate_ = register_module("gate", Mlp(gate_shape(c)));
@@ -87,9 +86,9 @@ StaticFeatures FeatureFieldImpl::static_features() const {
   features.triplane = split_face_ ? merge(triplane_->sample(coordinates_), face_triplane_->sample(face_coordinates_))
                                   : triplane_->sample(coordinates_);
   if (options_.use_hexplane) {
-    const at::Tensor space = split_face_ ? merge(hexplane_space_->sample(coordinates_),
-                                                 face_hexplane_space_->sample(face_coordinates_))
-                                         : hexplane_space_->sample(coordinates_);
+    const at::Tensor space =
+        split_face_ ? merge(hexplane_space_->sample(coordinates_), face_hexplane_space_->sample(face_coordinates_))
+                    : hexplane_space_->sample(coordinates_);
     features.hexplane_space = hexplane_to_triplane_->project(0, space);
     features.gate_triplane = gate_->project(0, features.triplane);
   }

@@ -20,8 +20,11 @@ constexpr int64_t kHandPoseFeatureSize = 9 * body::kHandJointCount;  // R - I of
 }  // namespace
 
 MlpShape HandResidualImpl::shape() {
-  return MlpShape{{3, body::kHandPoseSize}, {kHandResidualHiddenWidth, kHandResidualHiddenWidth}, 3,
-                  /*group_norm=*/false, /*zero_output=*/true};
+  return MlpShape{{3, body::kHandPoseSize},
+                  {kHandResidualHiddenWidth, kHandResidualHiddenWidth},
+                  3,
+                  /*group_norm=*/false,
+                  /*zero_output=*/true};
 }
 
 HandResidualImpl::HandResidualImpl(const body::SmplxModelData& smplx, const at::Tensor& shaped_vertices,
@@ -29,20 +32,18 @@ HandResidualImpl::HandResidualImpl(const body::SmplxModelData& smplx, const at::
                                    const body::ManoModelData& right, const body::HandVertexIds& hand_vertex_ids)
     : coarse_vertex_count_(smplx.v_template.size(0)) {
   hands_[0] = make_hand("left", body::Side::kLeft, smplx, shaped_vertices, rest_joints, left, hand_vertex_ids.left);
-  hands_[1] =
-      make_hand("right", body::Side::kRight, smplx, shaped_vertices, rest_joints, right, hand_vertex_ids.right);
+  hands_[1] = make_hand("right", body::Side::kRight, smplx, shaped_vertices, rest_joints, right, hand_vertex_ids.right);
 }
 
-HandResidualImpl::Hand HandResidualImpl::make_hand(const char* name, body::Side side,
-                                                   const body::SmplxModelData& smplx,
+HandResidualImpl::Hand HandResidualImpl::make_hand(const char* name, body::Side side, const body::SmplxModelData& smplx,
                                                    const at::Tensor& shaped_vertices, const at::Tensor& rest_joints,
                                                    const body::ManoModelData& mano, const at::Tensor& vertex_ids) {
   mano.validate();
   const std::string prefix(name);
   const int64_t k = mano.v_template.size(0);
-  TORCH_CHECK(vertex_ids.defined() && vertex_ids.dim() == 1 && vertex_ids.size(0) == k,
-              "HandResidual: the ", prefix, " hand's vertex ids must give one SMPL-X vertex for each of the ", k,
-              " vertices of '", mano.source, "', got ", body::describe(vertex_ids));
+  TORCH_CHECK(vertex_ids.defined() && vertex_ids.dim() == 1 && vertex_ids.size(0) == k, "HandResidual: the ", prefix,
+              " hand's vertex ids must give one SMPL-X vertex for each of the ", k, " vertices of '", mano.source,
+              "', got ", body::describe(vertex_ids));
   const at::Tensor ids = vertex_ids.to(at::kCPU, at::kLong);
   TORCH_CHECK(ids.min().item<int64_t>() >= 0 && ids.max().item<int64_t>() < coarse_vertex_count_, "HandResidual: the ",
               prefix, " hand's vertex ids must lie in [0, ", coarse_vertex_count_, ")");
@@ -50,7 +51,7 @@ HandResidualImpl::Hand HandResidualImpl::make_hand(const char* name, body::Side 
   // The subject's SMPL-X hand relative to its wrist, and MANO's shape fitted to it in the same frame.
   const int64_t wrist = body::smplx_hand_joint(side, 0);
   const at::Tensor target = shaped_vertices.index_select(0, ids) - rest_joints[wrist];  // (K, 3)
-  const at::Tensor wrist_regressor = mano.j_regressor[0];                                  // (K)
+  const at::Tensor wrist_regressor = mano.j_regressor[0];                               // (K)
   const at::Tensor template_relative = mano.v_template - wrist_regressor.matmul(mano.v_template);
   const int64_t shape_count = mano.shapedirs.size(2);
   const at::Tensor shapedirs_relative =
@@ -82,8 +83,8 @@ HandResidualImpl::Hand HandResidualImpl::make_hand(const char* name, body::Side 
     // Pose-feature columns 9 (j - 1) .. of joint j; this hand's finger joints are consecutive.
     const int64_t first_column = 9 * (body::smplx_hand_joint(side, 1) - 1);
     const at::Tensor columns = smplx.posedirs.index_select(0, ids).narrow(2, first_column, kHandPoseFeatureSize);
-    hand.smplx_posedirs = register_buffer(prefix + "_smplx_posedirs",
-                                          columns.reshape({k * 3, kHandPoseFeatureSize}).t().contiguous().to(at::kFloat));
+    hand.smplx_posedirs = register_buffer(
+        prefix + "_smplx_posedirs", columns.reshape({k * 3, kHandPoseFeatureSize}).t().contiguous().to(at::kFloat));
   }
   return hand;
 }

@@ -41,10 +41,10 @@ class HandResidualImpl : public torch::nn::Module {
   struct Hand {
     body::Mano mano{nullptr};
     Mlp refine{nullptr};
-    at::Tensor vertex_ids;       // (K) coarse SMPL-X vertex of each MANO vertex
-    at::Tensor mano_betas;       // (1, B_h) fitted
-    at::Tensor smplx_hand;       // (K, 3) the shaped SMPL-X hand relative to its wrist, no pose
-    at::Tensor smplx_posedirs;   // (135, 3 K) SMPL-X's correctives of this hand's finger joints, or undefined
+    at::Tensor vertex_ids;      // (K) coarse SMPL-X vertex of each MANO vertex
+    at::Tensor mano_betas;      // (1, B_h) fitted
+    at::Tensor smplx_hand;      // (K, 3) the shaped SMPL-X hand relative to its wrist, no pose
+    at::Tensor smplx_posedirs;  // (135, 3 K) SMPL-X's correctives of this hand's finger joints, or undefined
   };
   Hand make_hand(const char* name, body::Side side, const body::SmplxModelData& smplx,
                  const at::Tensor& shaped_vertices, const at::Tensor& rest_joints, const body::ManoModelData& mano,

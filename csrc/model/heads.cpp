@@ -5,12 +5,18 @@
 namespace sfgs::model {
 
 MlpShape CanonicalHeadsImpl::geometry_shape(int64_t feature_width, int64_t hidden_width) {
-  return MlpShape{{feature_width}, {hidden_width, hidden_width, hidden_width}, 3 + 1, /*group_norm=*/true,
+  return MlpShape{{feature_width},
+                  {hidden_width, hidden_width, hidden_width},
+                  3 + 1,
+                  /*group_norm=*/true,
                   /*zero_output=*/true};
 }
 
 MlpShape CanonicalHeadsImpl::colour_shape(int64_t feature_width, int64_t hidden_width) {
-  return MlpShape{{feature_width}, {hidden_width, hidden_width, hidden_width}, 3, /*group_norm=*/true,
+  return MlpShape{{feature_width},
+                  {hidden_width, hidden_width, hidden_width},
+                  3,
+                  /*group_norm=*/true,
                   /*zero_output=*/true};
 }
 

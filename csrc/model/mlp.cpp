@@ -20,6 +20,15 @@ at::Tensor uniform_parameter(at::IntArrayRef shape, int64_t fan_in) {
 
 }  // namespace
 
+at::Tensor normalise_groups(const at::Tensor& x, GroupNormKernel kernel) {
+  const int64_t n = x.size(0), c = x.size(1);
+  const at::Tensor grouped = x.reshape({n, kMlpGroupNormGroups, c / kMlpGroupNormGroups});
+  if (kernel == GroupNormKernel::kLayerNorm)
+    return at::layer_norm(grouped, {c / kMlpGroupNormGroups}, {}, {}, kMlpGroupNormEpsilon).view({n, c});
+  const auto [variance, mean] = at::var_mean(grouped, {2}, /*unbiased=*/false, /*keepdim=*/true);
+  return ((grouped - mean) * at::rsqrt(variance + kMlpGroupNormEpsilon)).view({n, c});
+}
+
 MlpImpl::MlpImpl(MlpShape shape) : shape_(std::move(shape)) {
   TORCH_CHECK(!shape_.input_widths.empty(), "Mlp: at least one input group is needed");
   int64_t fan_in = 0;
@@ -81,8 +90,8 @@ at::Tensor MlpImpl::project(size_t group, const at::Tensor& input) const {
 
 at::Tensor MlpImpl::activate(size_t layer, const at::Tensor& x) const {
   if (!shape_.group_norm) return at::relu(x);
-  return at::relu(at::group_norm(x, kMlpGroupNormGroups, norm_weights_[layer], norm_biases_[layer],
-                                 kMlpGroupNormEpsilon, /*cudnn_enabled=*/true));
+  const GroupNormKernel kernel = x.is_cuda() ? GroupNormKernel::kMoments : GroupNormKernel::kLayerNorm;
+  return at::relu(at::addcmul(norm_biases_[layer], normalise_groups(x, kernel), norm_weights_[layer]));
 }
 
 at::Tensor MlpImpl::finish(const at::Tensor& first_layer) const {
@@ -94,8 +103,8 @@ at::Tensor MlpImpl::finish(const at::Tensor& first_layer) const {
 }
 
 at::Tensor MlpImpl::forward(const std::vector<at::Tensor>& inputs) const {
-  TORCH_CHECK(inputs.size() == input_weights_.size(), "Mlp: expected ", input_weights_.size(),
-              " input groups, got ", inputs.size());
+  TORCH_CHECK(inputs.size() == input_weights_.size(), "Mlp: expected ", input_weights_.size(), " input groups, got ",
+              inputs.size());
   at::Tensor first = project(0, inputs[0]);
   for (size_t g = 1; g < inputs.size(); ++g) first = first + project(g, inputs[g]);
   return finish(first);

@@ -46,8 +46,8 @@ at::Tensor TriplaneImpl::sample(const at::Tensor& coordinates) const {
 
 TimePlanesImpl::TimePlanesImpl(int64_t channels, int64_t resolution, int64_t time_resolution) {
   TORCH_CHECK(channels > 0 && resolution > 1 && time_resolution > 1,
-              "TimePlanes: channels must be positive and both resolutions at least 2, got ", channels, ", ",
-              resolution, " and ", time_resolution);
+              "TimePlanes: channels must be positive and both resolutions at least 2, got ", channels, ", ", resolution,
+              " and ", time_resolution);
   planes_ = register_parameter("planes", random_planes({3, channels, time_resolution, resolution}));
 }
 

@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <random>
 #include <sstream>
 
@@ -65,6 +66,7 @@ class FrameCache {
 
 struct Checkpoint {
   int64_t iteration = 0;
+  double training_seconds = 0;
   std::string rng_state;
 };
 
@@ -76,6 +78,7 @@ void save_checkpoint(const RunFolder& run, const TrainConfig& config, const data
   archive.write("avatar", avatar_archive);
   archive.write("optimizer", optimizer_archive);
   archive.write("iteration", at::tensor({state.iteration}, at::kLong));
+  archive.write("training_seconds", at::tensor({state.training_seconds}, at::kDouble));
   archive.write("rng", string_tensor(state.rng_state));
   archive.write("config", string_tensor(config.to_yaml()));
   archive.write("dataset", string_tensor(dataset.source));
@@ -137,6 +140,7 @@ TrainSummary train_avatar(const data::Dataset& dataset, const TrainConfig& confi
 
   std::mt19937_64 rng(config.seed);
   int64_t start = 0;
+  double training_seconds = 0;
   if (resuming) {
     torch::serialize::InputArchive archive, avatar_archive, optimizer_archive;
     archive.load_from(run.checkpoint_file());
@@ -149,6 +153,8 @@ TrainSummary train_avatar(const data::Dataset& dataset, const TrainConfig& confi
     archive.read("rng", rng_state);
     start = iteration.item<int64_t>();
     std::istringstream(tensor_string(rng_state)) >> rng;
+    at::Tensor seconds;
+    if (archive.try_read("training_seconds", seconds)) training_seconds = seconds.item<double>();
   } else {
     std::remove(run.log_file().c_str());
   }
@@ -167,14 +173,15 @@ TrainSummary train_avatar(const data::Dataset& dataset, const TrainConfig& confi
   summary.validation_psnr = std::nan("");
   const auto started = std::chrono::steady_clock::now();
 
-  const auto validate = [&](int64_t iteration) {
-    const std::vector<int64_t>& val = dataset.split(data::Split::kVal);
-    if (val.empty()) return;
+  // Masked PSNR (white background, evaluation mask) over at most config.validation_frames frames of a split.
+  const auto split_psnr = [&](data::Split split) {
+    const std::vector<int64_t>& frames = dataset.split(split);
+    if (frames.empty()) return std::nan("");
     at::NoGradGuard no_grad;
     double sum = 0;
-    const int64_t count = std::min<int64_t>(config.validation_frames, int64_t(val.size()));
+    const int64_t count = std::min<int64_t>(config.validation_frames, int64_t(frames.size()));
     for (int64_t k = 0; k < count; ++k) {
-      const int64_t f = val[size_t(k * int64_t(val.size()) / count)];
+      const int64_t f = frames[size_t(k * int64_t(frames.size()) / count)];
       const data::Frame frame = dataset.load(f);
       const model::AvatarOutput out = avatar->forward(avatar_pose(dataset, f, device));
       Gaussians g{out.means, {}, {}, out.covariances, out.opacities, out.colours};
@@ -184,11 +191,24 @@ TrainSummary train_avatar(const data::Dataset& dataset, const TrainConfig& confi
       const at::Tensor gt = frame.image.to(device) * mask + (1 - mask);
       sum += psnr_of(r.image * mask + (1 - mask), gt);
     }
-    summary.validation_psnr = sum / double(count);
-    log.write({{"event", "validation"}, {"iteration", iteration}, {"val_psnr", summary.validation_psnr}});
+    return sum / double(count);
+  };
+  const auto validate = [&](int64_t iteration) {
+    const double val = split_psnr(data::Split::kVal), test = split_psnr(data::Split::kTest);
+    if (std::isnan(val) && std::isnan(test)) return;
+    summary.validation_psnr = val;
+    nlohmann::json entry{{"event", "validation"}, {"iteration", iteration}, {"training_seconds", training_seconds}};
+    if (!std::isnan(val)) entry["val_psnr"] = val;
+    if (!std::isnan(test)) entry["test_psnr"] = test;
+    log.write(entry);
   };
 
-  for (int64_t it = start; it < config.schedule.iterations; ++it) {
+  const int64_t end = options.stop_at > 0 ? std::min(options.stop_at, config.schedule.iterations)
+                                          : config.schedule.iterations;
+  TORCH_CHECK(end > start || start == config.schedule.iterations, "train: --stop-at ", options.stop_at,
+              " is not past the checkpoint's iteration ", start);
+  for (int64_t it = start; it < end; ++it) {
+    const auto step_started = std::chrono::steady_clock::now();
     const double factor = learning_rate_factor(config.schedule, it);
     for (size_t g = 0; g < base_rates.size(); ++g)
       static_cast<torch::optim::AdamOptions&>(optimizer.param_groups()[g].options()).lr(base_rates[g] * factor);
@@ -209,29 +229,66 @@ TrainSummary train_avatar(const data::Dataset& dataset, const TrainConfig& confi
     optimizer.zero_grad();
     loss.backward();
     optimizer.step();
-
     const int64_t done = it + 1;
-    if (done % config.log_every == 0 || done == config.schedule.iterations) {
-      nlohmann::json entry{{"event", "step"}, {"iteration", done}, {"lr_factor", factor},
-                           {"psnr", psnr_of(r.image, target)}, {"seconds", bar.elapsed_seconds()}};
+    const bool logs = done % config.log_every == 0 || done == end;
+    // The loss values are read on logged steps only: reading them is a host sync on a GPU.
+    const double step_psnr = logs ? psnr_of(r.image, target) : 0.0;
+    training_seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - step_started).count();
+
+    if (logs) {
+      nlohmann::json entry{{"event", "step"},          {"iteration", done}, {"lr_factor", factor},
+                           {"psnr", step_psnr},         {"seconds", bar.elapsed_seconds()},
+                           {"training_seconds", training_seconds}};
       for (const auto& [name, value] : terms) entry["loss"][name] = value.item<double>();
       log.write(entry);
       summary.final_loss = terms["total"].item<double>();
       bar.update(done, summary.final_loss, entry["psnr"].get<double>());
     }
-    if (done % config.validate_every == 0 || done == config.schedule.iterations) validate(done);
-    if (done % config.checkpoint_every == 0 || done == config.schedule.iterations) {
+    if (done % config.validate_every == 0 || done == end) validate(done);
+    if (done % config.checkpoint_every == 0 || done == end) {
       std::ostringstream rng_state;
       rng_state << rng;
-      save_checkpoint(run, config, dataset, avatar, optimizer, Checkpoint{done, rng_state.str()});
+      save_checkpoint(run, config, dataset, avatar, optimizer, Checkpoint{done, training_seconds, rng_state.str()});
     }
   }
   bar.finish();
-  summary.iterations = config.schedule.iterations;
+  summary.iterations = std::max(start, end);
+  summary.training_seconds = training_seconds;
   summary.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();
-  log.write({{"event", "end"}, {"iteration", summary.iterations}, {"seconds", summary.seconds},
-             {"val_psnr", summary.validation_psnr}});
+  nlohmann::json end_entry{{"event", "end"},
+                            {"iteration", summary.iterations},
+                            {"seconds", summary.seconds},
+                            {"training_seconds", training_seconds}};
+  if (!std::isnan(summary.validation_psnr)) end_entry["val_psnr"] = summary.validation_psnr;
+  log.write(end_entry);
   return summary;
+}
+
+std::vector<ErrorCurvePoint> write_error_curve_csv(const RunFolder& run, const std::string& csv_path) {
+  std::ifstream in(run.log_file());
+  TORCH_CHECK(in, "cannot read the training log '", run.log_file(), "'");
+  std::map<int64_t, ErrorCurvePoint> rows;
+  std::string line;
+  const auto number = [](const nlohmann::json& e, const char* key) {
+    return e.contains(key) && e[key].is_number() ? e[key].get<double>() : std::nan("");
+  };
+  while (std::getline(in, line)) {
+    const nlohmann::json e = nlohmann::json::parse(line, nullptr, /*allow_exceptions=*/false);
+    if (!e.is_object() || e.value("event", "") != "validation" || !e.contains("iteration")) continue;
+    const int64_t iteration = e["iteration"].get<int64_t>();
+    rows[iteration] = {iteration, number(e, "training_seconds"), number(e, "val_psnr"), number(e, "test_psnr")};
+  }
+  std::ostringstream csv;
+  csv << "iteration,training_seconds,val_psnr,test_psnr\n";
+  const auto cell = [](double v) { return std::isnan(v) ? std::string() : std::to_string(v); };
+  std::vector<ErrorCurvePoint> points;
+  for (const auto& [iteration, p] : rows) {
+    csv << iteration << ',' << cell(p.training_seconds) << ',' << cell(p.val_psnr) << ',' << cell(p.test_psnr) << '\n';
+    points.push_back(p);
+  }
+  const std::string text = csv.str();
+  write_file_atomically(csv_path, std::vector<unsigned char>(text.begin(), text.end()), true);
+  return points;
 }
 
 }  // namespace sfgs::train

@@ -3,6 +3,7 @@
 // periodic validation, atomic checkpoints that resume to an identical continuation, a progress bar and JSON-lines logs.
 #include <functional>
 #include <string>
+#include <vector>
 
 #include "data/dataset.h"
 #include "train/run_folder.h"
@@ -13,17 +14,32 @@ struct TrainOptions {
   bool resume = false;     // continue from the run folder's checkpoint
   bool overwrite = false;  // start afresh even if the folder holds a run
   bool progress = true;    // progress bar on stderr
+  // Pause after this many iterations (checkpoint written) so that a later --resume continues the same run;
+  // 0 runs to the end of the schedule.
+  int64_t stop_at = 0;
 };
 
 struct TrainSummary {
-  int64_t iterations = 0;
-  double seconds = 0;
+  int64_t iterations = 0;        // the iteration the run stopped at
+  double seconds = 0;            // wall time of this call
+  double training_seconds = 0;   // time spent in training steps over the whole run (resumes included)
   double final_loss = 0;
   double validation_psnr = 0;  // last validation (white background, evaluation mask); NaN without val frames
 };
 
 // Learning-rate factor at `iteration` (0-based): linear warm-up, then the step decays.
 double learning_rate_factor(const Schedule& schedule, int64_t iteration);
+
+// One validation of a run: its masked PSNRs (NaN where the split is empty) after `iteration` steps that took
+// `training_seconds` (validation and checkpoints excluded).
+struct ErrorCurvePoint {
+  int64_t iteration = 0;
+  double training_seconds = 0, val_psnr = 0, test_psnr = 0;
+};
+
+// Every validation of a run, read back from its log.jsonl (a resumed run's repeated iterations: the last wins),
+// also written atomically as CSV to `csv_path`: the run-time-versus-error curve.
+std::vector<ErrorCurvePoint> write_error_curve_csv(const RunFolder& run, const std::string& csv_path);
 
 TrainSummary train_avatar(const data::Dataset& dataset, const TrainConfig& config, const RunFolder& run,
                           const TrainOptions& options);

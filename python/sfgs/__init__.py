@@ -7,9 +7,11 @@ from ._C import (  # noqa: F401
     MIN_ALPHA,
     MIN_TRANSMITTANCE,
     TILE_SIZE,
+    Avatar,
     cuda_available,
     demo_scene,
+    load_avatar,
     render,
 )
 
-__all__ = ["render", "cuda_available", "demo_scene"]
+__all__ = ["render", "cuda_available", "demo_scene", "load_avatar", "Avatar"]

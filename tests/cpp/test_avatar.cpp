@@ -1,20 +1,24 @@
 // The SFGS avatar (csrc/model/avatar.h) on the procedural body: shapes and finiteness, agreement of a new avatar
 // with the skinned body model, gradients to every parameter, the inference cache, determinism, the parameter
 // count formula and the checks of its inputs.
+#include <sstream>
 #include <string>
 #include <vector>
 
 #include <ATen/CPUGeneratorImpl.h>
+#include <ATen/Context.h>
 #include <ATen/Functions.h>
 #include <ATen/TensorOperators.h>
 #include <gtest/gtest.h>
 #include <torch/csrc/autograd/autograd.h>
 #include <torch/csrc/autograd/grad_mode.h>
-#include <ATen/Context.h>
+#include <torch/serialize/input-archive.h>
+#include <torch/serialize/output-archive.h>
 
 #include "body/parts.h"
 #include "body/skeleton.h"
 #include "body/smplx.h"
+#include "common/constants.h"
 #include "model/avatar.h"
 #include "test_avatar_utils.h"
 #include "test_body_utils.h"
@@ -131,10 +135,10 @@ TEST(Avatar, NewAvatarReproducesTheSkinnedBodyModel) {
   const at::Tensor linear = expected.skinning_transforms[0].narrow(1, 0, 3).narrow(2, 0, 3).reshape({-1, 9});
   const at::Tensor a = weights.matmul(linear).view({-1, 3, 3});
   const at::Tensor gram = a.matmul(a.transpose(1, 2)) * (2 * out.log_scales).exp().view({-1, 1, 1});
-  const at::Tensor packed = at::stack({gram.select(1, 0).select(1, 0), gram.select(1, 0).select(1, 1),
-                                       gram.select(1, 0).select(1, 2), gram.select(1, 1).select(1, 1),
-                                       gram.select(1, 1).select(1, 2), gram.select(1, 2).select(1, 2)},
-                                      1);
+  const at::Tensor packed =
+      at::stack({gram.select(1, 0).select(1, 0), gram.select(1, 0).select(1, 1), gram.select(1, 0).select(1, 2),
+                 gram.select(1, 1).select(1, 1), gram.select(1, 1).select(1, 2), gram.select(1, 2).select(1, 2)},
+                1);
   EXPECT_LT(max_abs_difference(out.covariances, packed), 1e-6 * packed.abs().max().item<double>());
 
   // Initial scales: half the mean edge length at each point, between 0.1 mm (fingers) and 5 cm on this body.
@@ -181,7 +185,8 @@ TEST(Avatar, CachedInferenceEqualsUncached) {
     randomise_parameters(*avatar, 0.1, 4);
     avatar->eval();
     at::NoGradGuard no_grad;
-    const AvatarPose a = test_pose(4, 0.4, true, 0.3), b = test_pose(5, 0.4, true, 0.3), c = test_pose(4, 0.4, true, -0.7);
+    const AvatarPose a = test_pose(4, 0.4, true, 0.3), b = test_pose(5, 0.4, true, 0.3),
+                     c = test_pose(4, 0.4, true, -0.7);
     const AvatarOutput ua = avatar->forward(a), ub = avatar->forward(b), uc = avatar->forward(c);
     avatar->cache_static_features();
     for (int repeat = 0; repeat < 2; ++repeat) {  // first fills the time-dependent part, then reuses it
@@ -212,6 +217,27 @@ TEST(Avatar, IsDeterministicForAFixedSeed) {
   const AvatarPose pose = test_pose(7, 0.4, true);
   expect_identical(a->forward(pose), b->forward(pose));
   expect_identical(a->forward(pose), a->forward(pose));
+}
+
+// What a checkpoint holds: saving one avatar and loading it into another built with a different seed makes the two
+// give identical outputs (every buffer, the sparse skinning weights of the MANO layers included, survives).
+TEST(Avatar, SaveAndLoadRoundTrips) {
+  at::manual_seed(3);
+  Avatar saved(procedural_avatar_body(), subject_betas(), small_config());
+  randomise_parameters(*saved, 0.1, 5);
+  at::manual_seed(4);
+  Avatar loaded(procedural_avatar_body(), subject_betas(), small_config());
+  const AvatarPose pose = test_pose(9, 0.4, true, 0.2);
+  EXPECT_FALSE(saved->forward(pose).colours.equal(loaded->forward(pose).colours));
+  torch::serialize::OutputArchive out;
+  saved->save(out);
+  std::ostringstream bytes;
+  out.save_to(bytes);
+  std::istringstream in_bytes(bytes.str());
+  torch::serialize::InputArchive in;
+  in.load_from(in_bytes);
+  loaded->load(in);
+  expect_identical(saved->forward(pose), loaded->forward(pose));
 }
 
 TEST(Avatar, ParameterCountFollowsTheFormulaForEverySwitchCombination) {
@@ -251,6 +277,35 @@ TEST(Avatar, ExpressionIsPaddedOrTruncated) {
   EXPECT_LT(max_abs_difference(long_expression.colours, short_expression.colours), 1e-6);
   pose.expression = at::Tensor();
   EXPECT_GT(max_abs_difference(avatar->forward(pose).means, short_expression.means), 1e-4);
+}
+
+// The MLPs' GroupNorm (written out for speed, a formulation per device) is torch.nn.GroupNorm, gradients included.
+TEST(Avatar, MlpGroupNormIsGroupNorm) {
+  at::Generator generator = at::detail::createCPUGenerator(12);
+  const auto f64 = at::TensorOptions().dtype(at::kDouble);  // float32 would blur where a group's variance is small
+  const at::Tensor x = at::randn({64, 16}, generator, f64).requires_grad_(true);
+  const at::Tensor weights = at::randn({64, 16}, generator, f64);
+  const at::Tensor expected = at::group_norm(x, kMlpGroupNormGroups, {}, {}, kMlpGroupNormEpsilon);
+  const at::Tensor expected_grad = torch::autograd::grad({(expected * weights).sum()}, {x})[0];
+  for (const auto kernel : {model::GroupNormKernel::kMoments, model::GroupNormKernel::kLayerNorm}) {
+    const at::Tensor got = model::normalise_groups(x, kernel);
+    EXPECT_LT(max_abs_difference(got, expected), 1e-12);
+    EXPECT_LT(max_abs_difference(torch::autograd::grad({(got * weights).sum()}, {x})[0], expected_grad), 1e-10);
+  }
+  // The MLP applies it with its affine map before each ReLU.
+  model::Mlp mlp(model::MlpShape{{5, 3}, {16}, 2, /*group_norm=*/true});
+  mlp->to(at::kDouble);
+  {
+    at::NoGradGuard no_grad;
+    for (auto& p : mlp->parameters()) p.normal_(0.0, 0.5, generator);
+  }
+  const auto p = mlp->named_parameters();
+  const at::Tensor a = at::randn({64, 5}, generator, f64), b = at::randn({64, 3}, generator, f64);
+  const at::Tensor first = at::linear(at::cat({a, b}, 1), at::cat({p["input0_weight"], p["input1_weight"]}, 1),
+                                      p["input_bias"]);
+  const at::Tensor hidden =
+      at::relu(at::group_norm(first, kMlpGroupNormGroups, p["norm0_weight"], p["norm0_bias"], kMlpGroupNormEpsilon));
+  EXPECT_LT(max_abs_difference(mlp->forward({a, b}), at::linear(hidden, p["output_weight"], p["output_bias"])), 1e-12);
 }
 
 TEST(Avatar, RejectsBadInputsWithClearMessages) {

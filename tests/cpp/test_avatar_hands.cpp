@@ -133,8 +133,7 @@ TEST(AvatarHands, AnnyStandInsGiveASmallHandResidual) {
   const double residual = out.hand_residual.abs().max().item<double>();
   EXPECT_LT(residual, 5e-3);
   const at::Tensor hands = avatar->part_labels().ge(static_cast<int64_t>(body::BodyPart::kLeftHand));
-  EXPECT_EQ(out.hand_residual.index_select(0, hands.logical_not().nonzero().flatten()).abs().max().item<double>(),
-            0.0);
+  EXPECT_EQ(out.hand_residual.index_select(0, hands.logical_not().nonzero().flatten()).abs().max().item<double>(), 0.0);
   EXPECT_LT(max_abs_difference(out.means, out.posed_vertices), residual + 1e-5);
 }
 

@@ -28,9 +28,7 @@ const model::AvatarBody& procedural_avatar_body() {
   return body;
 }
 
-at::Tensor subject_betas() {
-  return at::tensor({0.8, -0.5, 0.3, 0.6, -0.2, 0.1, 0.4, -0.3, 0.2, -0.1}, at::kFloat);
-}
+at::Tensor subject_betas() { return at::tensor({0.8, -0.5, 0.3, 0.6, -0.2, 0.1, 0.4, -0.3, 0.2, -0.1}, at::kFloat); }
 
 model::AvatarConfig small_config() {
   model::AvatarConfig c;
@@ -81,8 +79,6 @@ void copy_parameters(const model::AvatarImpl& from, model::AvatarImpl& to) {
   }
 }
 
-double max_abs_difference(const at::Tensor& a, const at::Tensor& b) {
-  return (a - b).abs().max().item<double>();
-}
+double max_abs_difference(const at::Tensor& a, const at::Tensor& b) { return (a - b).abs().max().item<double>(); }
 
 }  // namespace sfgs::testing

@@ -7,6 +7,7 @@
 
 #include <gtest/gtest.h>
 
+#include "body/kinematics.h"
 #include "body/mesh.h"
 #include "body/rotations.h"
 #include "body/skeleton.h"
@@ -145,6 +146,25 @@ TEST(BodySmplx, PoseCorrectivesAreTheFeatureTimesPosedirs) {
   EXPECT_LT(max_error(out.vertices, at::einsum("bvrc,bvc->bvr", {blended, homogeneous}).narrow(2, 0, 3)), 1e-12);
 }
 
+TEST(BodySmplx, SparseAndDenseSkinningWeightsAgree) {
+  at::manual_seed(8);
+  const at::Tensor weights = at::rand({50, 55}, at::kDouble) * (at::rand({50, 55}, at::kDouble) < 0.1);
+  const at::Tensor rest = at::randn({3, 50, 3}, at::kDouble);
+  const at::Tensor transforms = at::randn({3, 55, 4, 4}, at::kDouble).requires_grad_(true);
+  const at::Tensor dense = body::linear_blend_skinning(rest, weights, transforms);
+  const at::Tensor sparse = body::linear_blend_skinning(rest, body::sparse_skinning_weights(weights), transforms);
+  EXPECT_LT(max_error(dense, sparse), 1e-13);
+  const at::Tensor w = at::randn_like(dense);
+  const at::Tensor g_dense = torch::autograd::grad({(dense * w).sum()}, {transforms})[0];
+  const at::Tensor g_sparse = torch::autograd::grad({(sparse * w).sum()}, {transforms})[0];
+  EXPECT_LT(max_error(g_dense, g_sparse), 1e-13);
+  // By hand for one vertex: sum_j w_j A_j [v; 1].
+  const at::Tensor blended = at::einsum("j,jrc->rc", {weights[7], transforms.detach()[1]});
+  EXPECT_LT(max_error(dense[1][7], blended.narrow(0, 0, 3).narrow(1, 0, 3).matmul(rest[1][7]) +
+                                       blended.narrow(0, 0, 3).select(1, 3)),
+            1e-13);
+}
+
 // Poses joint j alone (axis-angle `rotation`) and checks that only its subtree moves, rigidly about the joint.
 void expect_subtree_moves_rigidly(const SmplxModelData& d, int64_t j, const at::Tensor& rotation) {
   const Smplx model(d, double_options(10, 0, false, true));
@@ -252,6 +272,27 @@ TEST(BodySmplx, OffsetsMoveTheTemplateAndTheJoints) {
   const auto out = model->forward(in);
   EXPECT_LT(max_error(out.vertices[1], d.v_template + in.vertex_offsets), 1e-12);
   EXPECT_LT(max_error(out.joints, d.j_regressor.matmul(d.v_template + in.vertex_offsets) + in.joint_offsets), 1e-12);
+}
+
+TEST(BodySmplx, ConvertingAModuleLeavesTheModelDataAndOtherModulesAlone) {
+  const SmplxModelData d = tiny_model();
+  Smplx converted(d, double_options(10, 10, true, false, 1));
+  const Smplx untouched(d, double_options(10, 10, true, false, 1));
+  converted->to(at::kFloat);
+  EXPECT_EQ(converted->dtype(), at::kFloat);
+  EXPECT_EQ(untouched->dtype(), at::kDouble);
+  for (const at::Tensor* t : {&d.v_template, &d.j_regressor, &d.weights, &d.posedirs, &d.hands_mean_left})
+    EXPECT_EQ(t->scalar_type(), at::kDouble);
+  SmplxInput in = random_input(2, 10, 10, 6, 0.3, 45), as_float;
+  for (const auto& [source, target] :
+       std::vector<std::pair<const at::Tensor*, at::Tensor*>>{{&in.betas, &as_float.betas},
+                                                              {&in.body_pose, &as_float.body_pose},
+                                                              {&in.left_hand_pose, &as_float.left_hand_pose},
+                                                              {&in.expression, &as_float.expression}}) {
+    *target = source->to(at::kFloat);
+  }
+  in.global_orient = in.jaw_pose = in.leye_pose = in.reye_pose = in.right_hand_pose = in.transl = at::Tensor();
+  EXPECT_LT(max_error(converted->forward(as_float).vertices.to(at::kDouble), untouched->forward(in).vertices), 1e-5);
 }
 
 TEST(BodySmplx, BatchesAreIndependent) {

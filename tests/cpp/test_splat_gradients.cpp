@@ -2,6 +2,7 @@
 // (forward values and its autograd gradients), and float32 against float64.
 #include <string>
 
+#include <ATen/core/grad_mode.h>
 #include <gtest/gtest.h>
 #include <torch/csrc/autograd/autograd.h>
 

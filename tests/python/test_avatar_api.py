@@ -1,0 +1,126 @@
+"""The avatar API of `import sfgs`: load a run trained by the sfgs executable, pose it, render it.
+
+Trains a tiny avatar with the `sfgs` executable named by SFGS_EXECUTABLE (CTest sets it); skipped without it."""
+import os
+import struct
+import subprocess
+import zlib
+
+import pytest
+import torch
+
+import sfgs
+
+SFGS = os.environ.get("SFGS_EXECUTABLE", "")
+pytestmark = pytest.mark.skipif(not os.path.isfile(SFGS), reason="SFGS_EXECUTABLE does not name the sfgs executable")
+
+TINY_CONFIG = """
+run: {seed: 3, log_every: 1, validate_every: 2, checkpoint_every: 4}
+avatar: {subdivision_levels: 0, plane_channels: 4, plane_resolution: 16, time_resolution: 4,
+         face_plane_resolution: 16, hidden_width: 16}
+loss: {use_lpips: false}
+schedule: {iterations: 4, warmup_iterations: 1}
+"""
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    root = tmp_path_factory.mktemp("avatar_api")
+    (root / "tiny.yaml").write_text(TINY_CONFIG)
+    data, out = str(root / "data"), str(root / "run")
+    subprocess.run([SFGS, "synth", "--out", data, "--frames", "10", "--width", "40", "--height", "32"], check=True)
+    subprocess.run([SFGS, "train", "--data", data, "--out", out, "--config", str(root / "tiny.yaml"), "--quiet"],
+                   check=True)
+    subprocess.run([SFGS, "eval", "--run", out, "--data", data, "--save-images"], check=True)
+    return out
+
+
+def test_loads_the_run_and_its_dataset(run):
+    avatar = sfgs.load_avatar(run)
+    assert avatar.iteration == 4
+    assert avatar.frame_count == 10
+    assert "hidden_width: 16" in avatar.config_yaml
+    assert [avatar.frame(i)["split"] for i in (0, 4, 9)] == ["train", "val", "test"]
+
+
+def test_gaussians_have_their_shapes_and_follow_the_pose(run):
+    avatar = sfgs.load_avatar(run)
+    rest = avatar.gaussians()
+    n = avatar.gaussian_count
+    assert rest["means"].shape == (n, 3) and rest["covariances"].shape == (n, 6)
+    assert rest["colours"].shape == (n, 3) and rest["opacities"].shape == (n,)
+    assert all(torch.isfinite(v).all() for v in rest.values())
+    moved = avatar.gaussians({"transl": torch.tensor([0.0, 0.5, 0.0])})
+    assert torch.allclose(moved["means"], rest["means"] + torch.tensor([0.0, 0.5, 0.0]), atol=1e-5)
+    # Gradients reach the pose through the networks, skinning and the splatting op.
+    body_pose = torch.zeros(21, 3, requires_grad=True)
+    frame = avatar.frame(2)
+    image = avatar.render(frame["camera"], {"body_pose": body_pose, "transl": frame["pose"]["transl"],
+                                            "global_orient": frame["pose"]["global_orient"]})["image"]
+    image.sum().backward()
+    assert body_pose.grad is not None and body_pose.grad.abs().sum() > 0
+
+
+def test_render_matches_the_evaluation_renders(run):
+    """A test frame rendered through Python equals `sfgs eval --save-images`'s PNG up to 8-bit rounding."""
+    avatar = sfgs.load_avatar(run)
+    avatar.set_cached(True)
+    folder = os.path.join(run, "eval_images")
+    images = sorted(f for f in os.listdir(folder) if f.endswith(".png"))
+    assert len(images) == 1, "sfgs eval --save-images should write the one test frame"
+    frame = avatar.frame(9)
+    with torch.no_grad():
+        image = avatar.render(frame["camera"], frame["pose"])["image"]
+    assert image.shape == (32, 40, 3)
+    png = read_png_rgb(os.path.join(folder, images[0]))
+    assert (image - png).abs().max() <= 0.5 / 255 + 1e-6
+    assert (png < 0.9).any(), "the body should be in view"
+
+
+def read_png_rgb(path):
+    """8-bit RGB, non-interlaced PNG (what sfgs writes) -> (H, W, 3) float in [0, 1], with the standard library."""
+    data = open(path, "rb").read()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    pos, idat, width, height = 8, b"", 0, 0
+    while pos < len(data):
+        length = struct.unpack(">I", data[pos:pos + 4])[0]
+        kind, body = data[pos + 4:pos + 8], data[pos + 8:pos + 8 + length]
+        if kind == b"IHDR":
+            width, height, depth, colour = struct.unpack(">IIBB", body[:10])
+            assert (depth, colour) == (8, 2), "expected 8-bit RGB"
+        elif kind == b"IDAT":
+            idat += body
+        pos += 12 + length
+    raw, stride, rows, previous = zlib.decompress(idat), 3 * width, [], bytearray(3 * width)
+    for y in range(height):
+        kind, line = raw[y * (stride + 1)], bytearray(raw[y * (stride + 1) + 1:(y + 1) * (stride + 1)])
+        for x in range(stride):
+            a = line[x - 3] if x >= 3 else 0
+            b, c = previous[x], previous[x - 3] if x >= 3 else 0
+            if kind == 1:
+                line[x] = (line[x] + a) & 255
+            elif kind == 2:
+                line[x] = (line[x] + b) & 255
+            elif kind == 3:
+                line[x] = (line[x] + (a + b) // 2) & 255
+            elif kind == 4:
+                p = a + b - c
+                pa, pb, pc = abs(p - a), abs(p - b), abs(p - c)
+                line[x] = (line[x] + (a if pa <= pb and pa <= pc else b if pb <= pc else c)) & 255
+        rows.append(bytes(line))
+        previous = line
+    return torch.frombuffer(bytearray(b"".join(rows)), dtype=torch.uint8).view(height, width, 3).float() / 255
+
+
+def test_bad_inputs_are_clear_errors(run, tmp_path):
+    with pytest.raises(RuntimeError, match="checkpoint"):
+        sfgs.load_avatar(str(tmp_path))
+    with pytest.raises(RuntimeError, match="device must be"):
+        sfgs.load_avatar(run, device="tpu")
+    avatar = sfgs.load_avatar(run)
+    with pytest.raises(RuntimeError, match="unknown key 'body'"):
+        avatar.gaussians({"body": torch.zeros(3)})
+    with pytest.raises(RuntimeError, match="world_to_camera"):
+        avatar.render({"fx": 1.0})
+    with pytest.raises(RuntimeError, match="index"):
+        avatar.frame(10)
