@@ -2,7 +2,7 @@
 # Checks the CUDA backend on a GPU machine: configures and builds against the machine's CUDA LibTorch, runs the CUDA
 # tests, compute-sanitizer memcheck and racecheck on the small CudaSanitizer.* scenes, and the benchmark.
 #
-#   bash scripts/device_check.sh [build] [test] [sanitize] [bench] [profile] [avatar] [train]
+#   bash scripts/device_check.sh [build] [test] [sanitize] [bench] [profile] [avatar] [train] [ablate]
 #   (no argument: the first five, in this order)
 #
 # profile: GPU time of every kernel of three forward + backward steps at 167,390 and 1M Gaussians, 800 x 1200
@@ -22,6 +22,8 @@
 # train: synthesise the Anny scene (SFGS_DEVICE_TRAIN_SIZE, default 800x1200; SFGS_DEVICE_TRAIN_FRAMES, default
 # 100) and train, evaluate (with LPIPS) and render it on CUDA with configs/device_anny.yaml
 # (SFGS_DEVICE_TRAIN_ITERATIONS overrides its iterations).
+# ablate: `sfgs ablate` on the Anny scene at SFGS_DEVICE_ABLATE_SIZE (default 400x600), 80 frames,
+# SFGS_DEVICE_ABLATE_ITERATIONS (default 1500) per variant.
 # The whole project is configured and built (sfgs_core holds every module). Should that build fail (another module's
 # dependency missing or a module not compiling), a splat-only CMake project (the op, both backends, the CUDA tests
 # and benchmark) is built instead so that the CUDA checks still run; the build step is reported failed either way.
@@ -218,6 +220,20 @@ if wants train; then
   tail -n 2 "$out/train-render.log"
   mkdir -p "$out/renders" && cp "$scene"/run/eval_images/*.png "$out/renders/" 2>/dev/null
   cp "$scene/render/frame_0000.png" "$scene/render/frame_0048.png" "$scene/render/render.mp4" "$out/renders/" 2>/dev/null
+fi
+
+if wants ablate; then
+  shared=$root/.device/shared
+  export SFGS_SHARED_DIR=$shared
+  size=${SFGS_DEVICE_ABLATE_SIZE:-400x600}
+  scene=/tmp/sfgs-anny-ablate
+  run ablate-synth 240 "$build/sfgs" synth --out "$scene/data" --body "$shared/bodies/anny_smplx_layout.npz" \
+    --texture "$shared/bodies/anny_albedo.png" --frames 80 --width "${size%x*}" --height "${size#*x}" --force
+  sed "s|@SHARED@|$shared|g" "$root/configs/device_anny.yaml" >"$scene/config.yaml"
+  run ablate 540 "$build/sfgs" ablate --data "$scene/data" --out "$scene/ablation" --config "$scene/config.yaml" \
+    --iterations "${SFGS_DEVICE_ABLATE_ITERATIONS:-1500}" --force
+  grep -E "^\||sfgs ablate" "$out/ablate.log"
+  cp "$scene/ablation/ablation.json" "$scene/ablation/ablation.md" "$out/" 2>/dev/null
 fi
 
 # The device tool returns only a few files: everything travels as one archive.

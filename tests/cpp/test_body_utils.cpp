@@ -1,4 +1,5 @@
 #include "test_body_utils.h"
+#include "test_files.h"
 
 #include <cstdlib>
 #include <fstream>
@@ -16,10 +17,7 @@ ScratchFolder::ScratchFolder() {
   std::filesystem::create_directories(path_);
 }
 
-ScratchFolder::~ScratchFolder() {
-  std::error_code ignored;
-  std::filesystem::remove_all(path_, ignored);
-}
+ScratchFolder::~ScratchFolder() { remove_folder_tree(path_.string()); }
 
 void expect_error(const std::function<void()>& f, const std::vector<std::string>& needles) {
   try {

@@ -12,6 +12,8 @@
 
 #include <ATen/ATen.h>
 #include <gtest/gtest.h>
+
+#include "test_files.h"
 #include <nlohmann/json.hpp>
 
 #include "metrics/lpips.h"
@@ -75,7 +77,7 @@ inline std::string safetensors_bytes(const std::map<std::string, at::Tensor>& te
 // A fresh folder for files a test writes.
 inline std::string temporary_folder(const std::string& name) {
   const std::filesystem::path dir = std::filesystem::temp_directory_path() / ("sfgs_test_metrics_" + name);
-  std::filesystem::remove_all(dir);
+  remove_folder_tree(dir.string());
   std::filesystem::create_directories(dir);
   return dir.string();
 }
