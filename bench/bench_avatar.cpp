@@ -23,6 +23,7 @@
 #include <torch/csrc/autograd/grad_mode.h>
 #include <torch/cuda.h>
 
+#include "common/host_memory.h"
 #include "body/mesh.h"
 #include "body/skeleton.h"
 #include "model/avatar.h"
@@ -108,6 +109,7 @@ void print(const char* what, const Timing& t) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  sfgs::reuse_freed_host_memory();
   const Arguments args = parse(argc, argv);
   if (args.device != "cpu" && args.device != "cuda") {
     std::fprintf(stderr, "bench_avatar: --device must be cpu or cuda, got '%s'\n", args.device.c_str());

@@ -15,6 +15,7 @@
 #include <ATen/Parallel.h>
 #include <torch/csrc/autograd/autograd.h>
 
+#include "common/host_memory.h"
 #include "metrics/evaluation.h"
 #include "metrics/geometry_metrics.h"
 #include "metrics/image_metrics.h"
@@ -45,6 +46,7 @@ Lpips random_network(LpipsNet net) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  sfgs::reuse_freed_host_memory();
   const int repeats = argc > 1 ? std::max(1, std::atoi(argv[1])) : 3;
   if (!std::getenv("OMP_NUM_THREADS")) at::set_num_threads(int(std::max(1u, std::thread::hardware_concurrency())));
   std::printf("sfgs metric benchmark (CPU, %d threads): median (min-max) ms of %d runs after 1 warm-up\n",

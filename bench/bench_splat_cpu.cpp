@@ -12,6 +12,7 @@
 #include <ATen/Parallel.h>
 #include <torch/csrc/autograd/autograd.h>
 
+#include "common/host_memory.h"
 #include "scene/builtin_scene.h"
 
 namespace {
@@ -32,6 +33,7 @@ double elapsed_ms(std::chrono::steady_clock::time_point start) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  sfgs::reuse_freed_host_memory();
   const int repeats = argc > 1 ? std::max(1, std::atoi(argv[1])) : 5;
   if (!std::getenv("OMP_NUM_THREADS")) at::set_num_threads(int(std::max(1u, std::thread::hardware_concurrency())));
   std::printf("sfgs CPU splatting benchmark: float32, %d threads, median (min-max) of %d runs after 1 warm-up\n",

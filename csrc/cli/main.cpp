@@ -14,6 +14,7 @@
 #include <ATen/Parallel.h>
 #include <c10/util/Exception.h>
 
+#include "common/host_memory.h"
 #include "cli/commands.h"
 
 namespace {
@@ -43,6 +44,7 @@ commands:
 }  // namespace
 
 int main(int argc, char** argv) {
+  sfgs::reuse_freed_host_memory();
   // Line-buffered even into a pipe or file, so the step messages interleave with the progress lines on stderr.
   std::setvbuf(stdout, nullptr, _IOLBF, 0);
   // OpenMP may start with one thread; use every core unless the user chose with OMP_NUM_THREADS.
