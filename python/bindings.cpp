@@ -14,6 +14,16 @@ namespace py = pybind11;
 
 namespace {
 
+py::dict result_dict(const sfgs::RenderResult& r) {
+  py::dict out;
+  out["image"] = r.image;
+  out["alpha"] = r.alpha;
+  out["depth"] = r.depth;
+  out["radii"] = r.radii;
+  out["visible"] = r.visible;
+  return out;
+}
+
 py::dict render(const at::Tensor& means, const at::Tensor& opacities, const at::Tensor& features,
                 const at::Tensor& background, const at::Tensor& world_to_camera, double fx, double fy, double cx,
                 double cy, int64_t width, int64_t height, const c10::optional<at::Tensor>& scales,
@@ -32,14 +42,7 @@ py::dict render(const at::Tensor& means, const at::Tensor& opacities, const at::
   options.low_pass = low_pass;
   options.antialiased = antialiased;
   options.deterministic = deterministic;
-  const sfgs::RenderResult r = sfgs::render(g, background, camera, options);
-  py::dict out;
-  out["image"] = r.image;
-  out["alpha"] = r.alpha;
-  out["depth"] = r.depth;
-  out["radii"] = r.radii;
-  out["visible"] = r.visible;
-  return out;
+  return result_dict(sfgs::render(g, background, camera, options));
 }
 
 // The pose fields an avatar takes, by their SMPL-X names.
@@ -112,13 +115,8 @@ class TrainedAvatar {
   py::dict render(const py::dict& camera, const py::dict& pose, const c10::optional<at::Tensor>& background) {
     const sfgs::model::AvatarOutput o = t_.avatar->forward(to_pose(pose));
     const at::Tensor bg = background ? background->to(o.means.options()) : at::ones({3}, o.means.options());
-    const sfgs::RenderResult r =
-        sfgs::render({o.means, {}, {}, o.covariances, o.opacities, o.colours}, bg, camera_from_dict(camera));
-    py::dict d;
-    d["image"] = r.image;
-    d["alpha"] = r.alpha;
-    d["depth"] = r.depth;
-    return d;
+    return result_dict(
+        sfgs::render({o.means, {}, {}, o.covariances, o.opacities, o.colours}, bg, camera_from_dict(camera)));
   }
 
   // Frame `index` of the training dataset: its pose (with time), camera and split.
@@ -226,7 +224,8 @@ log_scales, posed_vertices. Differentiable w.r.t. the pose tensors unless torch.
       .def("render", &TrainedAvatar::render, py::arg("camera"), py::arg("pose") = py::dict(),
            py::arg("background") = py::none(),
            R"(Render the avatar in `pose` from `camera` (a dict: world_to_camera (4,4), fx, fy, cx, cy, width, height;
-frame(i)["camera"] gives one). Background white unless given (3). Returns image (H,W,3), alpha, depth.)")
+frame(i)["camera"] gives one). Background white unless given (3). Returns image (H,W,3), alpha, depth, radii,
+visible, as render() does.)")
       .def("frame", &TrainedAvatar::frame, py::arg("index"),
            "Training-dataset frame `index`: {'pose': dict, 'camera': dict, 'split': 'train'|'val'|'test'}")
       .def_property_readonly("frame_count", &TrainedAvatar::frame_count)
