@@ -104,6 +104,7 @@ int run_ablate(Arguments& args) {
     options.overwrite = force;
     std::printf("sfgs ablate: %s\n", name.c_str());
     const train::TrainSummary s = train::train_avatar(dataset, config, run, options);
+    finish_training(run, s);
     const train::AvatarEvaluation e = evaluate_run(run, dataset, config.device, "", force);
     char row[256];
     std::snprintf(row, sizeof(row), "| %s | %.2f | %.4f | %s | %.0f |\n", name.c_str(), e.summary.psnr, e.summary.ssim,
