@@ -45,22 +45,14 @@ py::dict render(const at::Tensor& means, const at::Tensor& opacities, const at::
   return result_dict(sfgs::render(g, background, camera, options));
 }
 
-// The pose fields an avatar takes, by their SMPL-X names.
-constexpr const char* kPoseKeys[] = {"global_orient", "body_pose", "jaw_pose", "left_eye_pose", "right_eye_pose",
-                                     "left_hand_pose", "right_hand_pose", "expression", "transl"};
-
-at::Tensor* pose_field(sfgs::model::AvatarPose& p, const std::string& key) {
-  if (key == "global_orient") return &p.global_orient;
-  if (key == "body_pose") return &p.body_pose;
-  if (key == "jaw_pose") return &p.jaw_pose;
-  if (key == "left_eye_pose") return &p.left_eye_pose;
-  if (key == "right_eye_pose") return &p.right_eye_pose;
-  if (key == "left_hand_pose") return &p.left_hand_pose;
-  if (key == "right_hand_pose") return &p.right_hand_pose;
-  if (key == "expression") return &p.expression;
-  if (key == "transl") return &p.transl;
-  return nullptr;
-}
+// The pose fields an avatar takes, by their SMPL-X names (and "time").
+using sfgs::model::AvatarPose;
+const std::pair<const char*, at::Tensor AvatarPose::*> kPoseFields[] = {
+    {"global_orient", &AvatarPose::global_orient},   {"body_pose", &AvatarPose::body_pose},
+    {"jaw_pose", &AvatarPose::jaw_pose},             {"left_eye_pose", &AvatarPose::left_eye_pose},
+    {"right_eye_pose", &AvatarPose::right_eye_pose}, {"left_hand_pose", &AvatarPose::left_hand_pose},
+    {"right_hand_pose", &AvatarPose::right_hand_pose}, {"expression", &AvatarPose::expression},
+    {"transl", &AvatarPose::transl}};
 
 py::dict camera_dict(const sfgs::Camera& c) {
   py::dict d;
@@ -123,12 +115,10 @@ class TrainedAvatar {
   py::dict frame(int64_t index) {
     const sfgs::data::Dataset& d = dataset();
     TORCH_CHECK(index >= 0 && index < d.size(), "frame: index must be in [0, ", d.size(), "), got ", index);
-    sfgs::model::AvatarPose p = sfgs::train::avatar_pose(d, index, at::kCPU);
+    const AvatarPose p = sfgs::train::avatar_pose(d, index, at::kCPU);
     py::dict pose;
-    for (const char* key : kPoseKeys) {
-      const at::Tensor* t = pose_field(p, key);
-      if (t->defined()) pose[key] = *t;
-    }
+    for (const auto& [key, field] : kPoseFields)
+      if ((p.*field).defined()) pose[key] = p.*field;
     pose["time"] = p.time;
     py::dict out;
     out["pose"] = pose;
@@ -152,18 +142,22 @@ class TrainedAvatar {
   const sfgs::train::TrainedAvatar& trained() const { return t_; }
 
  private:
-  sfgs::model::AvatarPose to_pose(const py::dict& pose) const {
-    sfgs::model::AvatarPose p;
+  AvatarPose to_pose(const py::dict& pose) const {
+    AvatarPose p;
     for (const auto& item : pose) {
       const std::string key = item.first.cast<std::string>();
       if (key == "time") {
         p.time = item.second.cast<double>();
         continue;
       }
-      at::Tensor* field = pose_field(p, key);
-      TORCH_CHECK(field, "pose: unknown key '", key, "'; expected time or one of global_orient, body_pose, jaw_pose, ",
-                  "left_eye_pose, right_eye_pose, left_hand_pose, right_hand_pose, expression, transl");
-      *field = item.second.cast<at::Tensor>().to(device_);
+      const auto* known = std::find_if(std::begin(kPoseFields), std::end(kPoseFields),
+                                       [&](const auto& f) { return key == f.first; });
+      if (known == std::end(kPoseFields)) {
+        std::string expected = "time";
+        for (const auto& [name, field] : kPoseFields) expected += std::string(", ") + name;
+        TORCH_CHECK(false, "pose: unknown key '", key, "'; expected one of ", expected);
+      }
+      p.*(known->second) = item.second.cast<at::Tensor>().to(device_);
     }
     return p;
   }

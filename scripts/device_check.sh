@@ -192,16 +192,21 @@ if wants avatar; then
   fi
 fi
 
+# anny_scene STEP FOLDER WIDTHxHEIGHT FRAMES: the Anny scene synthesised into FOLDER/data and its training config
+# (configs/device_anny.yaml pointed at the carried bodies) in FOLDER/config.yaml.
+shared=$root/.device/shared
+anny_scene() {
+  local size=$3
+  run "$1" 240 "$build/sfgs" synth --out "$2/data" --body "$shared/bodies/anny_smplx_layout.npz" \
+    --texture "$shared/bodies/anny_albedo.png" --frames "$4" --width "${size%x*}" --height "${size#*x}" --force
+  tail -n 1 "$out/$1.log"
+  sed "s|@SHARED@|$shared|g" "$root/configs/device_anny.yaml" >"$2/config.yaml"
+}
+
 if wants train; then
-  shared=$root/.device/shared
   export SFGS_SHARED_DIR=$shared  # LPIPS weights for the loss and the evaluation
-  size=${SFGS_DEVICE_TRAIN_SIZE:-800x1200}
   scene=/tmp/sfgs-anny
-  run train-synth 240 "$build/sfgs" synth --out "$scene/data" --body "$shared/bodies/anny_smplx_layout.npz" \
-    --texture "$shared/bodies/anny_albedo.png" --frames "${SFGS_DEVICE_TRAIN_FRAMES:-80}" --width "${size%x*}" \
-    --height "${size#*x}" --force
-  tail -n 3 "$out/train-synth.log"
-  sed "s|@SHARED@|$shared|g" "$root/configs/device_anny.yaml" >"$scene/config.yaml"
+  anny_scene train-synth "$scene" "${SFGS_DEVICE_TRAIN_SIZE:-800x1200}" "${SFGS_DEVICE_TRAIN_FRAMES:-80}"
   iterations=()
   [ -n "${SFGS_DEVICE_TRAIN_ITERATIONS:-}" ] && iterations=(--iterations "$SFGS_DEVICE_TRAIN_ITERATIONS")
   nvidia-smi --query-gpu=memory.used --format=csv,noheader -lms 500 >"$out/train-memory.log" &
@@ -223,13 +228,9 @@ if wants train; then
 fi
 
 if wants ablate; then
-  shared=$root/.device/shared
   export SFGS_SHARED_DIR=$shared
-  size=${SFGS_DEVICE_ABLATE_SIZE:-400x600}
   scene=/tmp/sfgs-anny-ablate
-  run ablate-synth 240 "$build/sfgs" synth --out "$scene/data" --body "$shared/bodies/anny_smplx_layout.npz" \
-    --texture "$shared/bodies/anny_albedo.png" --frames 80 --width "${size%x*}" --height "${size#*x}" --force
-  sed "s|@SHARED@|$shared|g" "$root/configs/device_anny.yaml" >"$scene/config.yaml"
+  anny_scene ablate-synth "$scene" "${SFGS_DEVICE_ABLATE_SIZE:-400x600}" 80
   run ablate 540 "$build/sfgs" ablate --data "$scene/data" --out "$scene/ablation" --config "$scene/config.yaml" \
     --iterations "${SFGS_DEVICE_ABLATE_ITERATIONS:-1500}" --force
   grep -E "^\||sfgs ablate" "$out/ablate.log"

@@ -38,21 +38,9 @@ ManoModelData ManoModelData::load(const std::string& path) {
 }
 
 void ManoModelData::validate() const {
-  const std::string what = "MANO model '" + source + "'";
-  TORCH_CHECK(v_template.defined() && v_template.dim() == 2 && v_template.size(1) == 3, what,
-              ": v_template must have shape (V, 3), got ", describe(v_template));
-  const int64_t v = v_template.size(0);
-  const ModelChecks check(what);
-  check.floating(v_template, "v_template", {v, 3});
-  checked_faces(faces, v, what + ": faces");
-  check.floating(j_regressor, "j_regressor", {kManoJointCount, v});
-  check.weights(weights, "weights", v, kManoJointCount);
-  check.parents(parents, kManoJointCount);
-  check.floating(shapedirs, "shapedirs", {v, 3, -1});
-  if (posedirs.defined()) check.floating(posedirs, "posedirs", {v, 3, 9 * (kManoJointCount - 1)});
-  check.floating(hands_components, "hands_components", {-1, kHandPoseSize});
-  TORCH_CHECK(hands_components.size(0) >= 1 && hands_components.size(0) <= kHandPoseSize, what,
-              ": hands_components must have 1 to 45 components, got ", hands_components.size(0));
+  const ModelChecks check("MANO model '" + source + "'");
+  check.skinned_model(*this, kManoJointCount);
+  check.hand_components(hands_components, "hands_components");
   check.floating(hands_mean, "hands_mean", {kHandPoseSize});
 }
 

@@ -6,6 +6,7 @@
 
 #include "body/mesh.h"
 #include "body/parts.h"
+#include "body/skeleton.h"
 #include "body/tensor_checks.h"
 #include "common/constants.h"
 
@@ -89,6 +90,12 @@ void ModelChecks::parents(const std::vector<int64_t>& parents, int64_t joints) c
     TORCH_CHECK(parents[j] >= 0 && parents[j] < j, what_, ": the parent of joint ", j,
                 " must be an earlier joint, got ", parents[j]);
   }
+}
+
+void ModelChecks::hand_components(const at::Tensor& t, const char* name) const {
+  floating(t, name, {-1, kHandPoseSize});
+  TORCH_CHECK(t.size(0) >= 1 && t.size(0) <= kHandPoseSize, what_, ": ", name, " must have 1 to ", kHandPoseSize,
+              " components, got ", t.size(0));
 }
 
 void ModelChecks::labels(const at::Tensor& t, const char* name, int64_t vertices) const {

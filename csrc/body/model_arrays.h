@@ -7,7 +7,10 @@
 #include <vector>
 
 #include <ATen/core/Tensor.h>
+#include <c10/util/Exception.h>
 
+#include "body/mesh.h"
+#include "body/tensor_checks.h"
 #include "io/npz.h"
 
 namespace sfgs::body {
@@ -38,6 +41,25 @@ class ModelChecks {
   void weights(const at::Tensor& t, const char* name, int64_t vertices, int64_t joints) const;
   void parents(const std::vector<int64_t>& parents, int64_t joints) const;
   void labels(const at::Tensor& t, const char* name, int64_t vertices) const;
+  // PCA hand-pose components: (K, 45) with 1 <= K <= 45.
+  void hand_components(const at::Tensor& t, const char* name) const;
+
+  // The arrays every skinned model has (SmplxModelData, ManoModelData): template, faces, joint regressor, skinning
+  // weights, kinematic tree, shape and pose blend shapes. Returns the vertex count.
+  template <typename ModelData>
+  int64_t skinned_model(const ModelData& d, int64_t joints) const {
+    TORCH_CHECK(d.v_template.defined() && d.v_template.dim() == 2 && d.v_template.size(1) == 3, what_,
+                ": v_template must have shape (V, 3), got ", describe(d.v_template));
+    const int64_t v = d.v_template.size(0);
+    floating(d.v_template, "v_template", {v, 3});
+    checked_faces(d.faces, v, what_ + ": faces");
+    floating(d.j_regressor, "j_regressor", {joints, v});
+    weights(d.weights, "weights", v, joints);
+    parents(d.parents, joints);
+    floating(d.shapedirs, "shapedirs", {v, 3, -1});
+    if (d.posedirs.defined()) floating(d.posedirs, "posedirs", {v, 3, 9 * (joints - 1)});
+    return v;
+  }
 
  private:
   std::string what_;

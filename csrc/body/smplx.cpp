@@ -67,24 +67,11 @@ SmplxModelData SmplxModelData::load(const std::string& path) {
 
 void SmplxModelData::validate() const {
   const std::string what = "SMPL-X model '" + source + "'";
-  TORCH_CHECK(v_template.defined() && v_template.dim() == 2 && v_template.size(1) == 3, what,
-              ": v_template must have shape (V, 3), got ", describe(v_template));
-  const int64_t v = v_template.size(0);
   const ModelChecks check(what);
-  check.floating(v_template, "v_template", {v, 3});
-  checked_faces(faces, v, what + ": faces");
-  check.floating(j_regressor, "j_regressor", {kSmplxJointCount, v});
-  check.weights(weights, "weights", v, kSmplxJointCount);
-  check.parents(parents, kSmplxJointCount);
-  check.floating(shapedirs, "shapedirs", {v, 3, -1});
+  const int64_t v = check.skinned_model(*this, kSmplxJointCount);
   check.floating(exprdirs, "exprdirs", {v, 3, -1});
-  if (posedirs.defined()) check.floating(posedirs, "posedirs", {v, 3, 9 * (kSmplxJointCount - 1)});
-  for (const auto& [components, name] : {std::pair{&hands_components_left, "hands_components_left"},
-                                         {&hands_components_right, "hands_components_right"}}) {
-    check.floating(*components, name, {-1, kHandPoseSize});
-    TORCH_CHECK(components->size(0) >= 1 && components->size(0) <= kHandPoseSize, what, ": ", name,
-                " must have 1 to 45 components, got ", components->size(0));
-  }
+  check.hand_components(hands_components_left, "hands_components_left");
+  check.hand_components(hands_components_right, "hands_components_right");
   check.floating(hands_mean_left, "hands_mean_left", {kHandPoseSize});
   check.floating(hands_mean_right, "hands_mean_right", {kHandPoseSize});
   TORCH_CHECK(uvs.defined() == uv_faces.defined(), what, ": uvs and uv_faces come together");

@@ -14,6 +14,7 @@
 #include <torch/serialize/input-archive.h>
 
 #include "data/synthetic.h"
+#include "test_avatar_utils.h"
 #include "test_files.h"
 #include "train/trainer.h"
 
@@ -22,12 +23,7 @@ namespace {
 
 train::TrainConfig tiny_config() {
   train::TrainConfig c;
-  c.avatar.subdivision_levels = 0;
-  c.avatar.plane_channels = 4;
-  c.avatar.plane_resolution = 16;
-  c.avatar.time_resolution = 4;
-  c.avatar.face_plane_resolution = 16;
-  c.avatar.hidden_width = 16;
+  c.avatar = small_config();
   c.loss.use_lpips = false;
   c.schedule.iterations = 6;
   c.schedule.warmup_iterations = 2;
