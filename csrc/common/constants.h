@@ -27,6 +27,9 @@ inline constexpr double kPixelCentre = 0.5;
 // Defaults for the camera's clipping range (metres, along the optical axis).
 inline constexpr double kDefaultNearPlane = 0.01;
 inline constexpr double kDefaultFarPlane = 1e10;
+// The rotation block R of a camera's world_to_camera must satisfy max |R R^T - I| <= this (and det R > 0): loose
+// enough for rotations stored with 6-7 significant digits, tight enough to refuse scaled, sheared or singular ones.
+inline constexpr double kCameraRotationTolerance = 1e-4;
 // Quaternions shorter than this cannot be normalised: such a Gaussian is culled, not rendered with NaNs.
 inline constexpr double kMinQuaternionNorm = 1e-12;
 

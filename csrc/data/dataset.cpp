@@ -155,8 +155,8 @@ void Dataset::validate() const {
   for (const FrameRecord& r : frames) {
     TORCH_CHECK(r.sequence >= 0 && r.sequence < int64_t(sequences.size()), "dataset '", source, "': frame '", r.name,
                 "' names sequence ", r.sequence);
-    TORCH_CHECK(r.camera.width >= 1 && r.camera.height >= 1 && r.camera.fx > 0 && r.camera.fy > 0, "dataset '",
-                source, "': frame '", r.name, "' has an invalid camera");
+    const std::string camera = camera_problem(r.camera);
+    TORCH_CHECK(camera.empty(), "dataset '", source, "': frame '", r.name, "' camera: ", camera);
     for (const PoseField& f : pose_fields()) {
       const at::Tensor& t = r.pose.*(f.member);
       TORCH_CHECK(t.defined(), "dataset '", source, "': frame '", r.name, "' lacks SMPL-X parameter ", f.key);

@@ -2,6 +2,7 @@
 // the autograd node, and dispatch to the CPU or CUDA backend by device.
 #include "splat/splat.h"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <sstream>
@@ -92,22 +93,8 @@ SplatInputs validated_inputs(const Gaussians& g, const at::Tensor& background, c
 }
 
 CameraSpec validated_camera(const Camera& c) {
-  for (double v : c.world_to_camera)
-    TORCH_CHECK(std::isfinite(v), "sfgs::render: world_to_camera must be finite, got an entry ", v);
-  const auto& m = c.world_to_camera;
-  TORCH_CHECK(m[12] == 0 && m[13] == 0 && m[14] == 0 && m[15] == 1,
-              "sfgs::render: the last row of world_to_camera must be (0, 0, 0, 1), got (", m[12], ", ", m[13], ", ",
-              m[14], ", ", m[15], ")");
-  TORCH_CHECK(std::isfinite(c.fx) && std::isfinite(c.fy) && c.fx > 0 && c.fy > 0,
-              "sfgs::render: focal lengths must be finite and positive, got fx = ", c.fx, ", fy = ", c.fy);
-  TORCH_CHECK(std::isfinite(c.cx) && std::isfinite(c.cy), "sfgs::render: the principal point must be finite, got (",
-              c.cx, ", ", c.cy, ")");
-  TORCH_CHECK(c.width >= 1 && c.height >= 1 && c.width <= kMaxImageSide && c.height <= kMaxImageSide,
-              "sfgs::render: image sides must be in [1, ", kMaxImageSide, "], got ", c.width, " x ", c.height);
-  TORCH_CHECK(std::isfinite(c.near_plane) && c.near_plane > 0, "sfgs::render: near_plane must be positive, got ",
-              c.near_plane);
-  TORCH_CHECK(c.far_plane > c.near_plane, "sfgs::render: far_plane must exceed near_plane (", c.near_plane, "), got ",
-              c.far_plane);
+  const std::string problem = camera_problem(c);
+  TORCH_CHECK(problem.empty(), "sfgs::render: ", problem);
   return CameraSpec{c.world_to_camera, c.fx, c.fy, c.cx, c.cy, int(c.width), int(c.height), c.near_plane,
                     c.far_plane};
 }
@@ -242,6 +229,58 @@ RenderResult render(const Gaussians& gaussians, const at::Tensor& background, co
   result.radii = out[3];
   result.visible = out[3].select(1, 0) > 0;
   return result;
+}
+
+std::string camera_problem(const Camera& c) {
+  std::ostringstream why;
+  const auto& m = c.world_to_camera;
+  for (double v : m)
+    if (!std::isfinite(v)) {
+      why << "world_to_camera must be finite, got an entry " << v;
+      return why.str();
+    }
+  if (m[12] != 0 || m[13] != 0 || m[14] != 0 || m[15] != 1) {
+    why << "the last row of world_to_camera must be (0, 0, 0, 1), got (" << m[12] << ", " << m[13] << ", " << m[14]
+        << ", " << m[15] << ")";
+    return why.str();
+  }
+  // The rotation block must be a proper rotation: R R^T = I within tolerance and det R = +1 (a singular, scaled or
+  // mirroring matrix would project every point to the wrong place without any other sign of trouble).
+  double deviation = 0;
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j) {
+      double dot = 0;
+      for (int k = 0; k < 3; ++k) dot += m[size_t(4 * i + k)] * m[size_t(4 * j + k)];
+      deviation = std::max(deviation, std::abs(dot - (i == j ? 1.0 : 0.0)));
+    }
+  const double det = m[0] * (m[5] * m[10] - m[6] * m[9]) - m[1] * (m[4] * m[10] - m[6] * m[8]) +
+                     m[2] * (m[4] * m[9] - m[5] * m[8]);
+  if (deviation > kCameraRotationTolerance || det <= 0) {
+    why << "the rotation part of world_to_camera must be orthonormal with determinant +1 (max |R R^T - I| <= "
+        << kCameraRotationTolerance << "), got max |R R^T - I| = " << deviation << " and det R = " << det;
+    return why.str();
+  }
+  if (!std::isfinite(c.fx) || !std::isfinite(c.fy) || !(c.fx > 0) || !(c.fy > 0)) {
+    why << "focal lengths must be finite and positive, got fx = " << c.fx << ", fy = " << c.fy;
+    return why.str();
+  }
+  if (!std::isfinite(c.cx) || !std::isfinite(c.cy)) {
+    why << "the principal point must be finite, got (" << c.cx << ", " << c.cy << ")";
+    return why.str();
+  }
+  if (c.width < 1 || c.height < 1 || c.width > kMaxImageSide || c.height > kMaxImageSide) {
+    why << "image sides must be in [1, " << kMaxImageSide << "], got " << c.width << " x " << c.height;
+    return why.str();
+  }
+  if (!std::isfinite(c.near_plane) || !(c.near_plane > 0)) {
+    why << "near_plane must be finite and positive, got " << c.near_plane;
+    return why.str();
+  }
+  if (!(c.far_plane > c.near_plane)) {
+    why << "far_plane must exceed near_plane (" << c.near_plane << "), got " << c.far_plane;
+    return why.str();
+  }
+  return "";
 }
 
 bool cuda_backend_available() { return splat::cuda::available(); }

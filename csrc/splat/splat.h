@@ -3,6 +3,7 @@
 // chosen by the tensors' device. See docs/splatting.md for conventions and for which inputs are errors and which
 // are culled.
 #include <array>
+#include <string>
 
 #include <ATen/core/Tensor.h>
 
@@ -25,6 +26,11 @@ struct Camera {
   // Camera at the origin looking along +z with the principal point at the image centre.
   static Camera looking_forward(double focal, int64_t width, int64_t height);
 };
+
+// Empty when the camera can be rendered with; otherwise what is wrong with it, naming the field and the value (a
+// non-finite entry, a rotation block that is not orthonormal with det +1, a non-positive focal length, ...).
+// render() refuses such a camera with this text; dataset readers use it to name the frame.
+std::string camera_problem(const Camera& camera);
 
 // One parameterisation of the 3D covariance must be given: scales (N,3) with rotations (N,4; quaternions
 // w,x,y,z, normalised inside), or covariances (N,6: xx, xy, xz, yy, yz, zz).

@@ -1,4 +1,5 @@
 // Invalid inputs are errors with messages that say what was expected and what came (docs/splatting.md).
+#include <array>
 #include <cmath>
 #include <functional>
 #include <limits>
@@ -69,11 +70,34 @@ TEST(SplatValidation, CameraIsChecked) {
   expect_error([nan](TestScene& s) { s.camera.cx = nan; }, "principal point must be finite");
   expect_error([](TestScene& s) { s.camera.width = 0; }, "image sides must be in [1, 16384], got 0 x 29");
   expect_error([](TestScene& s) { s.camera.height = 20000; }, "image sides must be in [1, 16384]");
-  expect_error([](TestScene& s) { s.camera.near_plane = 0; }, "near_plane must be positive");
+  expect_error([](TestScene& s) { s.camera.near_plane = 0; }, "near_plane must be finite and positive");
   expect_error([](TestScene& s) { s.camera.far_plane = s.camera.near_plane; }, "far_plane must exceed near_plane");
   expect_error([](TestScene& s) { s.camera.world_to_camera[14] = 1; }, "last row of world_to_camera must be");
   expect_error([nan](TestScene& s) { s.camera.world_to_camera[3] = nan; }, "world_to_camera must be finite");
   EXPECT_THROW(Camera::from_tensor(at::eye(3), 1, 1, 0, 0, 4, 4), c10::Error);
+}
+
+// The adversarial cases that used to render a wrong image without a word: R = 0, a zero row, rank 1, a scale, a
+// mirror. Each is refused with the deviation and determinant it has.
+TEST(SplatValidation, SingularOrImproperRotationsAreRefused) {
+  const auto set_rotation = [](TestScene& s, std::array<double, 9> r) {
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) s.camera.world_to_camera[size_t(4 * i + j)] = r[size_t(3 * i + j)];
+  };
+  const std::string message = "rotation part of world_to_camera must be orthonormal with determinant +1";
+  expect_error([&](TestScene& s) { set_rotation(s, {0, 0, 0, 0, 0, 0, 0, 0, 0}); }, message + " (max |R R^T - I| <= 0.0001), got max |R R^T - I| = 1 and det R = 0");
+  expect_error([&](TestScene& s) { set_rotation(s, {1, 0, 0, 0, 0, 0, 0, 0, 1}); }, message);
+  expect_error([&](TestScene& s) { set_rotation(s, {1, 0, 0, 1, 0, 0, 1, 0, 0}); }, message);
+  expect_error([&](TestScene& s) { set_rotation(s, {2, 0, 0, 0, 2, 0, 0, 0, 2}); }, message);
+  expect_error([&](TestScene& s) { set_rotation(s, {-1, 0, 0, 0, 1, 0, 0, 0, 1}); }, "det R = -1");
+  // A rotation stored with seven significant digits is accepted.
+  SceneSpec spec;
+  spec.count = 4;
+  TestScene s = random_scene(spec, 2);
+  const double c = std::cos(0.3), sn = std::sin(0.3);
+  const auto rounded = [](double v) { return std::round(v * 1e7) / 1e7; };
+  set_rotation(s, {rounded(c), 0, rounded(sn), 0, 1, 0, rounded(-sn), 0, rounded(c)});
+  EXPECT_TRUE(camera_problem(s.camera).empty()) << camera_problem(s.camera);
 }
 
 TEST(SplatValidation, NonFiniteBackgroundIsAnError) {
