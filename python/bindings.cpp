@@ -2,6 +2,7 @@
 // tensors it returns carry the C++ autograd nodes, so torch.autograd (gradcheck included) works through them.
 #include <algorithm>
 #include <optional>
+#include <string>
 
 #include <torch/extension.h>
 
@@ -14,6 +15,35 @@ namespace py = pybind11;
 
 namespace {
 
+// Python values into C++ ones with messages that name the argument, the type expected and the type that came
+// (instead of pybind11's "Unable to cast Python instance to C++ type").
+std::string python_type(const py::handle& value) { return py::str(py::type::handle_of(value).attr("__name__")); }
+
+at::Tensor to_tensor(const py::handle& value, const std::string& what) {
+  if (THPVariable_Check(value.ptr())) return THPVariable_Unpack(value.ptr());
+  throw py::type_error(what + ": expected a torch.Tensor, got " + python_type(value) +
+                       (py::isinstance<py::list>(value) || py::isinstance<py::tuple>(value)
+                            ? " (wrap it: torch.tensor(...))"
+                            : ""));
+}
+
+int64_t to_int(const py::handle& value, const std::string& what) {
+  if (py::isinstance<py::bool_>(value) || !py::isinstance<py::int_>(value))
+    throw py::type_error(what + ": expected an int, got " + python_type(value) + " " + std::string(py::repr(value)));
+  return value.cast<int64_t>();
+}
+
+double to_double(const py::handle& value, const std::string& what) {
+  if (py::isinstance<py::bool_>(value) || !(py::isinstance<py::int_>(value) || py::isinstance<py::float_>(value)))
+    throw py::type_error(what + ": expected a number, got " + python_type(value) + " " + std::string(py::repr(value)));
+  return value.cast<double>();
+}
+
+std::optional<at::Tensor> to_optional_tensor(const py::handle& value, const std::string& what) {
+  if (value.is_none()) return std::nullopt;
+  return to_tensor(value, what);
+}
+
 py::dict result_dict(const sfgs::RenderResult& r) {
   py::dict out;
   out["image"] = r.image;
@@ -24,25 +54,29 @@ py::dict result_dict(const sfgs::RenderResult& r) {
   return out;
 }
 
-py::dict render(const at::Tensor& means, const at::Tensor& opacities, const at::Tensor& features,
-                const at::Tensor& background, const at::Tensor& world_to_camera, double fx, double fy, double cx,
-                double cy, int64_t width, int64_t height, const c10::optional<at::Tensor>& scales,
-                const c10::optional<at::Tensor>& rotations, const c10::optional<at::Tensor>& covariances,
-                double near_plane, double far_plane, bool low_pass, bool antialiased, bool deterministic) {
+py::dict render(const py::object& means, const py::object& opacities, const py::object& features,
+                const py::object& background, const py::object& world_to_camera, const py::object& fx,
+                const py::object& fy, const py::object& cx, const py::object& cy, const py::object& width,
+                const py::object& height, const py::object& scales, const py::object& rotations,
+                const py::object& covariances, const py::object& near_plane, const py::object& far_plane,
+                bool low_pass, bool antialiased, bool deterministic) {
   sfgs::Gaussians g;
-  g.means = means;
-  g.opacities = opacities;
-  g.features = features;
-  if (scales) g.scales = *scales;
-  if (rotations) g.rotations = *rotations;
-  if (covariances) g.covariances = *covariances;
-  const sfgs::Camera camera =
-      sfgs::Camera::from_tensor(world_to_camera, fx, fy, cx, cy, width, height, near_plane, far_plane);
+  g.means = to_tensor(means, "render(means)");
+  g.opacities = to_tensor(opacities, "render(opacities)");
+  g.features = to_tensor(features, "render(features)");
+  if (auto t = to_optional_tensor(scales, "render(scales)")) g.scales = *t;
+  if (auto t = to_optional_tensor(rotations, "render(rotations)")) g.rotations = *t;
+  if (auto t = to_optional_tensor(covariances, "render(covariances)")) g.covariances = *t;
+  const sfgs::Camera camera = sfgs::Camera::from_tensor(
+      to_tensor(world_to_camera, "render(world_to_camera)"), to_double(fx, "render(fx)"), to_double(fy, "render(fy)"),
+      to_double(cx, "render(cx)"), to_double(cy, "render(cy)"), to_int(width, "render(width)"),
+      to_int(height, "render(height)"), to_double(near_plane, "render(near_plane)"),
+      to_double(far_plane, "render(far_plane)"));
   sfgs::RenderOptions options;
   options.low_pass = low_pass;
   options.antialiased = antialiased;
   options.deterministic = deterministic;
-  return result_dict(sfgs::render(g, background, camera, options));
+  return result_dict(sfgs::render(g, to_tensor(background, "render(background)"), camera, options));
 }
 
 // The pose fields an avatar takes, by their SMPL-X names (and "time").
@@ -68,21 +102,26 @@ py::dict camera_dict(const sfgs::Camera& c) {
   return d;
 }
 
-sfgs::Camera camera_from_dict(const py::dict& d) {
+sfgs::Camera camera_from_dict(const py::object& object) {
+  if (!py::isinstance<py::dict>(object))
+    throw py::type_error("camera: expected a dict (world_to_camera, fx, fy, cx, cy, width, height), got " +
+                         python_type(object));
+  const py::dict d = object;
   for (const char* key : {"world_to_camera", "fx", "fy", "cx", "cy", "width", "height"})
     TORCH_CHECK(d.contains(key), "camera: expected a dict with world_to_camera, fx, fy, cx, cy, width and height; '",
                 key, "' is missing");
-  return sfgs::Camera::from_tensor(d["world_to_camera"].cast<at::Tensor>(), d["fx"].cast<double>(),
-                                   d["fy"].cast<double>(), d["cx"].cast<double>(), d["cy"].cast<double>(),
-                                   d["width"].cast<int64_t>(), d["height"].cast<int64_t>());
+  return sfgs::Camera::from_tensor(to_tensor(d["world_to_camera"], "camera['world_to_camera']"),
+                                   to_double(d["fx"], "camera['fx']"), to_double(d["fy"], "camera['fy']"),
+                                   to_double(d["cx"], "camera['cx']"), to_double(d["cy"], "camera['cy']"),
+                                   to_int(d["width"], "camera['width']"), to_int(d["height"], "camera['height']"));
 }
 
 // A trained avatar for experiments: the run's checkpoint with its config, and the dataset it was trained on
 // (read when first needed).
 class TrainedAvatar {
  public:
-  TrainedAvatar(const std::string& run, const std::string& device)
-      : device_(device == "cuda" ? at::kCUDA : at::kCPU) {
+  TrainedAvatar(const std::string& run, const std::string& device, const std::string& data)
+      : device_(device == "cuda" ? at::kCUDA : at::kCPU), data_(data) {
     TORCH_CHECK(device == "cpu" || device == "cuda", "load_avatar: device must be 'cpu' or 'cuda', got '", device, "'");
     TORCH_CHECK(device_.is_cpu() || sfgs::cuda_backend_available(),
                 "load_avatar: device 'cuda' but this build of sfgs has no CUDA backend");
@@ -91,7 +130,7 @@ class TrainedAvatar {
   }
 
   // Posed Gaussians and the canonical quantities, as a dict of tensors.
-  py::dict gaussians(const py::dict& pose) {
+  py::dict gaussians(const py::object& pose) {
     const sfgs::model::AvatarOutput o = t_.avatar->forward(to_pose(pose));
     py::dict d;
     d["means"] = o.means;
@@ -104,18 +143,20 @@ class TrainedAvatar {
     return d;
   }
 
-  py::dict render(const py::dict& camera, const py::dict& pose, const c10::optional<at::Tensor>& background) {
+  py::dict render(const py::object& camera, const py::object& pose, const py::object& background) {
+    const sfgs::Camera cam = camera_from_dict(camera);
     const sfgs::model::AvatarOutput o = t_.avatar->forward(to_pose(pose));
-    const at::Tensor bg = background ? background->to(o.means.options()) : at::ones({3}, o.means.options());
-    return result_dict(
-        sfgs::render({o.means, {}, {}, o.covariances, o.opacities, o.colours}, bg, camera_from_dict(camera)));
+    const auto given = to_optional_tensor(background, "Avatar.render(background)");
+    const at::Tensor bg = given ? given->to(o.means.options()) : at::ones({3}, o.means.options());
+    return result_dict(sfgs::render(sfgs::model::to_gaussians(o), bg, cam));
   }
 
   // Frame `index` of the training dataset: its pose (with time), camera and split.
-  py::dict frame(int64_t index) {
+  py::dict frame(const py::object& index_object) {
+    const int64_t index = to_int(index_object, "Avatar.frame(index)");
     const sfgs::data::Dataset& d = dataset();
     TORCH_CHECK(index >= 0 && index < d.size(), "frame: index must be in [0, ", d.size(), "), got ", index);
-    const AvatarPose p = sfgs::train::avatar_pose(d, index, at::kCPU);
+    const AvatarPose p = sfgs::train::avatar_pose(d, index);
     py::dict pose;
     for (const auto& [key, field] : kPoseFields)
       if ((p.*field).defined()) pose[key] = p.*field;
@@ -142,12 +183,18 @@ class TrainedAvatar {
   const sfgs::train::TrainedAvatar& trained() const { return t_; }
 
  private:
-  AvatarPose to_pose(const py::dict& pose) const {
+  AvatarPose to_pose(const py::object& object) const {
+    if (!py::isinstance<py::dict>(object))
+      throw py::type_error("pose: expected a dict of SMPL-X parameters (e.g. {'body_pose': tensor}), got " +
+                           python_type(object));
+    const py::dict pose = object;
     AvatarPose p;
     for (const auto& item : pose) {
+      if (!py::isinstance<py::str>(item.first))
+        throw py::type_error("pose: keys must be str, got " + python_type(item.first));
       const std::string key = item.first.cast<std::string>();
       if (key == "time") {
-        p.time = item.second.cast<double>();
+        p.time = to_double(item.second, "pose['time']");
         continue;
       }
       const auto* known = std::find_if(std::begin(kPoseFields), std::end(kPoseFields),
@@ -157,17 +204,18 @@ class TrainedAvatar {
         for (const auto& [name, field] : kPoseFields) expected += std::string(", ") + name;
         TORCH_CHECK(false, "pose: unknown key '", key, "'; expected one of ", expected);
       }
-      p.*(known->second) = item.second.cast<at::Tensor>().to(device_);
+      p.*(known->second) = to_tensor(item.second, "pose['" + key + "']");
     }
     return p;
   }
 
   const sfgs::data::Dataset& dataset() {
-    if (!dataset_) dataset_ = sfgs::data::read_dataset(t_.dataset);
+    if (!dataset_) dataset_ = sfgs::train::read_run_dataset(t_, data_);
     return *dataset_;
   }
 
   at::Device device_;
+  std::string data_;  // the dataset folder given to load_avatar; empty: the one the run was trained on
   sfgs::train::TrainedAvatar t_;
   std::optional<sfgs::data::Dataset> dataset_;
 };
@@ -209,7 +257,8 @@ Differentiable w.r.t. means, scales, rotations, covariances, opacities, features
       py::arg("count") = 20000, py::arg("width") = 320, py::arg("height") = 240, py::arg("seed") = 7,
       py::arg("double_precision") = false, "The built-in demo scene as a dict of tensors and camera values");
   py::class_<TrainedAvatar>(m, "Avatar", "A trained SFGS avatar: pose it, render it, read its training frames")
-      .def(py::init<const std::string&, const std::string&>(), py::arg("run"), py::arg("device") = "cpu")
+      .def(py::init<const std::string&, const std::string&, const std::string&>(), py::arg("run"),
+           py::arg("device") = "cpu", py::arg("data") = "")
       .def("gaussians", &TrainedAvatar::gaussians, py::arg("pose") = py::dict(),
            R"(Posed Gaussians for a pose dict (SMPL-X names: global_orient (3), body_pose (21,3), jaw_pose, left_eye_pose,
 right_eye_pose (3), left_hand_pose, right_hand_pose (15,3) axis-angle, expression (E), transl (3), time in [-1, 1];
@@ -230,8 +279,12 @@ visible, as render() does.)")
       .def_property_readonly("config_yaml", [](const TrainedAvatar& a) { return a.trained().config.to_yaml(); })
       .def_property_readonly("dataset_path", [](const TrainedAvatar& a) { return a.trained().dataset; });
   m.def(
-      "load_avatar", [](const std::string& run, const std::string& device) { return TrainedAvatar(run, device); },
-      py::arg("run"), py::arg("device") = "cpu", "Load a trained avatar from a run folder (sfgs train --out RUN)");
+      "load_avatar",
+      [](const std::string& run, const std::string& device, const std::string& data) {
+        return TrainedAvatar(run, device, data);
+      },
+      py::arg("run"), py::arg("device") = "cpu", py::arg("data") = "",
+      "Load a trained avatar from a run folder (sfgs train --out RUN); `data` points at its dataset if it moved");
   m.attr("LOW_PASS_VARIANCE_PX2") = sfgs::kLowPassVariancePx2;
   m.attr("MIN_ALPHA") = sfgs::kMinAlpha;
   m.attr("MAX_ALPHA") = sfgs::kMaxAlpha;

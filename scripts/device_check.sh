@@ -9,9 +9,10 @@
 # (Nsight Compute, clocks left alone), as CSV.
 #
 # Logs go to $OUT (the device tool's output folder) or ./device-logs. The device image lacks some dependencies; they
-# travel in the git-ignored .device folder (name it in the device tool's carry):
-#   .device/include     /usr/include/glm, /usr/include/stb, /usr/include/nlohmann, /usr/include/zip.h and zipconf.h
-#   .device/lib         libzip.so.4.0 with its links libzip.so.4 and libzip.so
+# travel in the git-ignored .device folder (name it in the device tool's carry), which scripts/prepare_device_deps.sh
+# fills:
+#   .device/include     /usr/include/glm, /usr/include/stb, /usr/include/nlohmann, zip.h and zipconf.h, zlib.h and zconf.h
+#   .device/lib         libzip.so.4.0 with its links libzip.so.4 and libzip.so, libz.so
 #   .device/libdeps     libbz2.so.1.0 and libcrypto.so.3 (libzip's own dependencies), used only where the image
 #                       lacks them
 #   .device/googletest  /usr/src/googletest

@@ -7,13 +7,25 @@ namespace sfgs::cli {
 Arguments::Arguments(const std::vector<std::string>& args, const std::set<std::string>& flags) {
   for (size_t i = 0; i < args.size(); ++i) {
     const std::string& a = args[i];
-    if (a.rfind("--", 0) != 0) throw std::invalid_argument("unexpected argument '" + a + "' (options start with --)");
-    const std::string name = a.substr(2);
+    if (a.rfind("--", 0) != 0 || a.size() == 2)
+      throw std::invalid_argument("unexpected argument '" + a + "' (options start with --)");
+    // --name=value takes any value, one that starts with -- included.
+    const size_t equals = a.find('=');
+    const std::string name = a.substr(2, equals == std::string::npos ? std::string::npos : equals - 2);
+    if (values_.count(name) || flags_.count(name)) throw std::invalid_argument("option --" + name + " is given twice");
     if (flags.count(name)) {
+      if (equals != std::string::npos) throw std::invalid_argument("option --" + name + " takes no value");
       flags_.insert(name);
+    } else if (equals != std::string::npos) {
+      values_[name] = a.substr(equals + 1);
     } else {
       if (i + 1 >= args.size()) throw std::invalid_argument("option --" + name + " needs a value");
-      values_[name] = args[++i];
+      const std::string& value = args[i + 1];
+      if (value.rfind("--", 0) == 0)
+        throw std::invalid_argument("option --" + name + " needs a value, but the next argument is the option '" +
+                                    value + "' (write --" + name + "=" + value + " if that really is the value)");
+      values_[name] = value;
+      ++i;
     }
   }
 }

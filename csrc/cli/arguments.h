@@ -1,6 +1,7 @@
 #pragma once
-// Command-line options of the sfgs subcommands: `--name value` pairs and `--flag` switches, each read once;
-// anything unread is reported as unknown, so a typo never passes silently.
+// Command-line options of the sfgs subcommands: `--name value` (or `--name=value`) pairs and `--flag` switches, each
+// given at most once and read once; anything unread is reported as unknown, so a typo never passes silently, and a
+// value that looks like an option (`--out --force`) is refused rather than taken as a folder name.
 #include <cstdint>
 #include <map>
 #include <set>

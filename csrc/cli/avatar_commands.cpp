@@ -1,10 +1,14 @@
 // Commands that use a trained avatar: `sfgs eval`, `sfgs render` (orbit views in novel poses, PNG and MP4) and
 // `sfgs export` (.ply).
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <optional>
+#include <stdexcept>
+#include <vector>
 
 #include <ATen/ATen.h>
 #include <nlohmann/json.hpp>
@@ -13,6 +17,7 @@
 #include "cli/evaluation_report.h"
 #include "cli/video.h"
 #include "common/atomic_file.h"
+#include "common/folder_lock.h"
 #include "data/image_io.h"
 #include "data/synthetic.h"
 #include "train/evaluate.h"
@@ -30,7 +35,11 @@ constexpr int64_t kNovelMotionOffset = 1000;  // synthetic-motion frames far pas
 at::Device pick_device(const std::string& name, const train::RunFolder& run) {
   if (name.empty()) {
     std::string trained_on = "cpu";
-    if (fs::exists(run.config_file())) trained_on = train::TrainConfig::from_yaml_file(run.config_file()).device;
+    try {
+      if (fs::exists(run.config_file())) trained_on = train::TrainConfig::from_yaml_file(run.config_file()).device;
+    } catch (const c10::Error&) {
+      // An unreadable config.yaml only loses the hint; the checkpoint holds the config that counts.
+    }
     return trained_on == "cuda" && cuda_backend_available() ? at::kCUDA : at::kCPU;
   }
   if (name == "cpu") return at::kCPU;
@@ -74,8 +83,10 @@ int run_eval(Arguments& args) {
   const bool force = args.flag("force");
   const at::Device device = pick_device(args.text("device", ""), run);
   args.finish();
+  const FolderLock lock(run.path, "eval");
+  remove_stale_temporaries(run.path);
   train::TrainedAvatar t = train::load_trained_avatar(run, device);
-  const data::Dataset dataset = data::read_dataset(data_folder.empty() ? t.dataset : data_folder);
+  const data::Dataset dataset = train::read_run_dataset(t, data_folder);
   t.avatar->eval();
   t.avatar->cache_static_features();
   const train::AvatarEvaluation e = train::evaluate_avatar(
@@ -86,87 +97,123 @@ int run_eval(Arguments& args) {
   return 0;
 }
 
-int run_render(Arguments& args) {
-  const train::RunFolder run{args.required("run")};
-  const std::string out = args.required("out");
-  const int64_t frames = args.integer("frames", 48, 1, 100000);
-  const std::string motion = args.text("motion", "synthetic");
-  const bool force = args.flag("force");
-  const at::Device device = pick_device(args.text("device", ""), run);
-  args.finish();
-  train::TrainedAvatar t = train::load_trained_avatar(run, device);
-  const data::Dataset trained_on = data::read_dataset(t.dataset);
-  const data::Dataset* poses = nullptr;
-  data::Dataset motion_dataset;
-  if (motion != "synthetic") {
-    motion_dataset = data::read_dataset(motion);
-    poses = &motion_dataset;
+namespace {
+
+// The camera circling the subject: at the distance and height of `base`'s centre around `centre`, `angle` radians
+// on from base's own position, looking at the centre (OpenCV axes, world up +y).
+Camera orbit_camera(const Camera& base, const std::array<double, 3>& centre, double angle) {
+  const auto& m = base.world_to_camera;
+  const double ex = -(m[0] * m[3] + m[4] * m[7] + m[8] * m[11]);  // camera centre = -R^T t
+  const double ey = -(m[1] * m[3] + m[5] * m[7] + m[9] * m[11]);
+  const double ez = -(m[2] * m[3] + m[6] * m[7] + m[10] * m[11]);
+  const double cx = centre[0], cy = centre[1], cz = centre[2];
+  const double radius = std::sqrt((ex - cx) * (ex - cx) + (ez - cz) * (ez - cz));
+  const double a = std::atan2(ex - cx, ez - cz) + angle;
+  const double eye[3] = {cx + radius * std::sin(a), ey, cz + radius * std::cos(a)};
+  double fwd[3] = {cx - eye[0], cy - eye[1], cz - eye[2]};
+  const double fn = std::sqrt(fwd[0] * fwd[0] + fwd[1] * fwd[1] + fwd[2] * fwd[2]);
+  for (double& v : fwd) v /= fn;
+  double right[3] = {-fwd[2], 0.0, fwd[0]};  // fwd x (0, 1, 0)
+  const double rn = std::sqrt(right[0] * right[0] + right[2] * right[2]);
+  right[0] /= rn;
+  right[2] /= rn;
+  const double down[3] = {fwd[1] * right[2] - fwd[2] * right[1], fwd[2] * right[0] - fwd[0] * right[2],
+                          fwd[0] * right[1] - fwd[1] * right[0]};
+  const double* rows[3] = {right, down, fwd};
+  Camera cam = base;
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) cam.world_to_camera[size_t(4 * r + c)] = rows[r][c];
+    cam.world_to_camera[size_t(4 * r + 3)] = -(rows[r][0] * eye[0] + rows[r][1] * eye[1] + rows[r][2] * eye[2]);
   }
-  fs::create_directories(out);
+  return cam;
+}
+
+// The files a render has written so far: removed again if it fails, so a failed render leaves nothing half done.
+class WrittenFiles {
+ public:
+  void add(const std::string& path) { paths_.push_back(path); }
+  size_t size() const { return paths_.size(); }
+  void remove_all() {
+    for (const std::string& p : paths_) std::remove(p.c_str());
+    paths_.clear();
+  }
+
+ private:
+  std::vector<std::string> paths_;
+};
+
+struct RenderRequest {
+  std::string out, motion, data;
+  int64_t frames = 0;
+  bool force = false;
+};
+
+// Renders the orbit into PNG frames and the video; returns the frames per second of avatar + rasterisation.
+double render_orbit(train::TrainedAvatar& t, const RenderRequest& request, at::Device device, WrittenFiles& written,
+                    bool& wrote_video) {
+  const data::Dataset trained_on = train::read_run_dataset(t, request.data);
+  std::optional<data::Dataset> motion;
+  if (request.motion != "synthetic") motion = data::read_dataset(request.motion);
   t.avatar->eval();
   t.avatar->cache_static_features();
   at::NoGradGuard no_grad;
-
-  // Orbit the subject at the distance of the first training camera, looking at its centre.
   const Camera base = train::render_camera(trained_on.frames[0]);
-  const auto centre_out = t.avatar->forward(train::avatar_pose(trained_on, 0, device));
-  const at::Tensor centre = centre_out.means.mean(0).cpu().to(at::kDouble);
-  const double cx = centre[0].item<double>(), cy = centre[1].item<double>(), cz = centre[2].item<double>();
-  const auto& m = base.world_to_camera;
-  // Camera centre = -R^T t.
-  const double ex = -(m[0] * m[3] + m[4] * m[7] + m[8] * m[11]);
-  const double ey = -(m[1] * m[3] + m[5] * m[7] + m[9] * m[11]);
-  const double ez = -(m[2] * m[3] + m[6] * m[7] + m[10] * m[11]);
-  const double radius = std::sqrt((ex - cx) * (ex - cx) + (ez - cz) * (ez - cz));
-  const double start_angle = std::atan2(ex - cx, ez - cz);
-
-  VideoWriter video((fs::path(out) / "render.mp4").string(), int(base.width), int(base.height), 24.0, force);
+  const at::Tensor c = t.avatar->forward(train::avatar_pose(trained_on, 0)).means.mean(0).cpu().to(at::kDouble);
+  const std::array<double, 3> centre{c[0].item<double>(), c[1].item<double>(), c[2].item<double>()};
+  VideoWriter video((fs::path(request.out) / "render.mp4").string(), int(base.width), int(base.height), 24.0,
+                    request.force);
   double seconds = 0;
-  for (int64_t i = 0; i < frames; ++i) {
-    model::AvatarPose pose;
-    if (poses) {
-      pose = train::avatar_pose(*poses, i % poses->size(), device);
-    } else {
-      const data::SmplxPose p = data::synthetic_pose(kNovelMotionOffset + i, 30.0, t.avatar->config().num_expression_coeffs);
-      data::Dataset one;
-      one.frames.resize(1);
-      one.frames[0].pose = p;
-      pose = train::avatar_pose(one, 0, device);
-    }
-    const double angle = start_angle + kTwoPi * double(i) / double(frames);
-    Camera cam = base;
-    const double px = cx + radius * std::sin(angle), pz = cz + radius * std::cos(angle);
-    // Look at the centre from (px, ey, pz); OpenCV axes with world up +y.
-    double fwd[3] = {cx - px, cy - ey, cz - pz};
-    const double fn = std::sqrt(fwd[0] * fwd[0] + fwd[1] * fwd[1] + fwd[2] * fwd[2]);
-    for (double& v : fwd) v /= fn;
-    double right[3] = {-fwd[2], 0.0, fwd[0]};  // fwd x (0, 1, 0)
-    const double rn = std::sqrt(right[0] * right[0] + right[2] * right[2]);
-    right[0] /= rn;
-    right[2] /= rn;
-    const double down[3] = {fwd[1] * right[2] - fwd[2] * right[1], fwd[2] * right[0] - fwd[0] * right[2],
-                            fwd[0] * right[1] - fwd[1] * right[0]};
-    const double eye[3] = {px, ey, pz};
-    const double* rows[3] = {right, down, fwd};
-    for (int r = 0; r < 3; ++r) {
-      for (int c = 0; c < 3; ++c) cam.world_to_camera[size_t(4 * r + c)] = rows[r][c];
-      cam.world_to_camera[size_t(4 * r + 3)] = -(rows[r][0] * eye[0] + rows[r][1] * eye[1] + rows[r][2] * eye[2]);
-    }
+  for (int64_t i = 0; i < request.frames; ++i) {
+    const model::AvatarPose pose =
+        motion ? train::avatar_pose(*motion, i % motion->size())
+               : train::avatar_pose(data::synthetic_pose(kNovelMotionOffset + i, 30.0,
+                                                         t.avatar->config().num_expression_coeffs), 0.0);
+    const Camera cam = orbit_camera(base, centre, kTwoPi * double(i) / double(request.frames));
     const auto start = std::chrono::steady_clock::now();
     const model::AvatarOutput o = t.avatar->forward(pose);
-    const RenderResult r = render(Gaussians{o.means, {}, {}, o.covariances, o.opacities, o.colours},
-                                  at::ones({3}, o.means.options()), cam);
-    const at::Tensor image = r.image.cpu();
+    const at::Tensor image = render(model::to_gaussians(o), at::ones({3}, o.means.options()), cam).image.cpu();
     seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     char name[32];
     std::snprintf(name, sizeof(name), "frame_%04lld.png", (long long)i);
-    data::write_png((fs::path(out) / name).string(), image, force);
+    const std::string path = (fs::path(request.out) / name).string();
+    data::write_png(path, image, request.force);
+    written.add(path);
     video.add(image);
   }
-  const bool wrote_video = video.close();
+  wrote_video = video.close();
+  return double(request.frames) / seconds;
+}
+
+}  // namespace
+
+int run_render(Arguments& args) {
+  const train::RunFolder run{args.required("run")};
+  RenderRequest request;
+  request.out = args.required("out");
+  request.frames = args.integer("frames", 48, 1, 100000);
+  request.motion = args.text("motion", "synthetic");
+  request.data = args.text("data", "");
+  request.force = args.flag("force");
+  const at::Device device = pick_device(args.text("device", ""), run);
+  args.finish();
+  train::TrainedAvatar t = train::load_trained_avatar(run, device);
+  const FolderLock lock(request.out, "render");
+  remove_stale_temporaries(request.out);
+  WrittenFiles written;
+  bool wrote_video = false;
+  double fps = 0;
+  try {
+    fps = render_orbit(t, request, device, written, wrote_video);
+  } catch (const std::exception& e) {
+    const size_t frames = written.size();
+    written.remove_all();
+    throw std::runtime_error(std::string(e.what()) + "\n  the render stopped after " + std::to_string(frames) + " of " +
+                             std::to_string(request.frames) + " frames; the " + std::to_string(frames) +
+                             " frames it had written to '" + request.out + "' were removed");
+  }
   std::printf("sfgs render: %lld frames to %s (%s); %.1f frames/s (avatar + rasterisation, cached static features)\n",
-              (long long)frames, out.c_str(), wrote_video ? "PNG + render.mp4" : "PNG only: no OpenCV video",
-              double(frames) / seconds);
+              (long long)request.frames, request.out.c_str(),
+              wrote_video ? "PNG + render.mp4" : "PNG only: this build's OpenCV has no MP4 encoder", fps);
   return 0;
 }
 
@@ -174,13 +221,16 @@ int run_export(Arguments& args) {
   const train::RunFolder run{args.required("run")};
   const std::string out = args.required("out");
   const int64_t frame = args.integer("frame", -1, -1, INT64_MAX);
+  const std::string data_folder = args.text("data", "");
   const bool force = args.flag("force");
   args.finish();
   train::TrainedAvatar t = train::load_trained_avatar(run, at::kCPU);
   t.avatar->eval();
-  data::Dataset dataset;
-  if (frame >= 0) dataset = data::read_dataset(t.dataset);
-  train::export_ply(t.avatar, frame >= 0 ? &dataset : nullptr, frame, out, force);
+  std::optional<data::Dataset> dataset;
+  if (frame >= 0) dataset = train::read_run_dataset(t, data_folder);
+  const fs::path folder = fs::path(out).has_parent_path() ? fs::path(out).parent_path() : fs::path(".");
+  remove_stale_temporaries(folder.string());
+  train::export_ply(t.avatar, dataset ? &*dataset : nullptr, frame, out, force);
   std::printf("sfgs export: %lld Gaussians (%s) to %s\n", (long long)t.avatar->gaussian_count(),
               frame >= 0 ? ("frame " + std::to_string(frame)).c_str() : "canonical pose", out.c_str());
   return 0;

@@ -1,6 +1,7 @@
 // The sfgs command: synthesise data, train an avatar, evaluate, render, export, run the ablation, the demo and the
 // benchmark. `sfgs help` lists everything.
 #include <algorithm>
+#include <csignal>
 #include <cstdio>
 #include <cstdlib>
 #include <functional>
@@ -28,23 +29,30 @@ commands:
            --out DIR  --body SMPLX.npz (built-in body)  --texture PNG  --frames N (60)  --width W (256)
            --height H (256)  --seed S (1)  --force
   train    train an avatar: --data DATASET --out RUN  --config FILE  --iterations N  --device cpu|cuda
-           --resume  --stop-at N (pause there, resumable)  --force  --quiet
+           --stop-at N (pause there, resumable)  --force  --quiet
+           --resume: continue RUN with its own config and dataset (--data, --config optional; only schedule and
+           logging keys may change)
   eval     evaluate a run on a split (ExAvatar/SFGS protocol): --run RUN  --data DATASET (the training one)
            --split test|val|train (test)  --device cpu|cuda (the run's)  --eight-bit  --save-images  --force
   render   orbit views in novel poses to PNG frames and an MP4: --run RUN --out DIR  --frames N (48)
-           --motion synthetic|DATASET  --device cpu|cuda (the run's)  --force
-  export   the avatar as a standard 3DGS .ply: --run RUN --out FILE.ply  --frame K (canonical)  --force
+           --motion synthetic|DATASET  --data DATASET (the training one)  --device cpu|cuda (the run's)  --force
+  export   the avatar as a standard 3DGS .ply: --run RUN --out FILE.ply  --frame K (canonical)
+           --data DATASET (the training one, for --frame)  --force
   ablate   the paper's ablation table: --data DATASET --out DIR  --config FILE  --iterations N  --force
   bench    render the built-in Gaussian scene and print forward/backward timings
            --gaussians N (60000)  --width W (640)  --height H (480)  --repeats R (5)  --device cpu|cuda
            --out PNG  --force
   help     print this text
+
+Options take their value as the next argument or after '=' (--out=DIR); a value that starts with -- must use '='.
 )";
 
 }  // namespace
 
 int main(int argc, char** argv) {
   sfgs::reuse_freed_host_memory();
+  // Past a file size limit, writes should fail with EFBIG and be reported like a full disk, not kill the process.
+  std::signal(SIGXFSZ, SIG_IGN);
   // Line-buffered even into a pipe or file, so the step messages interleave with the progress lines on stderr.
   std::setvbuf(stdout, nullptr, _IOLBF, 0);
   // OpenMP may start with one thread; use every core unless the user chose with OMP_NUM_THREADS.

@@ -3,6 +3,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <functional>
+#include <stdexcept>
 
 #include <ATen/ATen.h>
 #include <nlohmann/json.hpp>
@@ -11,7 +12,10 @@
 #include "cli/evaluation_report.h"
 #include "cli/plot.h"
 #include "common/atomic_file.h"
+#include "common/constants.h"
+#include "common/folder_lock.h"
 #include "data/synthetic.h"
+#include "train/checkpoint.h"
 #include "train/evaluate.h"
 #include "train/trainer.h"
 
@@ -20,22 +24,42 @@ namespace fs = std::filesystem;
 
 namespace {
 
+// --iterations and --device on top of a config.
+void apply_overrides(Arguments& args, train::TrainConfig& config) {
+  config.schedule.iterations = args.integer("iterations", config.schedule.iterations, 1, kMaxIterations);
+  config.device = args.text("device", config.device);
+  config.validate();
+}
+
 train::TrainConfig load_config(Arguments& args, const std::string& fallback_file) {
   const std::string file = args.text("config", fallback_file);
   train::TrainConfig config = file.empty() ? train::TrainConfig{} : train::TrainConfig::from_yaml_file(file);
-  config.schedule.iterations = args.integer("iterations", config.schedule.iterations, 1, 100000000);
-  config.device = args.text("device", config.device);
-  config.validate();
+  apply_overrides(args, config);
   return config;
 }
 
-// Prints the summary and writes the run's run-time-versus-error curve (curve.csv, curve.png) beside its log.
-void finish_training(const train::RunFolder& run, const train::TrainSummary& s) {
-  char validation[64] = "no validation frames";
-  if (!std::isnan(s.validation_psnr)) std::snprintf(validation, sizeof(validation), "validation PSNR %.2f dB", s.validation_psnr);
-  std::printf("  %lld iterations, %.1f s of training steps (%.1f ms/iteration); final loss %.4f; %s\n",
-              (long long)s.iterations, s.training_seconds,
-              1000.0 * s.training_seconds / double(std::max<int64_t>(s.iterations, 1)), s.final_loss, validation);
+// Says what this call did: which iterations it ran, where the run stands, its last loss and validation, and writes
+// the run-time-versus-error curve (curve.csv, curve.png) beside the log.
+void finish_training(const train::RunFolder& run, const train::TrainSummary& s, int64_t scheduled) {
+  if (s.steps == 0) {
+    std::printf("  run '%s' is already at iteration %lld of %lld: nothing to do (raise --iterations to train further)\n",
+                run.path.c_str(), (long long)s.iterations, (long long)scheduled);
+    return;
+  }
+  std::string validation = "no validation frames in the dataset";
+  if (!std::isnan(s.validation_psnr)) {
+    char text[64];
+    std::snprintf(text, sizeof(text), "validation PSNR %.2f dB", s.validation_psnr);
+    validation = text;
+  } else if (s.has_validation_frames) {
+    validation = "not validated in this call";
+  }
+  std::printf("  iterations %lld-%lld (%lld steps, %.1f ms each); the run is %s at iteration %lld of %lld; final loss "
+              "%.4f; %s\n",
+              (long long)s.first_iteration + 1, (long long)s.iterations, (long long)s.steps,
+              1000.0 * s.step_seconds / double(s.steps), s.finished ? "finished" : "paused", (long long)s.iterations,
+              (long long)scheduled, s.final_loss, validation.c_str());
+  std::printf("  %.1f s of training steps over the whole run\n", s.training_seconds);
   const std::string csv = (fs::path(run.path) / "curve.csv").string(), png = (fs::path(run.path) / "curve.png").string();
   const std::vector<train::ErrorCurvePoint> curve = train::write_error_curve_csv(run, csv);
   const bool plotted = write_error_curve_plot(curve, png, true);
@@ -44,6 +68,7 @@ void finish_training(const train::RunFolder& run, const train::TrainSummary& s) 
 
 train::AvatarEvaluation evaluate_run(const train::RunFolder& run, const data::Dataset& dataset,
                                      const std::string& device, const std::string& images, bool overwrite) {
+  const FolderLock lock(run.path, "eval");
   train::TrainedAvatar t = train::load_trained_avatar(run, device == "cuda" ? at::kCUDA : at::kCPU);
   t.avatar->eval();
   t.avatar->cache_static_features();
@@ -62,20 +87,36 @@ std::string default_config(const char* name) {
 }  // namespace
 
 int run_train(Arguments& args) {
-  const std::string data_folder = args.required("data");
   const train::RunFolder run{args.required("out")};
-  train::TrainConfig config = load_config(args, default_config("default.yaml"));
   train::TrainOptions options;
   options.resume = args.flag("resume");
   options.overwrite = args.flag("force");
   options.progress = !args.flag("quiet");
-  options.stop_at = args.integer("stop-at", 0, 0, 100000000);
+  options.stop_at = args.integer("stop-at", 0, 0, kMaxIterations);
+  std::string data_folder = args.text("data", "");
+  train::TrainConfig config;
+  if (options.resume && fs::exists(run.checkpoint_file())) {
+    // The run's own config and data unless told otherwise; train_avatar refuses changes that are not safe.
+    const train::CheckpointReader checkpoint(run.checkpoint_file());
+    const std::string own = fs::exists(run.config_file()) ? run.config_file() : "";
+    const std::string file = args.text("config", own);
+    config = file.empty() ? checkpoint.info().config : train::TrainConfig::from_yaml_file(file);
+    apply_overrides(args, config);
+    if (data_folder.empty()) {
+      data_folder = checkpoint.info().dataset;
+      TORCH_CHECK(fs::is_directory(data_folder), "run '", run.path, "' was trained on dataset '", data_folder,
+                  "', which is not there (moved or deleted); pass --data with the dataset's folder");
+    }
+  } else {
+    config = load_config(args, default_config("default.yaml"));
+    if (data_folder.empty()) throw std::invalid_argument("missing required option --data");
+  }
   args.finish();
   const data::Dataset dataset = data::read_dataset(data_folder);
   std::printf("sfgs train: %s (%lld frames, %lld for training) -> %s on %s\n", dataset.source.c_str(),
               (long long)dataset.size(), (long long)dataset.split(data::Split::kTrain).size(), run.path.c_str(),
               config.device.c_str());
-  finish_training(run, train::train_avatar(dataset, config, run, options));
+  finish_training(run, train::train_avatar(dataset, config, run, options), config.schedule.iterations);
   return 0;
 }
 
@@ -104,7 +145,7 @@ int run_ablate(Arguments& args) {
     options.overwrite = force;
     std::printf("sfgs ablate: %s\n", name.c_str());
     const train::TrainSummary s = train::train_avatar(dataset, config, run, options);
-    finish_training(run, s);
+    finish_training(run, s, config.schedule.iterations);
     const train::AvatarEvaluation e = evaluate_run(run, dataset, config.device, "", force);
     char row[256];
     std::snprintf(row, sizeof(row), "| %s | %.2f | %.4f | %s | %.0f |\n", name.c_str(), e.summary.psnr, e.summary.ssim,
@@ -142,7 +183,7 @@ int run_demo(Arguments& args) {
   std::printf("sfgs demo 2/4: training %lld iterations on %s\n", (long long)config.schedule.iterations, config.device.c_str());
   train::TrainOptions options;
   options.overwrite = true;
-  finish_training(run, train::train_avatar(dataset, config, run, options));
+  finish_training(run, train::train_avatar(dataset, config, run, options), config.schedule.iterations);
   std::printf("sfgs demo 3/4: evaluating the test frames (ExAvatar/SFGS protocol)\n");
   const train::AvatarEvaluation e =
       evaluate_run(run, dataset, config.device, (fs::path(out) / "test_renders").string(), true);

@@ -106,4 +106,15 @@ inline constexpr double kHandFitWarningRms = 0.01;
 // Summed face normals shorter than this (a vertex on degenerate faces only) give a zero vertex normal.
 inline constexpr double kMinNormalLength = 1e-12;
 
+// ---- training configuration (docs/training.md) ----------------------------------------------------------------
+// Ranges a config's values must lie in. They refuse values that can only diverge or exhaust memory (a learning rate
+// of 1e30, a loss weight whose product overflows float32, planes of a million texels a side), not unusual choices:
+// the defaults sit orders of magnitude inside them (learning rates 1e-3, Laplacian weights 1e5, planes 128-256).
+inline constexpr double kMaxLearningRate = 1.0;
+inline constexpr double kMaxLossWeight = 1e9;
+inline constexpr long kMaxIterations = 100000000;
+inline constexpr long kMaxPlaneChannels = 1024;
+inline constexpr long kMaxPlaneResolution = 4096;
+inline constexpr long kMaxHiddenWidth = 4096;
+
 }  // namespace sfgs

@@ -1,6 +1,7 @@
 #include "data/dataset.h"
 
 #include <algorithm>
+#include <cstdio>
 #include <filesystem>
 #include <sstream>
 
@@ -8,6 +9,7 @@
 #include <nlohmann/json.hpp>
 
 #include "common/atomic_file.h"
+#include "common/checksum.h"
 #include "data/json_values.h"
 #include "data/neuman.h"
 #include "data/xhumans.h"
@@ -167,6 +169,29 @@ void Dataset::validate() const {
                   " is not finite");
     }
   }
+}
+
+std::string Dataset::fingerprint() const {
+  uint32_t crc = crc32_of(format.data(), format.size());
+  const auto add_double = [&](double v) { crc = crc32_of(&v, sizeof(v), crc); };
+  for (const FrameRecord& r : frames) {
+    crc = crc32_of(r.name.data(), r.name.size(), crc);
+    add_double(r.time);
+    add_double(double(r.sequence));
+    for (double v : r.camera.world_to_camera) add_double(v);
+    for (double v : {r.camera.fx, r.camera.fy, r.camera.cx, r.camera.cy, double(r.camera.width), double(r.camera.height)})
+      add_double(v);
+    for (const PoseField& f : pose_fields()) crc = crc32_of((r.pose.*(f.member)).to(at::kFloat), crc);
+    add_double(r.pose.in_camera_frame ? 1 : 0);
+  }
+  for (const auto& [split, name] : split_names()) {
+    add_double(-1.0 - double(int(split)));  // marks where each split's indices begin
+    for (int64_t i : this->split(split)) add_double(double(i));
+  }
+  crc = crc32_of(betas.to(at::kFloat), crc);
+  char hex[16];
+  std::snprintf(hex, sizeof(hex), "%08x", crc);
+  return std::string(hex) + "-" + std::to_string(frames.size());
 }
 
 Dataset read_sfgs_dataset(const std::string& folder) {

@@ -69,8 +69,12 @@ class Dataset {
   Frame load(int64_t index) const;
   // Frame time mapped once, over the whole dataset, to [-1, 1] (the hexplane's time axis).
   double normalized_time(int64_t index) const;
-  // Checks indices, sizes and shapes; called by every reader and by the writer.
+  // Checks indices, sizes, shapes, finiteness and cameras; called by every reader and by the writer. Errors name the
+  // frame and the field.
   void validate() const;
+  // A checksum of what training sees (frame names, times, cameras, SMPL-X parameters, splits, betas), as hex: equal
+  // for the same data wherever its folder lies, different for other data. A run refuses to resume on another.
+  std::string fingerprint() const;
 };
 
 // sfgs's own format (docs/dataset_format.md).

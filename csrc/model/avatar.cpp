@@ -3,6 +3,8 @@
 #include <cmath>
 #include <string>
 #include <tuple>
+#include <utility>
+#include <vector>
 
 #include <ATen/Functions.h>
 #include <ATen/TensorOperators.h>
@@ -83,6 +85,28 @@ at::Tensor joint_pose(const at::Tensor& pose, int64_t joints, const char* name, 
   return pose.reshape({joints, 3}).to(options);
 }
 
+// Refuses NaN and Inf anywhere in the pose, naming the field and the first bad value. Poses on the CPU are checked
+// where they lie; device ones with one combined reduction (a single synchronisation).
+void check_pose_finite(const AvatarPose& pose) {
+  const std::pair<const char*, const at::Tensor*> fields[] = {
+      {"global_orient", &pose.global_orient},   {"body_pose", &pose.body_pose},
+      {"jaw_pose", &pose.jaw_pose},             {"left_eye_pose", &pose.left_eye_pose},
+      {"right_eye_pose", &pose.right_eye_pose}, {"left_hand_pose", &pose.left_hand_pose},
+      {"right_hand_pose", &pose.right_hand_pose}, {"expression", &pose.expression},
+      {"transl", &pose.transl}};
+  std::vector<at::Tensor> on_device;
+  for (const auto& [name, t] : fields)
+    if (t->defined() && !t->is_cpu() && at::isFloatingType(t->scalar_type())) on_device.push_back(t->detach().flatten());
+  if (!on_device.empty() && at::cat(on_device).isfinite().all().item<bool>()) on_device.clear();
+  for (const auto& [name, t] : fields) {
+    if (!t->defined() || !at::isFloatingType(t->scalar_type()) || (!t->is_cpu() && on_device.empty())) continue;
+    const at::Tensor flat = t->detach().flatten().cpu();
+    const at::Tensor bad = (~flat.isfinite()).nonzero();
+    TORCH_CHECK(bad.numel() == 0, "Avatar: AvatarPose::", name, " must be finite, got ", flat[bad[0][0]].item<double>(),
+                " at index ", bad[0][0].item<int64_t>(), " (", bad.size(0), " of ", flat.numel(), " values are not finite)");
+  }
+}
+
 at::Tensor vector_input(const at::Tensor& t, const char* name, const at::TensorOptions& options) {
   TORCH_CHECK(at::isFloatingType(t.scalar_type()) && (t.dim() == 1 || (t.dim() == 2 && t.size(0) == 1)),
               "Avatar: AvatarPose::", name, " must be a floating (n) or (1, n) tensor, got ", body::describe(t));
@@ -137,6 +161,7 @@ AvatarImpl::CanonicalAttributes AvatarImpl::canonical_attributes(const StaticFea
 AvatarOutput AvatarImpl::forward(const AvatarPose& pose) {
   TORCH_CHECK(std::isfinite(pose.time) && pose.time >= -1.0 && pose.time <= 1.0,
               "Avatar: AvatarPose::time must be normalised to [-1, 1] (once per sequence), got ", pose.time);
+  check_pose_finite(pose);
   const auto options = body_->vertices().options();
   const int64_t n = body_->point_count();
 
@@ -258,6 +283,15 @@ void AvatarImpl::cache_static_features() {
 }
 
 void AvatarImpl::clear_cache() { cache_.reset(); }
+
+Gaussians to_gaussians(const AvatarOutput& out) {
+  Gaussians g;
+  g.means = out.means;
+  g.covariances = out.covariances;
+  g.opacities = out.opacities;
+  g.features = out.colours;
+  return g;
+}
 
 int64_t AvatarImpl::gaussian_count() const { return body_->point_count(); }
 const at::Tensor& AvatarImpl::part_labels() const { return body_->part_labels(); }

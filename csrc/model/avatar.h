@@ -20,6 +20,7 @@
 #include "model/hand_residual.h"
 #include "model/heads.h"
 #include "model/structure_offset.h"
+#include "splat/splat.h"
 
 namespace sfgs::model {
 
@@ -64,7 +65,8 @@ struct AvatarBody {
 // One frame's drive: SMPL-X parameters (axis-angle, batch 1, full hand poses) and the normalised time in [-1, 1].
 // Undefined tensors are zeros, except that undefined hand poses also skip that hand's MANO residual (the sequence
 // has no hand poses) and an undefined expression skips the expression blend shapes. Any floating dtype and device:
-// they are moved to the avatar's.
+// they are moved to the avatar's. Every value must be finite (forward refuses NaN or Inf, naming the field); give
+// them on the CPU to keep that check free of a device synchronisation.
 struct AvatarPose {
   at::Tensor global_orient;    // (3)
   at::Tensor body_pose;        // (21, 3) or (63)
@@ -94,6 +96,9 @@ struct AvatarOutput {
   at::Tensor hand_residual;     // (N, 3) zeros off the hands or when switched off
   at::Tensor posed_vertices;    // (N, 3) the skinned mesh points without learned offsets (for geometry metrics)
 };
+
+// The posed Gaussians as the splatting op takes them.
+Gaussians to_gaussians(const AvatarOutput& out);
 
 class AvatarImpl : public torch::nn::Module {
  public:

@@ -41,7 +41,6 @@ AvatarEvaluation evaluate_avatar(const data::Dataset& dataset, data::Split split
   const std::vector<int64_t>& frames = dataset.split(split);
   TORCH_CHECK(!frames.empty(), "dataset '", dataset.source, "' has no frames in the requested split");
   if (!save_folder.empty()) fs::create_directories(save_folder);
-  const at::Device device = avatar->parameters().empty() ? at::Device(at::kCPU) : avatar->parameters()[0].device();
   at::NoGradGuard no_grad;
   metrics::ImageEvaluator evaluator(options);
   AvatarEvaluation result;
@@ -54,9 +53,8 @@ AvatarEvaluation evaluate_avatar(const data::Dataset& dataset, data::Split split
     previous_frame = f;
     const data::Frame frame = dataset.load(f);
     const auto start = std::chrono::steady_clock::now();
-    const model::AvatarOutput out = avatar->forward(avatar_pose(dataset, f, device));
-    const Gaussians g{out.means, {}, {}, out.covariances, out.opacities, out.colours};
-    const RenderResult r = render(g, at::ones({3}, out.means.options()), render_camera(record));
+    const model::AvatarOutput out = avatar->forward(avatar_pose(dataset, f));
+    const RenderResult r = render(to_gaussians(out), at::ones({3}, out.means.options()), render_camera(record));
     const at::Tensor image = r.image.to(at::kCPU);
     render_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
     result.frames.push_back(evaluator.add_frame(image, frame.image, frame.eval_mask));
@@ -75,11 +73,10 @@ AvatarEvaluation evaluate_avatar(const data::Dataset& dataset, data::Split split
 void export_ply(model::Avatar& avatar, const data::Dataset* dataset, int64_t frame, const std::string& path,
                 bool overwrite) {
   at::NoGradGuard no_grad;
-  const at::Device device = avatar->parameters().empty() ? at::Device(at::kCPU) : avatar->parameters()[0].device();
-  model::AvatarPose pose = rest_pose(avatar->config().num_expression_coeffs, device);
+  model::AvatarPose pose = rest_pose(avatar->config().num_expression_coeffs);
   if (frame >= 0) {
     TORCH_CHECK(dataset != nullptr && frame < dataset->size(), "export: frame ", frame, " is not in the dataset");
-    pose = avatar_pose(*dataset, frame, device);
+    pose = avatar_pose(*dataset, frame);
   }
   const model::AvatarOutput out = avatar->forward(pose);
   at::Tensor means, cov6;
@@ -107,6 +104,9 @@ void export_ply(model::Avatar& avatar, const data::Dataset* dataset, int64_t fra
   const at::Tensor opacity_logit = at::log(o / (1 - o)).unsqueeze(1);
   const at::Tensor normals = at::zeros_like(means);
   const at::Tensor rows = at::cat({means, normals, f_dc, opacity_logit, log_scales, rotation}, 1).contiguous();
+  // The checkpoint was verified finite; this guards the conversions above (eigenvalues, logs) as well.
+  const int64_t bad = rows.numel() - rows.isfinite().sum().item<int64_t>();
+  TORCH_CHECK(bad == 0, "export: ", bad, " values of the Gaussians are not finite; not writing '", path, "'");
 
   const int64_t n = rows.size(0);
   std::string header = "ply\nformat binary_little_endian 1.0\nelement vertex " + std::to_string(n) + "\n";

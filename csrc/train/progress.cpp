@@ -1,9 +1,13 @@
 #include "train/progress.h"
 
 #include <cstdio>
+#include <fstream>
+#include <vector>
 
 #include <c10/util/Exception.h>
 #include <unistd.h>
+
+#include "common/atomic_file.h"
 
 namespace sfgs::train {
 
@@ -57,6 +61,24 @@ void JsonLinesLog::write(const nlohmann::json& entry) {
   out_ << entry.dump() << '\n';
   out_.flush();
   TORCH_CHECK(out_.good(), "cannot write to log '", path_, "'");
+}
+
+int64_t truncate_log_after(const std::string& path, int64_t iteration) {
+  std::ifstream in(path);
+  if (!in) return 0;
+  std::string kept, line;
+  int64_t dropped = 0;
+  while (std::getline(in, line)) {
+    const nlohmann::json e = nlohmann::json::parse(line, nullptr, /*allow_exceptions=*/false);
+    const bool keep = e.is_object() && e.contains("iteration") && e["iteration"].is_number_integer() &&
+                      e["iteration"].get<int64_t>() <= iteration;
+    if (keep)
+      kept += line + "\n";
+    else
+      ++dropped;
+  }
+  write_file_atomically(path, std::vector<unsigned char>(kept.begin(), kept.end()), true);
+  return dropped;
 }
 
 }  // namespace sfgs::train

@@ -35,6 +35,11 @@ class JsonLinesLog {
   std::ofstream out_;
 };
 
+// Rewrites the log at `path` (atomically) keeping only the entries of iterations <= `iteration` and dropping lines that
+// do not parse (a process killed mid-write leaves half a line). Returns how many lines were dropped; 0 when there
+// is no log.
+int64_t truncate_log_after(const std::string& path, int64_t iteration);
+
 // "1h02m", "3m12s", "45s".
 std::string format_duration(double seconds);
 

@@ -3,7 +3,8 @@
 #include <filesystem>
 
 #include <ATen/ATen.h>
-#include <torch/serialize/archive.h>
+
+#include "train/checkpoint.h"
 
 namespace sfgs::train {
 namespace fs = std::filesystem;
@@ -22,31 +23,29 @@ model::Avatar make_avatar(const TrainConfig& config, const at::Tensor& betas, at
   return avatar;
 }
 
-namespace {
-
-model::AvatarPose to_avatar_pose(const data::SmplxPose& p, double time, at::Device device) {
+model::AvatarPose avatar_pose(const data::SmplxPose& p, double time) {
   model::AvatarPose pose;
-  pose.global_orient = p.global_orient.to(device);
-  pose.body_pose = p.body_pose.to(device);
-  pose.jaw_pose = p.jaw_pose.to(device);
-  pose.left_eye_pose = p.left_eye_pose.to(device);
-  pose.right_eye_pose = p.right_eye_pose.to(device);
-  pose.left_hand_pose = p.left_hand_pose.to(device);
-  pose.right_hand_pose = p.right_hand_pose.to(device);
-  pose.expression = p.expression.to(device);
-  pose.transl = p.transl.to(device);
+  pose.global_orient = p.global_orient;
+  pose.body_pose = p.body_pose;
+  pose.jaw_pose = p.jaw_pose;
+  pose.left_eye_pose = p.left_eye_pose;
+  pose.right_eye_pose = p.right_eye_pose;
+  pose.left_hand_pose = p.left_hand_pose;
+  pose.right_hand_pose = p.right_hand_pose;
+  pose.expression = p.expression;
+  pose.transl = p.transl;
   pose.time = time;
   return pose;
 }
 
-}  // namespace
-
-model::AvatarPose avatar_pose(const data::Dataset& dataset, int64_t frame, at::Device device) {
-  return to_avatar_pose(dataset.frames[size_t(frame)].pose, dataset.normalized_time(frame), device);
+model::AvatarPose avatar_pose(const data::Dataset& dataset, int64_t frame) {
+  TORCH_CHECK(frame >= 0 && frame < dataset.size(), "frame ", frame, " is not in dataset '", dataset.source, "' (",
+              dataset.size(), " frames)");
+  return avatar_pose(dataset.frames[size_t(frame)].pose, dataset.normalized_time(frame));
 }
 
-model::AvatarPose rest_pose(int64_t expression_count, at::Device device) {
-  return to_avatar_pose(data::SmplxPose::zeros(expression_count), 0.0, device);
+model::AvatarPose rest_pose(int64_t expression_count) {
+  return avatar_pose(data::SmplxPose::zeros(expression_count), 0.0);
 }
 
 Camera render_camera(const data::FrameRecord& frame) {
@@ -56,30 +55,30 @@ Camera render_camera(const data::FrameRecord& frame) {
 }
 
 TrainedAvatar load_trained_avatar(const RunFolder& run, at::Device device) {
+  TORCH_CHECK(fs::is_directory(run.path), "run folder '", run.path, "' does not exist");
   TORCH_CHECK(fs::exists(run.checkpoint_file()), "run folder '", run.path, "' has no checkpoint.pt (train it first)");
+  CheckpointReader checkpoint(run.checkpoint_file());
   TrainedAvatar t;
-  torch::serialize::InputArchive archive, avatar_archive;
-  try {
-    archive.load_from(run.checkpoint_file());
-  } catch (const c10::Error& e) {
-    TORCH_CHECK(false, "'", run.checkpoint_file(), "' is not a readable sfgs checkpoint: ", e.what_without_backtrace());
-  }
-  at::Tensor config_text, dataset, iteration;
-  archive.read("config", config_text);
-  archive.read("dataset", dataset);
-  archive.read("iteration", iteration);
-  archive.read("betas", t.betas);
-  const at::Tensor c = config_text.contiguous();
-  t.config = TrainConfig::from_yaml_text(std::string(reinterpret_cast<const char*>(c.data_ptr<uint8_t>()), size_t(c.numel())),
-                                         run.checkpoint_file());
-  const at::Tensor d = dataset.contiguous();
-  t.dataset = std::string(reinterpret_cast<const char*>(d.data_ptr<uint8_t>()), size_t(d.numel()));
-  t.iteration = iteration.item<int64_t>();
-  t.avatar = make_avatar(t.config, t.betas, device);
-  archive.read("avatar", avatar_archive);
-  t.avatar->load(avatar_archive);
+  t.config = checkpoint.info().config;
+  t.betas = checkpoint.info().betas;
+  t.dataset = checkpoint.info().dataset;
+  t.iteration = checkpoint.info().iteration;
+  t.avatar = make_avatar(t.config, t.betas, at::kCPU);
+  checkpoint.load_avatar(t.avatar);
   t.avatar->to(device);
   return t;
+}
+
+data::Dataset read_run_dataset(const TrainedAvatar& trained, const std::string& folder) {
+  if (!folder.empty()) return data::read_dataset(folder);
+  TORCH_CHECK(fs::is_directory(trained.dataset), "the run was trained on dataset '", trained.dataset,
+              "', which is not there (moved, deleted, or a relative path from another working directory); give ",
+              "the dataset's folder (--data; in Python, load_avatar(run, data=...))");
+  return data::read_dataset(trained.dataset);
+}
+
+std::string absolute_dataset_path(const data::Dataset& dataset) {
+  return fs::absolute(dataset.source).lexically_normal().string();
 }
 
 }  // namespace sfgs::train

@@ -20,10 +20,12 @@ struct RunFolder {
 // The avatar the config describes, for a subject with these betas, on `device`.
 model::Avatar make_avatar(const TrainConfig& config, const at::Tensor& betas, at::Device device);
 
-// The avatar's drive for one dataset frame (time normalised over the dataset).
-model::AvatarPose avatar_pose(const data::Dataset& dataset, int64_t frame, at::Device device);
+// The avatar's drive for one dataset frame (time normalised over the dataset), on the CPU: Avatar::forward moves it.
+model::AvatarPose avatar_pose(const data::Dataset& dataset, int64_t frame);
+// The same for SMPL-X parameters and a normalised time.
+model::AvatarPose avatar_pose(const data::SmplxPose& pose, double time);
 // Every joint at rest, zero expression, no translation, time 0.
-model::AvatarPose rest_pose(int64_t expression_count, at::Device device);
+model::AvatarPose rest_pose(int64_t expression_count);
 // The camera to render that frame with (identity extrinsics for poses given in camera coordinates).
 Camera render_camera(const data::FrameRecord& frame);
 
@@ -31,11 +33,20 @@ struct TrainedAvatar {
   TrainConfig config;
   model::Avatar avatar{nullptr};
   at::Tensor betas;
-  std::string dataset;  // the folder it was trained on
+  std::string dataset;  // the folder it was trained on (absolute, for runs trained by this version)
   int64_t iteration = 0;
 };
 
-// Reads config.yaml and checkpoint.pt of a run; errors name the missing or corrupt file.
+// Reads the run's checkpoint.pt and builds its avatar on `device`. The checkpoint is verified (checksums, finite
+// values); errors name the file and, for damage, the tensor.
 TrainedAvatar load_trained_avatar(const RunFolder& run, at::Device device);
+
+// The dataset a trained avatar is evaluated or rendered with: `folder` when given (--data), else the one it was
+// trained on; when that has moved, the error says so and how to point at it.
+data::Dataset read_run_dataset(const TrainedAvatar& trained, const std::string& folder);
+
+// The folder a dataset was read from, absolute and normalised: what a run stores so that it can be used from any
+// working directory.
+std::string absolute_dataset_path(const data::Dataset& dataset);
 
 }  // namespace sfgs::train

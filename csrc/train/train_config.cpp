@@ -7,7 +7,10 @@
 #include <sstream>
 
 #include <c10/util/Exception.h>
+#include <cmath>
 #include <yaml-cpp/yaml.h>
+
+#include "common/constants.h"
 
 namespace sfgs::train {
 namespace {
@@ -104,7 +107,14 @@ TrainConfig TrainConfig::from_yaml_text(const std::string& text, const std::stri
       }
     }
   }
-  c.validate();
+  try {
+    c.validate();
+  } catch (const c10::Error& e) {
+    std::string message = e.what_without_backtrace();
+    const std::string generic = "config: ";
+    if (message.rfind(generic, 0) == 0) message = message.substr(generic.size());
+    TORCH_CHECK(false, "config '", source, "': ", message);
+  }
   return c;
 }
 
@@ -132,21 +142,96 @@ std::string TrainConfig::to_yaml() const {
   return std::string(e.c_str()) + "\n";
 }
 
+namespace {
+
+void check_range(double value, double lo, double hi, const char* key) {
+  TORCH_CHECK(std::isfinite(value) && value >= lo && value <= hi, "config: ", key, " must be a finite number in [", lo,
+              ", ", hi, "], got ", value);
+}
+
+void check_positive(double value, double hi, const char* key) {
+  TORCH_CHECK(std::isfinite(value) && value > 0 && value <= hi, "config: ", key, " must be a finite number in (0, ", hi,
+              "], got ", value);
+}
+
+void check_count(int64_t value, int64_t lo, int64_t hi, const char* key) {
+  TORCH_CHECK(value >= lo && value <= hi, "config: ", key, " must be an integer in [", lo, ", ", hi, "], got ", value);
+}
+
+void check_parts(const PartWeights& p, const char* key) {
+  const std::string k(key);
+  check_range(p.body, 0, kMaxLossWeight, (k + ".body").c_str());
+  check_range(p.face, 0, kMaxLossWeight, (k + ".face").c_str());
+  check_range(p.hands, 0, kMaxLossWeight, (k + ".hands").c_str());
+}
+
+}  // namespace
+
 void TrainConfig::validate() const {
-  TORCH_CHECK(schedule.iterations >= 1, "schedule.iterations must be at least 1, got ", schedule.iterations);
-  TORCH_CHECK(schedule.warmup_iterations >= 0, "schedule.warmup_iterations must be >= 0");
+  check_count(schedule.iterations, 1, kMaxIterations, "schedule.iterations");
+  check_count(schedule.warmup_iterations, 0, kMaxIterations, "schedule.warmup_iterations");
   TORCH_CHECK(schedule.decay_at.size() == schedule.decay_factor.size(),
-              "schedule.decay_at and schedule.decay_factor must have the same length");
-  for (size_t i = 0; i < schedule.decay_at.size(); ++i)
-    TORCH_CHECK(schedule.decay_at[i] > 0 && schedule.decay_at[i] < 1 && (i == 0 || schedule.decay_at[i] > schedule.decay_at[i - 1]),
-                "schedule.decay_at must rise strictly inside (0, 1)");
-  TORCH_CHECK(schedule.learning_rate > 0 && schedule.colour_learning_rate > 0, "learning rates must be positive");
-  TORCH_CHECK(device == "cpu" || device == "cuda", "run.device must be cpu or cuda, got '", device, "'");
-  TORCH_CHECK(log_every >= 1 && validate_every >= 1 && checkpoint_every >= 1, "run.*_every must be at least 1");
-  TORCH_CHECK(avatar.subdivision_levels >= 0 && avatar.subdivision_levels <= 3, "avatar.subdivision_levels must be in [0, 3]");
-  TORCH_CHECK(avatar.plane_channels >= 1 && avatar.plane_resolution >= 2 && avatar.time_resolution >= 2 &&
-                  avatar.face_plane_resolution >= 2 && avatar.hidden_width >= 1,
-              "avatar plane and network sizes must be positive");
+              "config: schedule.decay_at and schedule.decay_factor must have the same length, got ",
+              schedule.decay_at.size(), " and ", schedule.decay_factor.size());
+  for (size_t i = 0; i < schedule.decay_at.size(); ++i) {
+    TORCH_CHECK(std::isfinite(schedule.decay_at[i]) && schedule.decay_at[i] > 0 && schedule.decay_at[i] < 1 &&
+                    (i == 0 || schedule.decay_at[i] > schedule.decay_at[i - 1]),
+                "config: schedule.decay_at must rise strictly inside (0, 1), got ", schedule.decay_at[i], " at position ",
+                i);
+    check_positive(schedule.decay_factor[i], 1.0, "schedule.decay_factor");
+  }
+  check_positive(schedule.learning_rate, kMaxLearningRate, "schedule.learning_rate");
+  check_positive(schedule.colour_learning_rate, kMaxLearningRate, "schedule.colour_learning_rate");
+  check_positive(schedule.adam_epsilon, 1.0, "schedule.adam_epsilon");
+  for (const auto& [value, key] : {std::pair{loss.image, "loss.image"}, {loss.lab, "loss.lab"},
+                                   {loss.gradient, "loss.gradient"}, {loss.face, "loss.face"},
+                                   {loss.mean_offset, "loss.mean_offset"}, {loss.scale, "loss.scale"},
+                                   {loss.laplacian_mean, "loss.laplacian_mean"},
+                                   {loss.laplacian_scale, "loss.laplacian_scale"}, {loss.joint_drift, "loss.joint_drift"}})
+    check_range(value, 0, kMaxLossWeight, key);
+  check_parts(loss.mean_offset_parts, "loss.mean_offset_parts");
+  check_parts(loss.scale_parts, "loss.scale_parts");
+  check_parts(loss.laplacian_mean_parts, "loss.laplacian_mean_parts");
+  TORCH_CHECK(device == "cpu" || device == "cuda", "config: run.device must be cpu or cuda, got '", device, "'");
+  check_count(log_every, 1, kMaxIterations, "run.log_every");
+  check_count(validate_every, 1, kMaxIterations, "run.validate_every");
+  check_count(checkpoint_every, 1, kMaxIterations, "run.checkpoint_every");
+  check_count(validation_frames, 1, kMaxIterations, "run.validation_frames");
+  check_count(avatar.subdivision_levels, 0, 3, "avatar.subdivision_levels");
+  check_count(avatar.plane_channels, 1, kMaxPlaneChannels, "avatar.plane_channels");
+  check_count(avatar.plane_resolution, 2, kMaxPlaneResolution, "avatar.plane_resolution");
+  check_count(avatar.time_resolution, 2, kMaxPlaneResolution, "avatar.time_resolution");
+  check_count(avatar.face_plane_resolution, 2, kMaxPlaneResolution, "avatar.face_plane_resolution");
+  check_count(avatar.hidden_width, 1, kMaxHiddenWidth, "avatar.hidden_width");
+  check_count(avatar.joint_embedding_size, 1, kMaxHiddenWidth, "avatar.joint_embedding_size");
+  check_count(avatar.num_betas, 0, kMaxHiddenWidth, "avatar.num_betas");
+  check_count(avatar.num_expression_coeffs, 0, kMaxHiddenWidth, "avatar.num_expression_coeffs");
+}
+
+std::vector<ConfigChange> config_changes(const TrainConfig& before, const TrainConfig& after) {
+  TrainConfig a = before, b = after;
+  const auto table_a = sections(a), table_b = sections(b);
+  std::vector<ConfigChange> changes;
+  for (size_t s = 0; s < table_a.size(); ++s) {
+    for (size_t k = 0; k < table_a[s].second.size(); ++k) {
+      YAML::Emitter ea, eb;
+      ea << YAML::Flow;
+      eb << YAML::Flow;
+      table_a[s].second[k].second.write(ea);
+      table_b[s].second[k].second.write(eb);
+      if (std::string(ea.c_str()) != std::string(eb.c_str()))
+        changes.push_back({table_a[s].first + "." + table_a[s].second[k].first, ea.c_str(), eb.c_str()});
+    }
+  }
+  return changes;
+}
+
+bool change_allowed_on_resume(const std::string& key) {
+  if (key.rfind("schedule.", 0) == 0) return true;
+  for (const char* allowed : {"run.log_every", "run.validate_every", "run.checkpoint_every", "run.validation_frames",
+                              "run.device"})
+    if (key == allowed) return true;
+  return false;
 }
 
 }  // namespace sfgs::train

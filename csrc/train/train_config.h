@@ -62,7 +62,19 @@ struct TrainConfig {
   static TrainConfig from_yaml_file(const std::string& path);
   static TrainConfig from_yaml_text(const std::string& text, const std::string& source = "<text>");
   std::string to_yaml() const;
+  // Every value finite and in its range; errors name the key, the range and the value.
   void validate() const;
 };
+
+// A key whose value differs between two configs, with both values as YAML text.
+struct ConfigChange {
+  std::string key;  // "section.key"
+  std::string before, after;
+};
+std::vector<ConfigChange> config_changes(const TrainConfig& before, const TrainConfig& after);
+// Whether a resumed run may take this change: keys that steer how long and how the optimiser runs, what is logged and
+// where (schedule.*, run.log_every, run.validate_every, run.checkpoint_every, run.validation_frames, run.device).
+// Everything else changes the model, its objective or its data, and is refused.
+bool change_allowed_on_resume(const std::string& key);
 
 }  // namespace sfgs::train

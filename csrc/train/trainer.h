@@ -1,7 +1,9 @@
 #pragma once
 // The C++ trainer: Adam with per-group learning rates, linear warm-up and step decay, random background colours,
 // periodic validation, atomic checkpoints that resume to an identical continuation, a progress bar and JSON-lines logs.
-#include <functional>
+// A run folder belongs to one training process at a time (FolderLock); a resumed run keeps the model and data it was
+// trained with (only schedule and logging may change), and a diverging run stops at the first non-finite loss with
+// its last good checkpoint intact.
 #include <string>
 #include <vector>
 
@@ -20,11 +22,16 @@ struct TrainOptions {
 };
 
 struct TrainSummary {
+  int64_t first_iteration = 0;   // the iteration this call started from (0, or the checkpoint's when resuming)
   int64_t iterations = 0;        // the iteration the run stopped at
+  int64_t steps = 0;             // steps this call ran (0: the run had already reached its end)
+  bool finished = false;         // the run has done every iteration of its schedule
   double seconds = 0;            // wall time of this call
   double training_seconds = 0;   // time spent in training steps over the whole run (resumes included)
-  double final_loss = 0;
-  double validation_psnr = 0;  // last validation (white background, evaluation mask); NaN without val frames
+  double step_seconds = 0;       // time spent in this call's training steps
+  double final_loss = 0;         // the last logged total loss of this call (when steps > 0)
+  double validation_psnr = 0;    // last validation of this call (white background, evaluation mask); NaN if none
+  bool has_validation_frames = false;
 };
 
 // Learning-rate factor at `iteration` (0-based): linear warm-up, then the step decays.
@@ -41,6 +48,10 @@ struct ErrorCurvePoint {
 // also written atomically as CSV to `csv_path`: the run-time-versus-error curve.
 std::vector<ErrorCurvePoint> write_error_curve_csv(const RunFolder& run, const std::string& csv_path);
 
+// Trains (or, with options.resume and a checkpoint in `run`, continues) the avatar `config` describes on `dataset`.
+// Everything is validated before any file of the run is touched: a resume with a config that changes the model or
+// its objective (anything but schedule and logging keys), on another dataset, or to an iteration the run has
+// passed, is refused with the reason, and the run's files stay as they were.
 TrainSummary train_avatar(const data::Dataset& dataset, const TrainConfig& config, const RunFolder& run,
                           const TrainOptions& options);
 

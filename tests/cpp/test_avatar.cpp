@@ -1,6 +1,8 @@
 // The SFGS avatar (csrc/model/avatar.h) on the procedural body: shapes and finiteness, agreement of a new avatar
 // with the skinned body model, gradients to every parameter, the inference cache, determinism, the parameter
 // count formula and the checks of its inputs.
+#include <cmath>
+#include <limits>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -319,6 +321,17 @@ TEST(Avatar, RejectsBadInputsWithClearMessages) {
   pose = test_pose(10, 0.3, true);
   pose.transl = at::zeros({4});
   expect_error([&] { avatar->forward(pose); }, {"transl", "3"});
+  // Non-finite values used to render an all-white image (every Gaussian culled) without a word.
+  pose = test_pose(10, 0.3, true);
+  pose.body_pose = at::full({21, 3}, std::nan(""));
+  expect_error([&] { avatar->forward(pose); }, {"body_pose must be finite", "nan at index 0", "63 of 63"});
+  pose = test_pose(10, 0.3, true);
+  pose.body_pose = pose.body_pose.clone();
+  pose.body_pose[4][1] = std::nan("");
+  expect_error([&] { avatar->forward(pose); }, {"body_pose must be finite", "at index 13", "(1 of 63"});
+  pose = test_pose(10, 0.3, true);
+  pose.transl = at::tensor({0.0, std::numeric_limits<double>::infinity(), 0.0});
+  expect_error([&] { avatar->forward(pose); }, {"transl must be finite", "inf at index 1"});
   expect_error([&] { Avatar(procedural_avatar_body(), at::zeros({2, 2, 2}), small_config()); }, {"betas", "[2, 2, 2]"});
   AvatarConfig config = small_config();
   config.hidden_width = 18;

@@ -1,9 +1,12 @@
 // Dataset readers and the writer on fixture folders the tests create: sfgs's own format round trip, the
 // ExAvatar-preprocessed NeuMan layout, and clear errors for missing or corrupt files.
 #include <filesystem>
+#include <fstream>
+#include <string>
 
 #include <ATen/ATen.h>
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 
 #include "data/dataset.h"
 #include "data/neuman.h"
@@ -98,6 +101,22 @@ TEST(SfgsDataset, CorruptAndInconsistentFilesAreClearErrors) {
   bad = d;
   bad.frames[0].pose.body_pose = at::zeros({20, 3});
   expect_error_mentioning([&] { write_sfgs_dataset(bad, dir.str(), true); }, "body_pose has shape");
+  // A camera whose rotation is singular, and a non-finite pose value, in dataset.json: named by frame and field.
+  write_sfgs_dataset(d, dir.str(), true);
+  const std::string index = dir.str() + "/dataset.json";
+  nlohmann::json j = nlohmann::json::parse(std::ifstream(index));
+  j["frames"][1]["camera"]["world_to_camera"] = {0, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+  write_text(index, j.dump());
+  expect_error_mentioning([&] { read_dataset(dir.str()); },
+                          "frame '" + d.frames[1].name + "' camera: the rotation part of world_to_camera must be "
+                          "orthonormal with determinant +1");
+  j = nlohmann::json::parse(std::ifstream(index));
+  j["frames"][1]["camera"]["world_to_camera"] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+  j["frames"][0]["smplx"]["transl"] = {0, 12345.5, 0};
+  std::string text = j.dump();
+  text.replace(text.find("12345.5"), 7, "1e400");  // JSON has no NaN or Inf: an overflowing number is the way in
+  write_text(index, text);
+  expect_error_mentioning([&] { read_dataset(dir.str()); }, "number overflow parsing '1e400'");
 }
 
 // A two-frame NeuMan folder as ExAvatar's preprocessing leaves it.

@@ -30,9 +30,53 @@ TEST(TrainConfig, MistakesAreClearErrors) {
   testing::expect_error_mentioning([] { TrainConfig::from_yaml_text("schedule:\n  iterations: many\n"); },
                                    "bad value for 'schedule.iterations'");
   testing::expect_error_mentioning([] { TrainConfig::from_yaml_text("schedule:\n  iterations: 0\n"); },
-                                   "schedule.iterations must be at least 1");
+                                   "schedule.iterations must be an integer in [1, 100000000], got 0");
   testing::expect_error_mentioning([] { TrainConfig::from_yaml_file("/nonexistent/config.yaml"); },
                                    "/nonexistent/config.yaml");
+}
+
+// The adversarial values that used to train to "final loss -nan" with exit 0: each is refused naming the key.
+TEST(TrainConfig, NonFiniteAndOutOfRangeValuesAreRefused) {
+  const auto refused = [](const std::string& yaml, const std::string& message) {
+    testing::expect_error_mentioning([&] { TrainConfig::from_yaml_text(yaml, "bad.yaml"); }, message);
+  };
+  refused("schedule: {learning_rate: .inf}\n",
+          "config 'bad.yaml': schedule.learning_rate must be a finite number in (0, 1], got inf");
+  refused("schedule: {learning_rate: 1e30}\n", "schedule.learning_rate must be a finite number in (0, 1], got 1e+30");
+  refused("schedule: {colour_learning_rate: -0.001}\n", "schedule.colour_learning_rate must be a finite number");
+  refused("schedule: {adam_epsilon: .nan}\n", "schedule.adam_epsilon must be a finite number in (0, 1], got nan");
+  refused("schedule: {decay_factor: [0.1, .inf]}\n", "schedule.decay_factor must be a finite number in (0, 1]");
+  refused("schedule: {decay_at: [0.5, .nan]}\n", "schedule.decay_at must rise strictly inside (0, 1)");
+  refused("loss: {image: .nan}\n", "loss.image must be a finite number in [0, 1e+09], got nan");
+  refused("loss: {laplacian_mean: 1e30}\n", "loss.laplacian_mean must be a finite number in [0, 1e+09]");
+  refused("loss: {lab: -1}\n", "loss.lab must be a finite number in [0, 1e+09], got -1");
+  refused("loss: {scale_parts: {hands: .inf}}\n", "loss.scale_parts.hands must be a finite number");
+  refused("avatar: {plane_resolution: 1000000}\n", "avatar.plane_resolution must be an integer in [2, 4096]");
+  refused("run: {validation_frames: 0}\n", "run.validation_frames must be an integer in [1, 100000000], got 0");
+  // The defaults and the shipped configs are inside every range.
+  EXPECT_NO_THROW(TrainConfig{}.validate());
+}
+
+TEST(TrainConfig, ChangesAreListedAndOnlyScheduleAndLoggingMayChangeOnResume) {
+  TrainConfig a, b;
+  b.schedule.iterations = a.schedule.iterations + 10;
+  b.avatar.hidden_width = 64;
+  b.loss.lab = 0.5;
+  const std::vector<ConfigChange> changes = config_changes(a, b);
+  ASSERT_EQ(changes.size(), 3u);
+  EXPECT_EQ(changes[0].key, "avatar.hidden_width");
+  EXPECT_EQ(changes[0].before, "128");
+  EXPECT_EQ(changes[0].after, "64");
+  EXPECT_EQ(changes[1].key, "loss.lab");
+  EXPECT_EQ(changes[2].key, "schedule.iterations");
+  EXPECT_TRUE(change_allowed_on_resume("schedule.iterations"));
+  EXPECT_TRUE(change_allowed_on_resume("run.log_every"));
+  EXPECT_TRUE(change_allowed_on_resume("run.device"));
+  EXPECT_FALSE(change_allowed_on_resume("avatar.hidden_width"));
+  EXPECT_FALSE(change_allowed_on_resume("loss.lab"));
+  EXPECT_FALSE(change_allowed_on_resume("run.seed"));
+  EXPECT_FALSE(change_allowed_on_resume("body.smplx"));
+  EXPECT_TRUE(config_changes(a, a).empty());
 }
 
 TEST(TrainSchedule, WarmUpThenStepDecay) {

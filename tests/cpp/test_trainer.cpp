@@ -96,7 +96,9 @@ TEST(Trainer, ResumedRunEqualsUninterruptedRun) {
   ASSERT_EQ(a.size(), b.size());
   int64_t parameters = 0;
   for (const auto& [key, tensor] : a) {
-    if (key == "training_seconds") continue;  // wall time differs
+    // Wall time differs; the optimiser's serialised state names parameters by address, which differs between
+    // processes (and so does its checksum): a lost or wrong optimiser state shows in the losses below instead.
+    if (key == "training_seconds" || key == "optimizer_state" || key == "checksums") continue;
     ASSERT_TRUE(b.count(key)) << key;
     EXPECT_TRUE(tensor.equal(b.at(key))) << key;
     parameters += key.rfind("avatar.", 0) == 0 ? 1 : 0;
@@ -177,7 +179,7 @@ TEST(Trainer, NeverOverwritesARunUnasked) {
   bad.resume = true;
   bad.stop_at = 1;
   config.schedule.iterations = 3;
-  expect_error_mentioning([&] { train::train_avatar(dataset, config, run, bad); }, "not past");
+  expect_error_mentioning([&] { train::train_avatar(dataset, config, run, bad); }, "it is already at iteration 1");
 }
 
 }  // namespace

@@ -1,0 +1,242 @@
+#include "train/training_session.h"
+
+#include <chrono>
+#include <cmath>
+#include <map>
+#include <sstream>
+
+#include <ATen/ATen.h>
+#include <nlohmann/json.hpp>
+
+#include "metrics/image_metrics.h"
+
+namespace sfgs::train {
+
+// Frames kept decoded in memory (8-bit) up to this many bytes; beyond it they are read from disk when drawn.
+constexpr int64_t kFrameCacheBytes = int64_t(2) << 30;
+
+// Training frames as 8-bit tensors (image and mask in one (H, W, 4)), decoded once.
+class FrameCache {
+ public:
+  explicit FrameCache(const data::Dataset& dataset) : dataset_(dataset) {}
+  std::pair<at::Tensor, at::Tensor> get(int64_t index, at::Device device) {
+    auto it = frames_.find(index);
+    at::Tensor packed;
+    if (it != frames_.end()) {
+      packed = it->second;
+    } else {
+      const data::Frame f = dataset_.load(index);
+      packed = at::cat({f.image, f.mask.unsqueeze(2)}, 2).mul(kEightBitMax).round().to(at::kByte);
+      if (bytes_ + packed.numel() <= kFrameCacheBytes) {
+        bytes_ += packed.numel();
+        frames_[index] = packed;
+      }
+    }
+    const at::Tensor values = packed.to(device).to(at::kFloat).div_(float(kEightBitMax));
+    return {values.slice(2, 0, 3), values.select(2, 3)};
+  }
+
+ private:
+  const data::Dataset& dataset_;
+  std::map<int64_t, at::Tensor> frames_;
+  int64_t bytes_ = 0;
+};
+
+std::unique_ptr<torch::optim::Adam> make_optimizer(const model::Avatar& avatar, const Schedule& schedule) {
+  std::vector<at::Tensor> colour, other;
+  for (const auto& p : avatar->named_parameters())
+    (p.key().find("colour") != std::string::npos ? colour : other).push_back(p.value());
+  std::vector<torch::optim::OptimizerParamGroup> groups;
+  const auto options = [&](double rate) {
+    return std::make_unique<torch::optim::AdamOptions>(
+        torch::optim::AdamOptions(rate).eps(schedule.adam_epsilon));
+  };
+  groups.emplace_back(other, options(schedule.learning_rate));
+  if (!colour.empty()) groups.emplace_back(colour, options(schedule.colour_learning_rate));
+  return std::make_unique<torch::optim::Adam>(groups, *options(schedule.learning_rate));
+}
+
+namespace {
+
+torch::optim::AdamOptions& adam_options(torch::optim::Adam& optimizer, size_t group) {
+  return static_cast<torch::optim::AdamOptions&>(optimizer.param_groups()[group].options());
+}
+
+}  // namespace
+
+TrainingSession::TrainingSession(const data::Dataset& dataset, const TrainConfig& config, const RunFolder& run,
+                                 const TrainOptions& options)
+    : dataset_(dataset), config_(config), run_(run), options_(options),
+      device_(config.device == "cuda" ? at::kCUDA : at::kCPU), rng_(config.seed) {
+  torch::manual_seed(config.seed);
+  avatar_ = make_avatar(config, dataset.betas, device_);
+  optimizer_ = make_optimizer(avatar_, config.schedule);
+  for (size_t g = 0; g < optimizer_->param_groups().size(); ++g) base_rates_.push_back(adam_options(*optimizer_, g).lr());
+  image_loss_ = std::make_unique<ImageLoss>(config.loss, device_);
+  regularisers_ = std::make_unique<Regularisers>(config.loss, avatar_->part_labels(), avatar_->faces(), device_);
+  frames_ = std::make_unique<FrameCache>(dataset);
+  summary_.validation_psnr = std::nan("");
+  summary_.has_validation_frames = !dataset.split(data::Split::kVal).empty();
+}
+
+TrainingSession::~TrainingSession() = default;
+
+void TrainingSession::restore(CheckpointReader& checkpoint) {
+  checkpoint.load_avatar(avatar_);
+  checkpoint.load_optimizer(*optimizer_);
+  // The schedule may have changed on resume: the groups take the config's rates, not the checkpoint's.
+  for (size_t g = 0; g < base_rates_.size(); ++g) adam_options(*optimizer_, g).eps(config_.schedule.adam_epsilon);
+  std::istringstream(checkpoint.info().rng_state) >> rng_;
+  training_seconds_ = checkpoint.info().training_seconds;
+  last_checkpoint_ = checkpoint.info().iteration;
+}
+
+void TrainingSession::open_log() {
+  log_ = std::make_unique<JsonLinesLog>(run_.log_file());
+  log_->write({{"event", "start"}, {"iteration", last_checkpoint_ < 0 ? 0 : last_checkpoint_},
+               {"dataset", dataset_.source}, {"frames", dataset_.size()}, {"gaussians", avatar_->gaussian_count()},
+               {"device", config_.device}, {"lpips", image_loss_->lpips_status()},
+               {"face_loss", "skipped: the dataset has no face texture"}});
+}
+
+void TrainingSession::step(int64_t it) {
+  const double factor = learning_rate_factor(config_.schedule, it);
+  for (size_t g = 0; g < base_rates_.size(); ++g) adam_options(*optimizer_, g).lr(base_rates_[g] * factor);
+  const std::vector<int64_t>& train_frames = dataset_.split(data::Split::kTrain);
+  std::uniform_int_distribution<size_t> pick(0, train_frames.size() - 1);
+  std::uniform_real_distribution<float> colour(0.0f, 1.0f);
+  const int64_t f = train_frames[pick(rng_)];
+  const auto [image, mask] = frames_->get(f, device_);
+  const float bg_values[3] = {colour(rng_), colour(rng_), colour(rng_)};
+  const at::Tensor background = at::tensor(std::vector<float>(bg_values, bg_values + 3), at::kFloat).to(device_);
+  const at::Tensor m = mask.unsqueeze(2);
+  const at::Tensor target = image * m + background * (1 - m);
+
+  const model::AvatarOutput out = avatar_->forward(avatar_pose(dataset_, f));
+  const RenderResult r = render(to_gaussians(out), background, render_camera(dataset_.frames[size_t(f)]));
+  LossTerms terms;
+  image_loss_->add_terms(r.image, target, terms);
+  regularisers_->add_terms(out, terms);
+  const at::Tensor loss = total_loss(terms);
+  optimizer_->zero_grad();
+  loss.backward();
+  optimizer_->step();
+  watch_.record(it + 1, terms, {{"psnr", metrics::psnr(r.image.detach(), target)}});
+}
+
+TrainSummary TrainingSession::run(int64_t start, int64_t end) {
+  TORCH_CHECK(log_, "TrainingSession: open_log() first");
+  bar_ = std::make_unique<ProgressBar>(config_.schedule.iterations, options_.progress);
+  const auto started = std::chrono::steady_clock::now();
+  const double seconds_before = training_seconds_;
+  summary_.first_iteration = start;
+  for (int64_t it = start; it < end; ++it) {
+    const auto step_started = std::chrono::steady_clock::now();
+    step(it);
+    training_seconds_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - step_started).count();
+    finish_step(it + 1, end);
+  }
+  bar_->finish();
+  summary_.iterations = std::max(start, end);
+  summary_.steps = end - start;
+  summary_.finished = summary_.iterations == config_.schedule.iterations;
+  summary_.training_seconds = training_seconds_;
+  summary_.step_seconds = training_seconds_ - seconds_before;
+  summary_.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();
+  nlohmann::json entry{{"event", "end"}, {"iteration", summary_.iterations}, {"seconds", summary_.seconds},
+                       {"training_seconds", training_seconds_}};
+  if (!std::isnan(summary_.validation_psnr)) entry["val_psnr"] = summary_.validation_psnr;
+  log_->write(entry);
+  return summary_;
+}
+
+void TrainingSession::finish_step(int64_t done, int64_t end) {
+  const bool logs = done % config_.log_every == 0 || done == end;
+  const bool validates = done % config_.validate_every == 0 || done == end;
+  const bool checkpoints = done % config_.checkpoint_every == 0 || done == end;
+  // Reading the watched losses is the step's host synchronisation on a GPU: only where one happens anyway.
+  if (!(logs || validates || checkpoints)) return;
+  std::map<std::string, double> latest;
+  try {
+    latest = watch_.read();
+  } catch (const DivergenceError& e) {
+    stop_diverged(e);
+  }
+  if (logs) {
+    nlohmann::json entry{{"event", "step"},        {"iteration", done},
+                         {"lr_factor", learning_rate_factor(config_.schedule, done - 1)},
+                         {"psnr", latest["psnr"]}, {"seconds", bar_->elapsed_seconds()},
+                         {"training_seconds", training_seconds_}};
+    for (const auto& [name, value] : latest)
+      if (name != "psnr") entry["loss"][name] = value;
+    log_->write(entry);
+    summary_.final_loss = latest["total"];
+    bar_->update(done, summary_.final_loss, latest["psnr"]);
+  }
+  if (validates) validate(done);
+  if (checkpoints) checkpoint(done);
+}
+
+double TrainingSession::split_psnr(data::Split split) {
+  const std::vector<int64_t>& frames = dataset_.split(split);
+  if (frames.empty()) return std::nan("");
+  at::NoGradGuard no_grad;
+  double sum = 0;
+  const int64_t count = std::min<int64_t>(config_.validation_frames, int64_t(frames.size()));
+  for (int64_t k = 0; k < count; ++k) {
+    const int64_t f = frames[size_t(k * int64_t(frames.size()) / count)];
+    const data::Frame frame = dataset_.load(f);
+    const model::AvatarOutput out = avatar_->forward(avatar_pose(dataset_, f));
+    const at::Tensor white = at::ones({3}, out.means.options());
+    const RenderResult r = render(to_gaussians(out), white, render_camera(dataset_.frames[size_t(f)]));
+    const at::Tensor mask = frame.eval_mask.to(device_).unsqueeze(2);
+    const at::Tensor gt = frame.image.to(device_) * mask + (1 - mask);
+    sum += metrics::psnr(r.image * mask + (1 - mask), gt).item<double>();
+  }
+  return sum / double(count);
+}
+
+void TrainingSession::validate(int64_t done) {
+  const double val = split_psnr(data::Split::kVal), test = split_psnr(data::Split::kTest);
+  if (std::isnan(val) && std::isnan(test)) return;
+  summary_.validation_psnr = val;
+  nlohmann::json entry{{"event", "validation"}, {"iteration", done}, {"training_seconds", training_seconds_}};
+  if (!std::isnan(val)) entry["val_psnr"] = val;
+  if (!std::isnan(test)) entry["test_psnr"] = test;
+  log_->write(entry);
+}
+
+void TrainingSession::checkpoint(int64_t done) {
+  CheckpointInfo info;
+  info.iteration = done;
+  info.training_seconds = training_seconds_;
+  std::ostringstream rng_state;
+  rng_state << rng_;
+  info.rng_state = rng_state.str();
+  info.config = config_;
+  info.dataset = absolute_dataset_path(dataset_);
+  info.dataset_fingerprint = dataset_.fingerprint();
+  info.betas = dataset_.betas.to(at::kFloat).cpu();
+  try {
+    save_checkpoint(run_.checkpoint_file(), info, avatar_, *optimizer_);
+  } catch (const std::runtime_error& e) {
+    if (first_non_finite_tensor(*avatar_).empty()) throw;
+    stop_diverged(DivergenceError(done, std::string("training diverged by iteration ") + std::to_string(done) + ": " +
+                                            e.what()));
+  }
+  last_checkpoint_ = done;
+}
+
+void TrainingSession::stop_diverged(const DivergenceError& e) {
+  bar_->finish();
+  const std::string kept = last_checkpoint_ < 0
+                               ? "no checkpoint had been written yet"
+                               : "the run keeps its last good checkpoint (iteration " +
+                                     std::to_string(last_checkpoint_) + ", " + run_.checkpoint_file() + ")";
+  const std::string message = std::string(e.what()) + "; " + kept +
+                              ". Lower schedule.learning_rate or check the data; then --resume, or --force to start over";
+  log_->write({{"event", "error"}, {"iteration", e.iteration()}, {"message", message}});
+  throw DivergenceError(e.iteration(), message);
+}
+
+}  // namespace sfgs::train

@@ -1,0 +1,62 @@
+#pragma once
+// The state of one training call (internal to the trainer): the avatar and its optimiser, the losses, the frame
+// sampler, the log and the watch for divergence, and the step, validation and checkpoint that act on them.
+#include <memory>
+#include <random>
+
+#include <torch/optim/adam.h>
+
+#include "train/checkpoint.h"
+#include "train/loss_watch.h"
+#include "train/progress.h"
+#include "train/trainer.h"
+
+namespace sfgs::train {
+
+class FrameCache;
+
+// Adam with the colour networks in their own parameter group (their own learning rate): the optimiser a run's
+// checkpoint holds the state of.
+std::unique_ptr<torch::optim::Adam> make_optimizer(const model::Avatar& avatar, const Schedule& schedule);
+
+class TrainingSession {
+ public:
+  TrainingSession(const data::Dataset& dataset, const TrainConfig& config, const RunFolder& run,
+                  const TrainOptions& options);
+  ~TrainingSession();
+  // Continues from a checkpoint (verified as it loads): avatar, optimiser, sampler and time.
+  void restore(CheckpointReader& checkpoint);
+  // Runs iterations [start, end) and writes the log entries, validations and checkpoints they call for. The log
+  // must be open (open_log) first.
+  TrainSummary run(int64_t start, int64_t end);
+  void open_log();
+
+ private:
+  void step(int64_t iteration);
+  void finish_step(int64_t done, int64_t end);
+  double split_psnr(data::Split split);
+  void validate(int64_t done);
+  void checkpoint(int64_t done);
+  [[noreturn]] void stop_diverged(const DivergenceError& e);
+
+  const data::Dataset& dataset_;
+  const TrainConfig& config_;
+  const RunFolder& run_;
+  const TrainOptions& options_;
+  at::Device device_;
+  model::Avatar avatar_{nullptr};
+  std::unique_ptr<torch::optim::Adam> optimizer_;
+  std::vector<double> base_rates_;
+  std::unique_ptr<ImageLoss> image_loss_;
+  std::unique_ptr<Regularisers> regularisers_;
+  std::unique_ptr<FrameCache> frames_;
+  std::unique_ptr<JsonLinesLog> log_;
+  std::unique_ptr<ProgressBar> bar_;
+  LossWatch watch_;
+  std::mt19937_64 rng_;
+  double training_seconds_ = 0;
+  int64_t last_checkpoint_ = -1;  // iteration of the newest good checkpoint, -1 for none
+  TrainSummary summary_;
+};
+
+}  // namespace sfgs::train

@@ -1,0 +1,23 @@
+#!/usr/bin/env bash
+# Fills the git-ignored .device/ folder with what a GPU machine's image lacks (headers, small libraries, GoogleTest's
+# sources, the shared body models and LPIPS weights), from this Debian machine's packages; scripts/device_check.sh
+# uses it there. Run once from the repository root: bash scripts/prepare_device_deps.sh [SHARED_DIR (../shared)]
+set -euo pipefail
+cd "$(dirname "$0")/.."
+shared=${1:-../shared}
+lib=/usr/lib/x86_64-linux-gnu
+rm -rf .device && mkdir -p .device/include .device/lib .device/libdeps .device/shared
+cp -r /usr/include/{glm,stb,nlohmann,yaml-cpp} /usr/include/zip.h /usr/include/zlib.h .device/include/
+for header in zipconf.h zconf.h; do
+  cp "$(find /usr/include -name "$header" | head -n 1)" .device/include/
+done
+# Libraries with relative links only: the machine's own system libraries may have other versions.
+for name in libzip.so.4.0 libyaml-cpp.so.0.7.0; do cp "$lib/$name" .device/lib/; done
+(cd .device/lib && ln -sf libzip.so.4.0 libzip.so.4 && ln -sf libzip.so.4 libzip.so &&
+  ln -sf libyaml-cpp.so.0.7.0 libyaml-cpp.so.0.7 && ln -sf libyaml-cpp.so.0.7 libyaml-cpp.so)
+zlib=$(readlink -f "$lib/libz.so")
+cp "$zlib" .device/lib/ && (cd .device/lib && ln -sf "$(basename "$zlib")" libz.so)
+cp -a "$lib"/libbz2.so.1.0* "$lib"/libcrypto.so.3 .device/libdeps/
+cp -r /usr/src/googletest .device/googletest
+if [ -d "$shared/bodies" ]; then cp -r "$shared/bodies" "$shared/lpips" .device/shared/; fi
+du -sh .device
