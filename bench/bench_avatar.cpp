@@ -72,12 +72,12 @@ int64_t closest_level(const sfgs::body::SmplxModelData& body) {
   return best;
 }
 
-sfgs::model::AvatarPose pose_at(int64_t index, double time) {
+sfgs::body::SmplxPose pose_at(int64_t index) {
   at::Generator generator = at::detail::createCPUGenerator(static_cast<uint64_t>(1000 + index));
   const auto uniform = [&](at::IntArrayRef shape, double bound) {
     return at::empty(shape).uniform_(-bound, bound, generator);
   };
-  sfgs::model::AvatarPose p;
+  sfgs::body::SmplxPose p;
   p.global_orient = uniform({3}, 0.5);
   p.body_pose = uniform({sfgs::body::kSmplxBodyJointCount, 3}, 0.5);
   p.jaw_pose = uniform({3}, 0.2);
@@ -85,7 +85,6 @@ sfgs::model::AvatarPose pose_at(int64_t index, double time) {
   p.right_hand_pose = uniform({sfgs::body::kHandJointCount, 3}, 0.5);
   p.expression = uniform({10}, 1.0);
   p.transl = uniform({3}, 0.5);
-  p.time = time;
   return p;
 }
 
@@ -161,12 +160,12 @@ int main(int argc, char** argv) {
   at::Tensor loss;
   print("training forward (autograd recording)", measure(args.repeats, [&](int r) {
           const auto start = now();
-          const sfgs::model::AvatarOutput out = avatar->forward(pose_at(r, 0.1));
+          const sfgs::model::AvatarOutput out = avatar->forward(pose_at(r), 0.1);
           loss = out.means.sum() + out.covariances.sum() + out.colours.sum();
           return since(start);
         }));
   print("training backward", measure(args.repeats, [&](int r) {
-          const sfgs::model::AvatarOutput out = avatar->forward(pose_at(r, 0.1));
+          const sfgs::model::AvatarOutput out = avatar->forward(pose_at(r), 0.1);
           loss = out.means.sum() + out.covariances.sum() + out.colours.sum();
           const auto start = now();
           torch::autograd::backward({loss});
@@ -178,7 +177,7 @@ int main(int argc, char** argv) {
   at::NoGradGuard no_grad;
   print("inference forward, no cache", measure(args.repeats, [&](int r) {
           const auto start = now();
-          avatar->forward(pose_at(r, 0.1));
+          avatar->forward(pose_at(r), 0.1);
           return since(start);
         }));
   print("cache_static_features()", measure(args.repeats, [&](int) {
@@ -188,12 +187,12 @@ int main(int argc, char** argv) {
         }));
   print("cached inference forward, fixed time", measure(args.repeats, [&](int r) {
           const auto start = now();
-          avatar->forward(pose_at(r, 0.1));
+          avatar->forward(pose_at(r), 0.1);
           return since(start);
         }));
   print("cached inference forward, new time each call", measure(args.repeats, [&](int r) {
           const auto start = now();
-          avatar->forward(pose_at(r, -0.9 + 0.01 * (r + 2)));
+          avatar->forward(pose_at(r), -0.9 + 0.01 * (r + 2));
           return since(start);
         }));
   return 0;

@@ -79,14 +79,16 @@ py::dict render(const py::object& means, const py::object& opacities, const py::
   return result_dict(sfgs::render(g, to_tensor(background, "render(background)"), camera, options));
 }
 
-// The pose fields an avatar takes, by their SMPL-X names (and "time").
-using sfgs::model::AvatarPose;
-const std::pair<const char*, at::Tensor AvatarPose::*> kPoseFields[] = {
-    {"global_orient", &AvatarPose::global_orient},   {"body_pose", &AvatarPose::body_pose},
-    {"jaw_pose", &AvatarPose::jaw_pose},             {"left_eye_pose", &AvatarPose::left_eye_pose},
-    {"right_eye_pose", &AvatarPose::right_eye_pose}, {"left_hand_pose", &AvatarPose::left_hand_pose},
-    {"right_hand_pose", &AvatarPose::right_hand_pose}, {"expression", &AvatarPose::expression},
-    {"transl", &AvatarPose::transl}};
+// The pose dict of the Python API: body::SmplxPose's fields by name, and "time".
+using sfgs::body::SmplxPose;
+struct FramePose {
+  SmplxPose pose;
+  double time = 0.0;
+};
+
+// Keys of earlier versions, accepted with a DeprecationWarning.
+const std::pair<const char*, const char*> kRenamedPoseKeys[] = {{"left_eye_pose", "leye_pose"},
+                                                                {"right_eye_pose", "reye_pose"}};
 
 py::dict camera_dict(const sfgs::Camera& c) {
   py::dict d;
@@ -131,7 +133,8 @@ class TrainedAvatar {
 
   // Posed Gaussians and the canonical quantities, as a dict of tensors.
   py::dict gaussians(const py::object& pose) {
-    const sfgs::model::AvatarOutput o = t_.avatar->forward(to_pose(pose));
+    const FramePose p = to_pose(pose);
+    const sfgs::model::AvatarOutput o = t_.avatar->forward(p.pose, p.time);
     py::dict d;
     d["means"] = o.means;
     d["covariances"] = o.covariances;
@@ -145,7 +148,8 @@ class TrainedAvatar {
 
   py::dict render(const py::object& camera, const py::object& pose, const py::object& background) {
     const sfgs::Camera cam = camera_from_dict(camera);
-    const sfgs::model::AvatarOutput o = t_.avatar->forward(to_pose(pose));
+    const FramePose p = to_pose(pose);
+    const sfgs::model::AvatarOutput o = t_.avatar->forward(p.pose, p.time);
     const auto given = to_optional_tensor(background, "Avatar.render(background)");
     const at::Tensor bg = given ? given->to(o.means.options()) : at::ones({3}, o.means.options());
     return result_dict(sfgs::render(sfgs::model::to_gaussians(o), bg, cam));
@@ -156,11 +160,11 @@ class TrainedAvatar {
     const int64_t index = to_int(index_object, "Avatar.frame(index)");
     const sfgs::data::Dataset& d = dataset();
     TORCH_CHECK(index >= 0 && index < d.size(), "frame: index must be in [0, ", d.size(), "), got ", index);
-    const AvatarPose p = sfgs::train::avatar_pose(d, index);
+    const SmplxPose& p = d.frames[size_t(index)].pose;
     py::dict pose;
-    for (const auto& [key, field] : kPoseFields)
-      if ((p.*field).defined()) pose[key] = p.*field;
-    pose["time"] = p.time;
+    for (const SmplxPose::Field& f : SmplxPose::fields())
+      if ((p.*(f.member)).defined()) pose[f.name] = p.*(f.member);
+    pose["time"] = d.normalized_time(index);
     py::dict out;
     out["pose"] = pose;
     out["camera"] = camera_dict(sfgs::train::render_camera(d.frames[size_t(index)]));
@@ -183,28 +187,33 @@ class TrainedAvatar {
   const sfgs::train::TrainedAvatar& trained() const { return t_; }
 
  private:
-  AvatarPose to_pose(const py::object& object) const {
+  FramePose to_pose(const py::object& object) const {
     if (!py::isinstance<py::dict>(object))
       throw py::type_error("pose: expected a dict of SMPL-X parameters (e.g. {'body_pose': tensor}), got " +
                            python_type(object));
-    const py::dict pose = object;
-    AvatarPose p;
-    for (const auto& item : pose) {
+    FramePose p;
+    for (const auto& item : py::dict(object)) {
       if (!py::isinstance<py::str>(item.first))
         throw py::type_error("pose: keys must be str, got " + python_type(item.first));
-      const std::string key = item.first.cast<std::string>();
+      std::string key = item.first.cast<std::string>();
       if (key == "time") {
         p.time = to_double(item.second, "pose['time']");
         continue;
       }
-      const auto* known = std::find_if(std::begin(kPoseFields), std::end(kPoseFields),
-                                       [&](const auto& f) { return key == f.first; });
-      if (known == std::end(kPoseFields)) {
+      for (const auto& [old_name, new_name] : kRenamedPoseKeys)
+        if (key == old_name) {
+          const std::string warning = "pose key '" + key + "' is deprecated; use '" + new_name + "'";
+          if (PyErr_WarnEx(PyExc_DeprecationWarning, warning.c_str(), 1) != 0) throw py::error_already_set();
+          key = new_name;
+        }
+      const auto& fields = SmplxPose::fields();
+      const auto known = std::find_if(fields.begin(), fields.end(), [&](const auto& f) { return key == f.name; });
+      if (known == fields.end()) {
         std::string expected = "time";
-        for (const auto& [name, field] : kPoseFields) expected += std::string(", ") + name;
+        for (const SmplxPose::Field& f : fields) expected += std::string(", ") + f.name;
         TORCH_CHECK(false, "pose: unknown key '", key, "'; expected one of ", expected);
       }
-      p.*(known->second) = to_tensor(item.second, "pose['" + key + "']");
+      p.pose.*(known->member) = to_tensor(item.second, "pose['" + key + "']");
     }
     return p;
   }
@@ -260,8 +269,8 @@ Differentiable w.r.t. means, scales, rotations, covariances, opacities, features
       .def(py::init<const std::string&, const std::string&, const std::string&>(), py::arg("run"),
            py::arg("device") = "cpu", py::arg("data") = "")
       .def("gaussians", &TrainedAvatar::gaussians, py::arg("pose") = py::dict(),
-           R"(Posed Gaussians for a pose dict (SMPL-X names: global_orient (3), body_pose (21,3), jaw_pose, left_eye_pose,
-right_eye_pose (3), left_hand_pose, right_hand_pose (15,3) axis-angle, expression (E), transl (3), time in [-1, 1];
+           R"(Posed Gaussians for a pose dict (SMPL-X names: global_orient (3), body_pose (21,3), jaw_pose, leye_pose,
+reye_pose (3), left_hand_pose, right_hand_pose (15,3) axis-angle, expression (E), transl (3), time in [-1, 1];
 missing keys are at rest). Returns means (N,3), covariances (N,6), opacities (N), colours (N,3), canonical_means,
 log_scales, posed_vertices. Differentiable w.r.t. the pose tensors unless torch.no_grad() is active.)")
       .def("render", &TrainedAvatar::render, py::arg("camera"), py::arg("pose") = py::dict(),

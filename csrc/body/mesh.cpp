@@ -6,6 +6,7 @@
 #include <ATen/TensorOperators.h>
 
 #include "body/tensor_checks.h"
+#include "common/constants.h"
 
 namespace sfgs::body {
 
@@ -92,9 +93,9 @@ std::vector<MidpointSubdivision> midpoint_subdivisions(const at::Tensor& faces, 
   return chain;
 }
 
-VertexNeighbors vertex_neighbors(const at::Tensor& faces, int64_t num_vertices, int64_t max_neighbors) {
-  TORCH_CHECK(max_neighbors == -1 || max_neighbors > 0, "vertex_neighbors: max_neighbors must be -1 (all) or > 0, got ",
-              max_neighbors);
+VertexNeighbours vertex_neighbours(const at::Tensor& faces, int64_t num_vertices, int64_t max_neighbours) {
+  TORCH_CHECK(max_neighbours == -1 || max_neighbours > 0, "vertex_neighbours: max_neighbours must be -1 (all) or > 0, got ",
+              max_neighbours);
   const at::Tensor edges = mesh_edges(faces, num_vertices).edges;
   const at::Tensor source = at::cat({edges.select(1, 0), edges.select(1, 1)});
   const at::Tensor target = at::cat({edges.select(1, 1), edges.select(1, 0)});
@@ -104,8 +105,8 @@ VertexNeighbors vertex_neighbors(const at::Tensor& faces, int64_t num_vertices, 
   const at::Tensor first_slot = valence.cumsum(0) - valence;
   const at::Tensor slot = at::arange(s.size(0), s.options()) - first_slot.index_select(0, s);
   const int64_t widest = num_vertices > 0 && s.size(0) > 0 ? valence.max().item<int64_t>() : 0;
-  const int64_t k = max_neighbors < 0 ? widest : std::min(widest, max_neighbors);
-  VertexNeighbors result;
+  const int64_t k = max_neighbours < 0 ? widest : std::min(widest, max_neighbours);
+  VertexNeighbours result;
   result.indices = at::arange(num_vertices, s.options()).unsqueeze(1).repeat({1, std::max<int64_t>(k, 1)});
   const at::Tensor kept = slot < k;
   result.indices.view(-1).index_copy_(0, (s * result.indices.size(1) + slot).masked_select(kept),
@@ -114,14 +115,14 @@ VertexNeighbors vertex_neighbors(const at::Tensor& faces, int64_t num_vertices, 
   return result;
 }
 
-at::Tensor uniform_laplacian(const VertexNeighbors& neighbors, const at::Tensor& values) {
-  const int64_t v = neighbors.counts.size(0);
+at::Tensor uniform_laplacian(const VertexNeighbours& neighbours, const at::Tensor& values) {
+  const int64_t v = neighbours.counts.size(0);
   TORCH_CHECK(values.defined() && (values.dim() == 2 || values.dim() == 3) && values.size(-2) == v &&
                   at::isFloatingType(values.scalar_type()),
               "uniform_laplacian: values must be floating with shape (", v, ", C) or (B, ", v, ", C), got ",
               describe(values));
-  const at::Tensor indices = neighbors.indices.to(values.device());
-  const at::Tensor counts = neighbors.counts.to(values.device());
+  const at::Tensor indices = neighbours.indices.to(values.device());
+  const at::Tensor counts = neighbours.counts.to(values.device());
   const int64_t k = indices.size(1);
   const at::Tensor valid = (at::arange(k, indices.options()).unsqueeze(0) < counts.unsqueeze(1))
                                .to(values.scalar_type())
@@ -132,6 +133,17 @@ at::Tensor uniform_laplacian(const VertexNeighbors& neighbors, const at::Tensor&
   const at::Tensor mean = (gathered * valid).sum(-2) / counts.clamp_min(1).to(values.scalar_type()).unsqueeze(-1);
   const at::Tensor isolated = (counts == 0).unsqueeze(-1);
   return at::where(isolated, at::zeros_like(values), values - mean);
+}
+
+at::Tensor vertex_normals(const at::Tensor& vertices, const at::Tensor& faces) {
+  const at::Tensor v0 = vertices.index_select(0, faces.select(1, 0));
+  const at::Tensor v1 = vertices.index_select(0, faces.select(1, 1));
+  const at::Tensor v2 = vertices.index_select(0, faces.select(1, 2));
+  const at::Tensor face_normals = at::linalg_cross(v1 - v0, v2 - v0, -1);  // length: twice the area
+  at::Tensor sums = at::zeros_like(vertices);
+  for (int64_t corner = 0; corner < 3; ++corner) sums.index_add_(0, faces.select(1, corner), face_normals);
+  const at::Tensor length = sums.pow(2).sum(1, /*keepdim=*/true).sqrt();
+  return at::where(length > kMinNormalLength, sums / length.clamp_min(kMinNormalLength), at::zeros_like(sums));
 }
 
 }  // namespace sfgs::body

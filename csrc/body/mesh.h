@@ -51,15 +51,19 @@ class MidpointSubdivision {
 // `levels` successive subdivisions; element k subdivides the mesh that element k - 1 produced.
 std::vector<MidpointSubdivision> midpoint_subdivisions(const at::Tensor& faces, int64_t num_vertices, int64_t levels);
 
-// Mesh neighbours of every vertex, at most `max_neighbors` of them (the lowest-indexed ones; -1 keeps all).
-struct VertexNeighbors {
+// Mesh neighbours of every vertex, at most `max_neighbours` of them (the lowest-indexed ones; -1 keeps all).
+struct VertexNeighbours {
   at::Tensor indices;  // (V, K) int64, sorted per row; unused slots hold the vertex itself
   at::Tensor counts;   // (V) int64: valid slots per row
 };
-VertexNeighbors vertex_neighbors(const at::Tensor& faces, int64_t num_vertices, int64_t max_neighbors = -1);
+VertexNeighbours vertex_neighbours(const at::Tensor& faces, int64_t num_vertices, int64_t max_neighbours = -1);
+
+// Area-weighted unit vertex normals (V, 3) of vertices (V, 3) with faces (F, 3) int64 on the same device
+// (counter-clockwise seen from outside); vertices on no face, or only on degenerate ones, get 0.
+at::Tensor vertex_normals(const at::Tensor& vertices, const at::Tensor& faces);
 
 // Uniform Laplacian x_i - mean of x_j over the neighbours j of i, for values (V, C) or (B, V, C) on any device;
 // isolated vertices get 0. Differentiable; deterministic on every device (a gather, no atomics).
-at::Tensor uniform_laplacian(const VertexNeighbors& neighbors, const at::Tensor& values);
+at::Tensor uniform_laplacian(const VertexNeighbours& neighbours, const at::Tensor& values);
 
 }  // namespace sfgs::body

@@ -71,9 +71,19 @@ const at::Tensor& SkinnedMeshImpl::sparse_weights() const {
   return sparse_weights_;
 }
 
+at::Tensor SkinnedMeshImpl::subdivide(const at::Tensor& coarse) const {
+  TORCH_CHECK(coarse.defined() && (coarse.dim() == 2 || coarse.dim() == 3) &&
+                  coarse.size(coarse.dim() - 2) == coarse_vertex_count_,
+              "SkinnedMesh::subdivide: values must have shape (", coarse_vertex_count_, ", C) or (B, ",
+              coarse_vertex_count_, ", C), got ", describe(coarse));
+  at::Tensor fine = coarse;
+  for (const at::Tensor& edges : subdivision_edges_) fine = append_edge_midpoints(fine, edges, coarse.dim() - 2);
+  return fine;
+}
+
 BodyOutput SkinnedMeshImpl::forward(const at::Tensor& coefficients, const at::Tensor& rotations,
                                     const at::Tensor& translation, const at::Tensor& vertex_offsets,
-                                    const at::Tensor& joint_offsets) const {
+                                    const at::Tensor& joint_offsets, const at::Tensor& point_offsets) const {
   const int64_t j = joint_count(), v = coarse_vertex_count_;
   TORCH_CHECK(rotations.defined() && rotations.dim() == 4, "SkinnedMesh: rotations must have shape (B, ", j,
               ", 3, 3), got ", describe(rotations));
@@ -103,7 +113,18 @@ BodyOutput SkinnedMeshImpl::forward(const at::Tensor& coefficients, const at::Te
   }
   at::Tensor rest = shaped;
   if (posedirs_.defined()) rest = rest + pose_feature(rotations).matmul(posedirs_).view({b, v, 3});
-  for (const at::Tensor& edges : subdivision_edges_) rest = append_edge_midpoints(rest, edges, 1);
+  at::Tensor offsets;
+  if (point_offsets.defined()) {
+    check_tensor(point_offsets, "SkinnedMesh: point_offsets",
+                 point_offsets.dim() == 2 ? std::vector<int64_t>{v, 3} : std::vector<int64_t>{b, v, 3}, dtype(),
+                 device());
+    // One subdivision pass for both: the offsets travel as three more channels of the rest mesh.
+    const at::Tensor both = subdivide(at::cat({rest, point_offsets.expand({b, v, 3})}, 2));
+    rest = both.narrow(2, 0, 3);
+    offsets = both.narrow(2, 3, 3);
+  } else {
+    rest = subdivide(rest);
+  }
 
   const PosedSkeleton skeleton = tree_->pose(rotations, rest_joints, translation);
   BodyOutput out;
@@ -114,6 +135,7 @@ BodyOutput SkinnedMeshImpl::forward(const at::Tensor& coefficients, const at::Te
   out.rest_vertices = rest;
   out.rest_joints = rest_joints;
   out.rotations = rotations;
+  out.point_offsets = offsets;
   return out;
 }
 

@@ -32,6 +32,7 @@ struct BodyOutput {
   at::Tensor rest_vertices;        // (B, V', 3) shaped, offset and pose-corrected, before skinning
   at::Tensor rest_joints;          // (B, J, 3) regressed from the shaped mesh, plus joint offsets
   at::Tensor rotations;            // (B, J, 3, 3) local joint rotations
+  at::Tensor point_offsets;        // (B, V', 3) the forward's point_offsets subdivided; undefined without them
 };
 
 // Blend shapes, the regressor and pose correctives act on the V coarse vertices; the rest mesh is then subdivided
@@ -45,9 +46,15 @@ class SkinnedMeshImpl : public BodyModule {
 
   // coefficients (B, K), local rotations (B, J, 3, 3), translation (B, 3); vertex_offsets ((V, 3) or (B, V, 3),
   // added to the template on the coarse mesh) and joint_offsets ((J, 3) or (B, J, 3), added to the regressed
-  // joints) may be undefined. All in the module's dtype and on its device.
+  // joints) may be undefined. point_offsets ((V, 3) or (B, V, 3) on the coarse mesh, may be undefined) are not part
+  // of the mesh: they are subdivided with it, in the same pass, and returned as BodyOutput::point_offsets (offsets
+  // of points that ride on the mesh, e.g. the avatar's hand residual). All in the module's dtype and on its device.
   BodyOutput forward(const at::Tensor& coefficients, const at::Tensor& rotations, const at::Tensor& translation,
-                     const at::Tensor& vertex_offsets, const at::Tensor& joint_offsets) const;
+                     const at::Tensor& vertex_offsets, const at::Tensor& joint_offsets,
+                     const at::Tensor& point_offsets = {}) const;
+
+  // Per-vertex values of the coarse mesh, (V, C) or (B, V, C), at the output vertices.
+  at::Tensor subdivide(const at::Tensor& coarse) const;
 
   int64_t coarse_vertex_count() const { return coarse_vertex_count_; }
   int64_t vertex_count() const { return weights_.size(0); }  // output vertices

@@ -231,43 +231,29 @@ at::Tensor SmplxImpl::full_pose(const SmplxInput& input, int64_t batch) const {
     }
     return options_.flat_hand_mean ? full : full + mean;
   };
-  return at::cat(
-             {joint_pose(input.global_orient, "global_orient", 1),
-              joint_pose(input.body_pose, "body_pose", kSmplxBodyJointCount), joint_pose(input.jaw_pose, "jaw_pose", 1),
-              joint_pose(input.leye_pose, "leye_pose", 1), joint_pose(input.reye_pose, "reye_pose", 1),
-              hand_pose(input.left_hand_pose, "left_hand_pose", hands_left_, hands_mean_left_),
-              hand_pose(input.right_hand_pose, "right_hand_pose", hands_right_, hands_mean_right_)},
-             1)
+  const SmplxPose& p = input.pose;
+  return at::cat({joint_pose(p.global_orient, "global_orient", 1),
+                  joint_pose(p.body_pose, "body_pose", kSmplxBodyJointCount), joint_pose(p.jaw_pose, "jaw_pose", 1),
+                  joint_pose(p.leye_pose, "leye_pose", 1), joint_pose(p.reye_pose, "reye_pose", 1),
+                  hand_pose(p.left_hand_pose, "left_hand_pose", hands_left_, hands_mean_left_),
+                  hand_pose(p.right_hand_pose, "right_hand_pose", hands_right_, hands_mean_right_)},
+                 1)
       .view({batch, kSmplxJointCount, 3});
 }
 
 SmplxOutput SmplxImpl::forward(const SmplxInput& input) const {
-  const std::vector<std::pair<const char*, const at::Tensor*>> batched = {{"betas", &input.betas},
-                                                                          {"global_orient", &input.global_orient},
-                                                                          {"body_pose", &input.body_pose},
-                                                                          {"jaw_pose", &input.jaw_pose},
-                                                                          {"leye_pose", &input.leye_pose},
-                                                                          {"reye_pose", &input.reye_pose},
-                                                                          {"left_hand_pose", &input.left_hand_pose},
-                                                                          {"right_hand_pose", &input.right_hand_pose},
-                                                                          {"expression", &input.expression},
-                                                                          {"transl", &input.transl},
-                                                                          {"rotations", &input.rotations}};
+  std::vector<std::pair<const char*, const at::Tensor*>> batched = {{"betas", &input.betas},
+                                                                    {"rotations", &input.rotations}};
+  for (const SmplxPose::Field& f : SmplxPose::fields()) batched.emplace_back(f.name, &(input.pose.*(f.member)));
   const int64_t batch = common_batch_size(
       "Smplx", batched, {{"vertex_offsets", &input.vertex_offsets}, {"joint_offsets", &input.joint_offsets}});
   const auto options = at::TensorOptions().dtype(dtype()).device(device());
   SmplxOutput out;
   at::Tensor rotations;
   if (input.rotations.defined()) {
-    for (const auto& [name, pose] : {std::pair{"global_orient", &input.global_orient},
-                                     {"body_pose", &input.body_pose},
-                                     {"jaw_pose", &input.jaw_pose},
-                                     {"leye_pose", &input.leye_pose},
-                                     {"reye_pose", &input.reye_pose},
-                                     {"left_hand_pose", &input.left_hand_pose},
-                                     {"right_hand_pose", &input.right_hand_pose}}) {
-      TORCH_CHECK(!pose->defined(), "Smplx: give either rotations or axis-angle poses, got rotations and ", name);
-    }
+    for (const SmplxPose::Field& f : SmplxPose::fields())
+      TORCH_CHECK(f.joints == 0 || f.member == &SmplxPose::transl || !(input.pose.*(f.member)).defined(),
+                  "Smplx: give either rotations or axis-angle poses, got rotations and ", f.name);
     check_tensor(input.rotations, "Smplx: rotations", {batch, kSmplxJointCount, 3, 3}, dtype(), device());
     rotations = input.rotations;
   } else {
@@ -280,9 +266,9 @@ SmplxOutput SmplxImpl::forward(const SmplxInput& input) const {
     return t;
   };
   const at::Tensor blend = at::cat({coefficients(input.betas, "betas", options_.num_betas),
-                                    coefficients(input.expression, "expression", options_.num_expression_coeffs)},
+                                    coefficients(input.pose.expression, "expression", options_.num_expression_coeffs)},
                                    1);
-  const at::Tensor transl = coefficients(input.transl, "transl", 3);
+  const at::Tensor transl = coefficients(input.pose.transl, "transl", 3);
   static_cast<BodyOutput&>(out) = mesh_->forward(blend, rotations, transl, input.vertex_offsets, input.joint_offsets);
   return out;
 }

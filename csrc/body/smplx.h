@@ -10,6 +10,7 @@
 #include <torch/nn/pimpl.h>
 
 #include "body/skinned_mesh.h"
+#include "body/smplx_pose.h"
 
 namespace sfgs::body {
 
@@ -57,23 +58,17 @@ struct SmplxOptions {
   at::ScalarType dtype = at::kFloat;
 };
 
-// Any input may be left undefined (zeros). Defined ones share the batch size B, the module's dtype and device.
-// Poses are axis-angle; (B, 3 n) and (B, n, 3) are both accepted.
+// The layer's input: a batch of poses (SmplxPose with leading dimension B; with use_pca its hand fields hold
+// (B, num_pca_comps) PCA coefficients) and what only the layer takes. Any input may be left undefined (zeros).
+// Defined ones share the batch size B, the module's dtype and device. Poses are axis-angle; (B, 3 n) and (B, n, 3)
+// are both accepted.
 struct SmplxInput {
-  at::Tensor betas;            // (B, num_betas)
-  at::Tensor global_orient;    // (B, 3) rotation of the pelvis
-  at::Tensor body_pose;        // (B, 63): joints 1..21
-  at::Tensor jaw_pose;         // (B, 3)
-  at::Tensor leye_pose;        // (B, 3)
-  at::Tensor reye_pose;        // (B, 3)
-  at::Tensor left_hand_pose;   // (B, num_pca_comps) with use_pca, else (B, 45)
-  at::Tensor right_hand_pose;  // (B, num_pca_comps) with use_pca, else (B, 45)
-  at::Tensor expression;       // (B, num_expression_coeffs)
-  at::Tensor transl;           // (B, 3)
+  SmplxPose pose;
+  at::Tensor betas;           // (B, num_betas)
   at::Tensor vertex_offsets;  // (V, 3) or (B, V, 3) on the file's mesh, added to the template (ExAvatar's face offsets)
   at::Tensor joint_offsets;   // (55, 3) or (B, 55, 3), added to the regressed joints (ExAvatar's joint offsets)
-  // (B, 55, 3, 3) local joint rotations instead of the axis-angle poses above (which must then be undefined), e.g.
-  // from rotation_6d_to_matrix; hand PCA and the hand mean do not apply.
+  // (B, 55, 3, 3) local joint rotations instead of the pose's axis-angle rotations (which must then be undefined),
+  // e.g. from rotation_6d_to_matrix; hand PCA and the hand mean do not apply.
   at::Tensor rotations;
 };
 

@@ -158,19 +158,19 @@ double render_orbit(train::TrainedAvatar& t, const RenderRequest& request, at::D
   t.avatar->cache_static_features();
   at::NoGradGuard no_grad;
   const Camera base = train::render_camera(trained_on.frames[0]);
-  const at::Tensor c = t.avatar->forward(train::avatar_pose(trained_on, 0)).means.mean(0).cpu().to(at::kDouble);
+  const at::Tensor c = train::pose_avatar(t.avatar, trained_on, 0).means.mean(0).cpu().to(at::kDouble);
   const std::array<double, 3> centre{c[0].item<double>(), c[1].item<double>(), c[2].item<double>()};
   VideoWriter video((fs::path(request.out) / "render.mp4").string(), int(base.width), int(base.height), 24.0,
                     request.force);
   double seconds = 0;
   for (int64_t i = 0; i < request.frames; ++i) {
-    const model::AvatarPose pose =
-        motion ? train::avatar_pose(*motion, i % motion->size())
-               : train::avatar_pose(data::synthetic_pose(kNovelMotionOffset + i, 30.0,
-                                                         t.avatar->config().num_expression_coeffs), 0.0);
     const Camera cam = orbit_camera(base, centre, kTwoPi * double(i) / double(request.frames));
     const auto start = std::chrono::steady_clock::now();
-    const model::AvatarOutput o = t.avatar->forward(pose);
+    const model::AvatarOutput o =
+        motion ? train::pose_avatar(t.avatar, *motion, i % motion->size())
+               : t.avatar->forward(data::synthetic_pose(kNovelMotionOffset + i, 30.0,
+                                                        t.avatar->config().num_expression_coeffs),
+                                   0.0);
     const at::Tensor image = render(model::to_gaussians(o), at::ones({3}, o.means.options()), cam).image.cpu();
     seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     char name[32];

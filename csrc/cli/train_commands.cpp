@@ -131,7 +131,7 @@ int run_ablate(Arguments& args) {
       {"full", [](model::AvatarConfig&) {}},
       {"no_hexplane", [](model::AvatarConfig& a) { a.use_hexplane = false; }},
       {"no_structure_offset", [](model::AvatarConfig& a) { a.use_structure_offset = false; }},
-      {"no_color_offset", [](model::AvatarConfig& a) { a.use_color_offset = false; }},
+      {"no_colour_offset", [](model::AvatarConfig& a) { a.use_colour_offset = false; }},
       {"no_hand_residual", [](model::AvatarConfig& a) { a.use_hand_residual = false; }},
       {"no_face_planes", [](model::AvatarConfig& a) { a.use_face_planes = false; }},
   };

@@ -24,20 +24,11 @@ constexpr const char* kFormatName = "sfgs-dataset";
 constexpr int kFormatVersion = 1;
 constexpr const char* kIndexFile = "dataset.json";
 
-struct PoseField {
-  const char* key;
-  at::Tensor SmplxPose::*member;
-  std::vector<int64_t> shape;  // -1: any length
-};
-
-const std::vector<PoseField>& pose_fields() {
-  static const std::vector<PoseField> fields = {
-      {"global_orient", &SmplxPose::global_orient, {3}},   {"body_pose", &SmplxPose::body_pose, {21, 3}},
-      {"jaw_pose", &SmplxPose::jaw_pose, {3}},             {"leye_pose", &SmplxPose::left_eye_pose, {3}},
-      {"reye_pose", &SmplxPose::right_eye_pose, {3}},      {"left_hand_pose", &SmplxPose::left_hand_pose, {15, 3}},
-      {"right_hand_pose", &SmplxPose::right_hand_pose, {15, 3}},
-      {"expression", &SmplxPose::expression, {-1}},        {"transl", &SmplxPose::transl, {3}}};
-  return fields;
+// The shape each pose field has in a dataset (-1: any length).
+std::vector<int64_t> stored_shape(const SmplxPose::Field& f) {
+  if (f.joints == 0) return {-1};
+  if (f.joints == 1) return {3};
+  return {f.joints, 3};
 }
 
 json tensor_to_json(const at::Tensor& t) {
@@ -45,21 +36,20 @@ json tensor_to_json(const at::Tensor& t) {
   return json(std::vector<double>(flat.data_ptr<double>(), flat.data_ptr<double>() + flat.numel()));
 }
 
-json pose_to_json(const SmplxPose& pose) {
+json pose_to_json(const SmplxPose& pose, bool in_camera_frame) {
   json j;
-  for (const PoseField& f : pose_fields()) j[f.key] = tensor_to_json(pose.*(f.member));
-  j["in_camera_frame"] = pose.in_camera_frame;
+  for (const SmplxPose::Field& f : SmplxPose::fields()) j[f.name] = tensor_to_json(pose.*(f.member));
+  j["in_camera_frame"] = in_camera_frame;
   return j;
 }
 
 SmplxPose pose_from_json(const json& j, const std::string& where) {
   SmplxPose pose;
   TORCH_CHECK(j.is_object(), where, ": expected an object of SMPL-X parameters");
-  for (const PoseField& f : pose_fields()) {
-    TORCH_CHECK(j.contains(f.key), where, ": missing SMPL-X parameter '", f.key, "'");
-    pose.*(f.member) = json_numbers(j.at(f.key), f.shape, where + "." + f.key);
+  for (const SmplxPose::Field& f : SmplxPose::fields()) {
+    TORCH_CHECK(j.contains(f.name), where, ": missing SMPL-X parameter '", f.name, "'");
+    pose.*(f.member) = json_numbers(j.at(f.name), stored_shape(f), where + "." + f.name);
   }
-  pose.in_camera_frame = j.value("in_camera_frame", false);
   return pose;
 }
 
@@ -99,20 +89,6 @@ std::string relative_to(const std::string& folder, const std::string& path) {
 }
 
 }  // namespace
-
-SmplxPose SmplxPose::zeros(int64_t expression_count) {
-  SmplxPose p;
-  p.global_orient = at::zeros({3});
-  p.body_pose = at::zeros({21, 3});
-  p.jaw_pose = at::zeros({3});
-  p.left_eye_pose = at::zeros({3});
-  p.right_eye_pose = at::zeros({3});
-  p.left_hand_pose = at::zeros({15, 3});
-  p.right_hand_pose = at::zeros({15, 3});
-  p.expression = at::zeros({expression_count});
-  p.transl = at::zeros({3});
-  return p;
-}
 
 const std::vector<int64_t>& Dataset::split(Split s) const {
   static const std::vector<int64_t> empty;
@@ -159,15 +135,16 @@ void Dataset::validate() const {
                 "' names sequence ", r.sequence);
     const std::string camera = camera_problem(r.camera);
     TORCH_CHECK(camera.empty(), "dataset '", source, "': frame '", r.name, "' camera: ", camera);
-    for (const PoseField& f : pose_fields()) {
+    for (const SmplxPose::Field& f : SmplxPose::fields()) {
       const at::Tensor& t = r.pose.*(f.member);
-      TORCH_CHECK(t.defined(), "dataset '", source, "': frame '", r.name, "' lacks SMPL-X parameter ", f.key);
-      if (f.shape[0] != -1)
-        TORCH_CHECK(t.sizes() == at::IntArrayRef(f.shape), "dataset '", source, "': frame '", r.name, "' ", f.key,
+      TORCH_CHECK(t.defined(), "dataset '", source, "': frame '", r.name, "' lacks SMPL-X parameter ", f.name);
+      const std::vector<int64_t> shape = stored_shape(f);
+      if (shape[0] != -1)
+        TORCH_CHECK(t.sizes() == at::IntArrayRef(shape), "dataset '", source, "': frame '", r.name, "' ", f.name,
                     " has shape ", t.sizes());
-      TORCH_CHECK(t.isfinite().all().item<bool>(), "dataset '", source, "': frame '", r.name, "' ", f.key,
-                  " is not finite");
     }
+    const std::string non_finite = r.pose.non_finite();
+    TORCH_CHECK(non_finite.empty(), "dataset '", source, "': frame '", r.name, "' SMPL-X parameter ", non_finite);
   }
 }
 
@@ -181,8 +158,8 @@ std::string Dataset::fingerprint() const {
     for (double v : r.camera.world_to_camera) add_double(v);
     for (double v : {r.camera.fx, r.camera.fy, r.camera.cx, r.camera.cy, double(r.camera.width), double(r.camera.height)})
       add_double(v);
-    for (const PoseField& f : pose_fields()) crc = crc32_of((r.pose.*(f.member)).to(at::kFloat), crc);
-    add_double(r.pose.in_camera_frame ? 1 : 0);
+    for (const SmplxPose::Field& f : SmplxPose::fields()) crc = crc32_of((r.pose.*(f.member)).to(at::kFloat), crc);
+    add_double(r.pose_in_camera_frame ? 1 : 0);
   }
   for (const auto& [split, name] : split_names()) {
     add_double(-1.0 - double(int(split)));  // marks where each split's indices begin
@@ -219,6 +196,7 @@ Dataset read_sfgs_dataset(const std::string& folder) {
       r.sequence = f.value("sequence", int64_t(0));
       r.camera = camera_from_json(f.at("camera"), where + ".camera");
       r.pose = pose_from_json(f.at("smplx"), where + ".smplx");
+      r.pose_in_camera_frame = f.at("smplx").value("in_camera_frame", false);
       r.image_path = resolve(folder, f.at("image").get<std::string>());
       r.mask_path = resolve(folder, f.value("mask", ""));
       r.mesh_path = resolve(folder, f.value("mesh", ""));
@@ -244,7 +222,7 @@ void write_sfgs_dataset(const Dataset& d, const std::string& folder, bool overwr
            {"time", r.time},
            {"sequence", r.sequence},
            {"camera", camera_to_json(r.camera)},
-           {"smplx", pose_to_json(r.pose)},
+           {"smplx", pose_to_json(r.pose, r.pose_in_camera_frame)},
            {"image", relative_to(folder, r.image_path)}};
     if (!r.mask_path.empty()) f["mask"] = relative_to(folder, r.mask_path);
     if (!r.mesh_path.empty()) f["mesh"] = relative_to(folder, r.mesh_path);

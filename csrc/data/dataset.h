@@ -8,28 +8,14 @@
 
 #include <ATen/core/Tensor.h>
 
+#include "body/smplx_pose.h"
 #include "data/image_io.h"
 #include "splat/splat.h"
 
 namespace sfgs::data {
 
-// SMPL-X parameters of one frame, axis-angle rotations. Tensors are float32 on the CPU.
-struct SmplxPose {
-  at::Tensor global_orient;    // (3)
-  at::Tensor body_pose;        // (21, 3)
-  at::Tensor jaw_pose;         // (3)
-  at::Tensor left_eye_pose;    // (3)
-  at::Tensor right_eye_pose;   // (3)
-  at::Tensor left_hand_pose;   // (15, 3)
-  at::Tensor right_hand_pose;  // (15, 3)
-  at::Tensor expression;       // (E), E may be 0
-  at::Tensor transl;           // (3)
-  // Whether the parameters place the body in the frame's camera coordinates (ExAvatar's NeuMan fits) rather than
-  // in world coordinates; render such a frame with an identity world_to_camera.
-  bool in_camera_frame = false;
-
-  static SmplxPose zeros(int64_t expression_count);
-};
+// A frame's SMPL-X parameters (body::SmplxPose, float32 on the CPU, every field defined).
+using body::SmplxPose;
 
 struct FrameRecord {
   std::string name;
@@ -37,6 +23,9 @@ struct FrameRecord {
   int64_t sequence = 0;  // index into Dataset::sequences (X-Humans takes; 0 otherwise)
   Camera camera;
   SmplxPose pose;
+  // Whether the parameters place the body in the frame's camera coordinates (ExAvatar's NeuMan fits) rather than
+  // in world coordinates; render such a frame with an identity world_to_camera.
+  bool pose_in_camera_frame = false;
   std::string image_path;
   std::string mask_path;       // training mask; empty if none
   MaskEncoding mask_encoding = MaskEncoding::kWhitePerson;

@@ -46,13 +46,12 @@ SmplxPose read_exavatar_pose(const std::string& path) {
   p.global_orient = field("root_pose", {3});
   p.body_pose = field("body_pose", {21, 3});
   p.jaw_pose = field("jaw_pose", {3});
-  p.left_eye_pose = field("leye_pose", {3});
-  p.right_eye_pose = field("reye_pose", {3});
+  p.leye_pose = field("leye_pose", {3});
+  p.reye_pose = field("reye_pose", {3});
   p.left_hand_pose = field("lhand_pose", {15, 3});
   p.right_hand_pose = field("rhand_pose", {15, 3});
   p.expression = field("expr", {-1});
   p.transl = field("trans", {3});
-  p.in_camera_frame = true;  // ExAvatar fits each frame in its camera's coordinates
   return p;
 }
 
@@ -113,6 +112,7 @@ Dataset read_neuman(const std::string& folder) {
       r.eval_mask_encoding = MaskEncoding::kBlackPerson;
     }
     r.pose = read_exavatar_pose((params / "smplx_params" / (std::to_string(number) + ".json")).string());
+    r.pose_in_camera_frame = true;  // ExAvatar fits each frame in its camera's coordinates
     const int64_t index = d.size();
     if (train.count(image.name)) d.splits[Split::kTrain].push_back(index);
     if (test.count(image.name)) d.splits[Split::kTest].push_back(index);

@@ -87,12 +87,6 @@ at::Tensor generated_texture() {
   return at::stack({r, g, b}, 2).clamp(0, 1).contiguous();
 }
 
-at::Tensor stack_field(const std::vector<SmplxPose>& poses, at::Tensor SmplxPose::*field) {
-  std::vector<at::Tensor> parts;
-  for (const SmplxPose& p : poses) parts.push_back((p.*field).reshape({-1}));
-  return at::stack(parts);
-}
-
 }  // namespace
 
 SmplxPose synthetic_pose(int64_t index, double frames_per_second, int64_t expression_count) {
@@ -120,7 +114,7 @@ SmplxPose synthetic_pose(int64_t index, double frames_per_second, int64_t expres
   p.transl[1] = float(0.02 * std::sin(2 * w * t));
   // Jaw opening, eyes looking around, fingers curling finger by finger, expressions changing.
   p.jaw_pose[0] = float(0.12 + 0.12 * std::sin(1.3 * w * t));
-  p.left_eye_pose[1] = p.right_eye_pose[1] = float(0.2 * std::sin(0.9 * w * t));
+  p.leye_pose[1] = p.reye_pose[1] = float(0.2 * std::sin(0.9 * w * t));
   for (int64_t k = 0; k < 15; ++k) {
     const double curl = 0.45 + 0.45 * std::sin(1.5 * w * t + 0.6 * double(k / 3));
     p.left_hand_pose[k][2] = float(-curl);
@@ -157,15 +151,7 @@ Dataset write_synthetic_video(const std::string& folder, const SyntheticVideoOpt
   for (int64_t i = 0; i < options.frames; ++i) poses.push_back(synthetic_pose(i, options.frames_per_second, expressions));
   body::SmplxInput input;
   input.betas = betas.unsqueeze(0).expand({options.frames, -1}).contiguous();
-  input.global_orient = stack_field(poses, &SmplxPose::global_orient);
-  input.body_pose = stack_field(poses, &SmplxPose::body_pose);
-  input.jaw_pose = stack_field(poses, &SmplxPose::jaw_pose);
-  input.leye_pose = stack_field(poses, &SmplxPose::left_eye_pose);
-  input.reye_pose = stack_field(poses, &SmplxPose::right_eye_pose);
-  input.left_hand_pose = stack_field(poses, &SmplxPose::left_hand_pose);
-  input.right_hand_pose = stack_field(poses, &SmplxPose::right_hand_pose);
-  input.expression = stack_field(poses, &SmplxPose::expression);
-  input.transl = stack_field(poses, &SmplxPose::transl);
+  input.pose = SmplxPose::stack(poses);
   const at::Tensor vertices = smplx->forward(input).vertices.detach().to(at::kFloat);
 
   TexturedMesh mesh;

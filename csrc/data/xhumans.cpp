@@ -64,8 +64,8 @@ SmplxPose read_xhumans_pose(const fs::path& take, int64_t number) {
   p.global_orient = field("global_orient", {3});
   p.body_pose = field("body_pose", {21, 3});
   p.jaw_pose = field("jaw_pose", {3});
-  p.left_eye_pose = field("leye_pose", {3});
-  p.right_eye_pose = field("reye_pose", {3});
+  p.leye_pose = field("leye_pose", {3});
+  p.reye_pose = field("reye_pose", {3});
   p.left_hand_pose = field("left_hand_pose", {15, 3});
   p.right_hand_pose = field("right_hand_pose", {15, 3});
   p.expression = j.contains("expression") ? field("expression", {-1}) : at::zeros({0});

@@ -2,21 +2,40 @@
 
 #include <cmath>
 #include <string>
-#include <tuple>
 #include <utility>
-#include <vector>
 
 #include <ATen/Functions.h>
 #include <ATen/TensorOperators.h>
 #include <torch/csrc/autograd/grad_mode.h>
 
+#include "body/kinematics.h"
+#include "body/mesh.h"
 #include "body/rotations.h"
 #include "body/skeleton.h"
 #include "body/tensor_checks.h"
 #include "common/constants.h"
+#include "model/inference_cache.h"
 #include "model/skinning.h"
 
 namespace sfgs::model {
+
+// The frame's pose in the avatar's dtype and on its device, as the stages use it.
+struct AvatarImpl::FramePose {
+  at::Tensor rotations;                // (J, 3, 3) local rotations of every joint (hand means applied)
+  at::Tensor rotations_6d;             // (J, 6) the same, for the pose-driven networks
+  at::Tensor left_hand, right_hand;    // (15, 3) as applied; undefined where the pose gives no hand pose
+  at::Tensor expression;               // (E) padded or truncated to the model's, or undefined
+  at::Tensor translation;              // (3)
+};
+
+// The Gaussians in the canonical frame: the frame's rest mesh plus every learned offset.
+struct CanonicalGaussians {
+  at::Tensor means;             // (N, 3)
+  at::Tensor log_scales;        // (N)
+  at::Tensor structure_offset;  // (N, 3), undefined when switched off
+  at::Tensor scale_offset;      // (N), likewise
+};
+
 namespace {
 
 using body::BodyPart;
@@ -80,36 +99,14 @@ at::Tensor joint_pose(const at::Tensor& pose, int64_t joints, const char* name, 
   if (!pose.defined()) return at::zeros({joints, 3}, options);
   TORCH_CHECK(at::isFloatingType(pose.scalar_type()) && pose.numel() == 3 * joints &&
                   (pose.dim() == 1 || (pose.dim() == 2 && pose.size(0) == joints)),
-              "Avatar: AvatarPose::", name, " must be a floating (", joints, ", 3) or (", 3 * joints, ") tensor, got ",
+              "Avatar: pose.", name, " must be a floating (", joints, ", 3) or (", 3 * joints, ") tensor, got ",
               body::describe(pose));
   return pose.reshape({joints, 3}).to(options);
 }
 
-// Refuses NaN and Inf anywhere in the pose, naming the field and the first bad value. Poses on the CPU are checked
-// where they lie; device ones with one combined reduction (a single synchronisation).
-void check_pose_finite(const AvatarPose& pose) {
-  const std::pair<const char*, const at::Tensor*> fields[] = {
-      {"global_orient", &pose.global_orient},   {"body_pose", &pose.body_pose},
-      {"jaw_pose", &pose.jaw_pose},             {"left_eye_pose", &pose.left_eye_pose},
-      {"right_eye_pose", &pose.right_eye_pose}, {"left_hand_pose", &pose.left_hand_pose},
-      {"right_hand_pose", &pose.right_hand_pose}, {"expression", &pose.expression},
-      {"transl", &pose.transl}};
-  std::vector<at::Tensor> on_device;
-  for (const auto& [name, t] : fields)
-    if (t->defined() && !t->is_cpu() && at::isFloatingType(t->scalar_type())) on_device.push_back(t->detach().flatten());
-  if (!on_device.empty() && at::cat(on_device).isfinite().all().item<bool>()) on_device.clear();
-  for (const auto& [name, t] : fields) {
-    if (!t->defined() || !at::isFloatingType(t->scalar_type()) || (!t->is_cpu() && on_device.empty())) continue;
-    const at::Tensor flat = t->detach().flatten().cpu();
-    const at::Tensor bad = (~flat.isfinite()).nonzero();
-    TORCH_CHECK(bad.numel() == 0, "Avatar: AvatarPose::", name, " must be finite, got ", flat[bad[0][0]].item<double>(),
-                " at index ", bad[0][0].item<int64_t>(), " (", bad.size(0), " of ", flat.numel(), " values are not finite)");
-  }
-}
-
 at::Tensor vector_input(const at::Tensor& t, const char* name, const at::TensorOptions& options) {
   TORCH_CHECK(at::isFloatingType(t.scalar_type()) && (t.dim() == 1 || (t.dim() == 2 && t.size(0) == 1)),
-              "Avatar: AvatarPose::", name, " must be a floating (n) or (1, n) tensor, got ", body::describe(t));
+              "Avatar: pose.", name, " must be a floating (n) or (1, n) tensor, got ", body::describe(t));
   return t.flatten().to(options);
 }
 
@@ -135,7 +132,7 @@ AvatarImpl::AvatarImpl(const AvatarBody& b, const at::Tensor& betas, AvatarConfi
     structure_offset_ =
         register_module("structure_offset", StructureOffset(width, config_.hidden_width, config_.joint_embedding_size,
                                                             body_->joints(), body_->dominant_joints()));
-  if (config_.use_color_offset)
+  if (config_.use_colour_offset)
     colour_offset_ = register_module("colour_offset", ColourOffset(width, config_.hidden_width));
   if (config_.use_hand_residual && b.has_mano) {
     body::ManoModelData left = b.mano_left;
@@ -146,7 +143,71 @@ AvatarImpl::AvatarImpl(const AvatarBody& b, const at::Tensor& betas, AvatarConfi
   opacities_ = register_buffer("opacities", at::ones({n}));
 }
 
-AvatarImpl::CanonicalAttributes AvatarImpl::canonical_attributes(const StaticFeatures& features, double time) const {
+AvatarImpl::~AvatarImpl() = default;
+
+AvatarOutput AvatarImpl::forward(const body::SmplxPose& pose, double time) {
+  TORCH_CHECK(std::isfinite(time) && time >= -1.0 && time <= 1.0,
+              "Avatar: time must be normalised to [-1, 1] (once per sequence), got ", time);
+  const std::string non_finite = pose.non_finite();
+  TORCH_CHECK(non_finite.empty(), "Avatar: pose.", non_finite);
+  const FramePose frame = frame_pose(pose);
+  const at::Tensor coarse_residual =
+      hand_residual_ ? hand_residual_->forward(frame.left_hand, frame.right_hand) : at::Tensor();
+  const FrameBody body = body_->pose(frame.rotations, frame.expression, frame.translation, coarse_residual);
+  const CanonicalAttributes attributes = attributes_at(time);
+  const CanonicalGaussians canonical = canonical_gaussians(frame, body, attributes);
+
+  // Skinning: the body model's own transforms carry every Gaussian, its mean and its covariance.
+  const at::Tensor blended = body::blend_transforms(body_->weights(), body.skinning_transforms);
+  AvatarOutput out;
+  out.means = transform_points(blended, canonical.means);
+  out.covariances = isotropic_covariances(blended, canonical.log_scales);
+  out.opacities = opacities_;
+  out.canonical_means = canonical.means;
+  out.log_scales = canonical.log_scales;
+  out.mean_offset = attributes.mean_offset;
+  out.structure_offset = canonical.structure_offset;
+  out.scale_offset = canonical.scale_offset;
+  out.hand_residual = body.point_offsets;
+  out.posed_vertices = body.posed;
+  out.colours = appearance(frame, body, attributes, out);
+  return out;
+}
+
+AvatarImpl::FramePose AvatarImpl::frame_pose(const body::SmplxPose& pose) const {
+  const auto options = body_->vertices().options();
+  FramePose frame;
+  const auto hand = [&](const at::Tensor& given, const char* name, body::Side side) {
+    const at::Tensor h = joint_pose(given, body::kHandJointCount, name, options);
+    return config_.flat_hand_mean ? h : h + body_->hand_mean(side);
+  };
+  const at::Tensor left = hand(pose.left_hand_pose, "left_hand_pose", body::Side::kLeft);
+  const at::Tensor right = hand(pose.right_hand_pose, "right_hand_pose", body::Side::kRight);
+  if (pose.left_hand_pose.defined()) frame.left_hand = left;
+  if (pose.right_hand_pose.defined()) frame.right_hand = right;
+  frame.rotations = body::axis_angle_to_matrix(at::cat({joint_pose(pose.global_orient, 1, "global_orient", options),
+                                                        joint_pose(pose.body_pose, body::kSmplxBodyJointCount,
+                                                                   "body_pose", options),
+                                                        joint_pose(pose.jaw_pose, 1, "jaw_pose", options),
+                                                        joint_pose(pose.leye_pose, 1, "leye_pose", options),
+                                                        joint_pose(pose.reye_pose, 1, "reye_pose", options), left,
+                                                        right}));
+  frame.rotations_6d = body::matrix_to_rotation_6d(frame.rotations);
+  if (pose.expression.defined() && body_->expression_count() > 0) {
+    const at::Tensor given = vector_input(pose.expression, "expression", options);
+    const int64_t used = std::min(given.size(0), body_->expression_count());
+    frame.expression = at::constant_pad_nd(given.narrow(0, 0, used), {0, body_->expression_count() - used});
+  }
+  frame.translation = at::zeros({3}, options);
+  if (pose.transl.defined()) {
+    frame.translation = vector_input(pose.transl, "transl", options);
+    TORCH_CHECK(frame.translation.size(0) == 3, "Avatar: pose.transl must have 3 values, got ",
+                frame.translation.size(0));
+  }
+  return frame;
+}
+
+CanonicalAttributes AvatarImpl::compute_attributes(const StaticFeatures& features, double time) const {
   const at::Tensor fused = feature_field_->fuse(features, time);
   const CanonicalHeadOutput heads = heads_->forward(fused);
   CanonicalAttributes a;
@@ -158,128 +219,53 @@ AvatarImpl::CanonicalAttributes AvatarImpl::canonical_attributes(const StaticFea
   return a;
 }
 
-AvatarOutput AvatarImpl::forward(const AvatarPose& pose) {
-  TORCH_CHECK(std::isfinite(pose.time) && pose.time >= -1.0 && pose.time <= 1.0,
-              "Avatar: AvatarPose::time must be normalised to [-1, 1] (once per sequence), got ", pose.time);
-  check_pose_finite(pose);
-  const auto options = body_->vertices().options();
-  const int64_t n = body_->point_count();
+CanonicalAttributes AvatarImpl::attributes_at(double time) {
+  if (!cache_) return compute_attributes(feature_field_->static_features(), time);
+  TORCH_CHECK(!is_training(),
+              "Avatar: the static-feature cache is for inference; call clear_cache() before training (or eval())");
+  TORCH_CHECK(cache_->device() == body_->vertices().device(), "Avatar: the cache was made on ", cache_->device(),
+              " but the module is on ", body_->vertices().device(), "; call cache_static_features() again");
+  if (const CanonicalAttributes* kept = cache_->attributes(time)) return *kept;
+  const CanonicalAttributes computed = compute_attributes(cache_->features(), time);
+  cache_->keep(computed, time);
+  return computed;
+}
 
-  // Canonical attributes: from the cache where it holds them, else computed (and kept when caching).
-  if (cache_) {
-    TORCH_CHECK(!is_training(),
-                "Avatar: the static-feature cache is for inference; call clear_cache() before training (or eval())");
-    TORCH_CHECK(cache_->features.triplane.device() == options.device(), "Avatar: the cache was made on ",
-                cache_->features.triplane.device(), " but the module is on ", options.device(),
-                "; call cache_static_features() again");
-  }
-  const StaticFeatures features = cache_ ? cache_->features : feature_field_->static_features();
-  CanonicalAttributes attributes;
-  if (cache_ && cache_->attributes && (!config_.use_hexplane || cache_->time == pose.time)) {
-    attributes = *cache_->attributes;
-  } else {
-    attributes = canonical_attributes(features, pose.time);
-    if (cache_) {
-      CanonicalAttributes kept = attributes;
-      for (at::Tensor* t : {&kept.mean_offset, &kept.log_scales, &kept.colour_logits, &kept.structure_projection,
-                            &kept.colour_projection})
-        if (t->defined()) *t = t->detach();
-      cache_->attributes = kept;
-      cache_->time = pose.time;
-    }
-  }
-
-  // The frame's skeleton and rest mesh.
-  const at::Tensor left_hand = joint_pose(pose.left_hand_pose, body::kHandJointCount, "left_hand_pose", options);
-  const at::Tensor right_hand = joint_pose(pose.right_hand_pose, body::kHandJointCount, "right_hand_pose", options);
-  const bool add_mean = !config_.flat_hand_mean;
-  const at::Tensor axis_angle = at::cat({joint_pose(pose.global_orient, 1, "global_orient", options),
-                                         joint_pose(pose.body_pose, body::kSmplxBodyJointCount, "body_pose", options),
-                                         joint_pose(pose.jaw_pose, 1, "jaw_pose", options),
-                                         joint_pose(pose.left_eye_pose, 1, "left_eye_pose", options),
-                                         joint_pose(pose.right_eye_pose, 1, "right_eye_pose", options),
-                                         add_mean ? left_hand + body_->hand_mean(body::Side::kLeft) : left_hand,
-                                         add_mean ? right_hand + body_->hand_mean(body::Side::kRight) : right_hand});
-  const at::Tensor rotations = body::axis_angle_to_matrix(axis_angle);
-  at::Tensor expression;
-  if (pose.expression.defined() && body_->expression_count() > 0) {
-    const at::Tensor given = vector_input(pose.expression, "expression", options);
-    const int64_t used = std::min(given.size(0), body_->expression_count());
-    expression = at::constant_pad_nd(given.narrow(0, 0, used), {0, body_->expression_count() - used});
-  }
-  at::Tensor translation = at::zeros({3}, options);
-  if (pose.transl.defined()) {
-    translation = vector_input(pose.transl, "transl", options);
-    TORCH_CHECK(translation.size(0) == 3, "Avatar: AvatarPose::transl must have 3 values, got ", translation.size(0));
-  }
-  const body::PosedSkeleton skeleton = body_->pose(rotations, body_->rest_joints(expression), translation);
-  const at::Tensor blended = blend_transforms(body_->weights(), skeleton.skinning_transforms);
-  const at::Tensor displacement = body_->coarse_displacement(expression, rotations);
-  const at::Tensor rest =
-      displacement.defined() ? body_->vertices() + body_->subdivide(displacement) : body_->vertices();
-
-  // Canonical Gaussians: the rest mesh plus every offset.
-  AvatarOutput out;
-  out.mean_offset = attributes.mean_offset;
-  at::Tensor canonical = rest + attributes.mean_offset;
-  at::Tensor log_scales = attributes.log_scales;
-  const at::Tensor rotations_6d = body::matrix_to_rotation_6d(rotations);
+CanonicalGaussians AvatarImpl::canonical_gaussians(const FramePose& frame, const FrameBody& body,
+                                                   const CanonicalAttributes& attributes) const {
+  CanonicalGaussians g;
+  g.means = body.rest + attributes.mean_offset;
+  g.log_scales = attributes.log_scales;
   if (structure_offset_) {
-    const StructureOffsetOutput structure = structure_offset_->forward(attributes.structure_projection, rotations_6d);
-    out.structure_offset = structure.mean_offset;
-    out.scale_offset = structure.log_scale_offset;
-    canonical = canonical + structure.mean_offset;
-    log_scales = log_scales + structure.log_scale_offset;
-  } else {
-    out.structure_offset = at::zeros({n, 3}, options);
-    out.scale_offset = at::zeros({n}, options);
+    const StructureOffsetOutput structure =
+        structure_offset_->forward(attributes.structure_projection, frame.rotations_6d);
+    g.structure_offset = structure.mean_offset;
+    g.scale_offset = structure.log_scale_offset;
+    g.means = g.means + structure.mean_offset;
+    g.log_scales = g.log_scales + structure.log_scale_offset;
   }
-  if (hand_residual_) {
-    const auto hand_pose = [&](const at::Tensor& given, body::Side side) {
-      return given.defined() ? axis_angle.narrow(0, body::smplx_hand_joint(side, 1), body::kHandJointCount)
-                             : at::Tensor();
-    };
-    const at::Tensor coarse = hand_residual_->forward(hand_pose(pose.left_hand_pose, body::Side::kLeft),
-                                                      hand_pose(pose.right_hand_pose, body::Side::kRight));
-    if (coarse.defined()) {
-      out.hand_residual = body_->subdivide(coarse);
-      canonical = canonical + out.hand_residual;
-    }
-  }
-  if (!out.hand_residual.defined()) out.hand_residual = at::zeros({n, 3}, options);
-  out.canonical_means = canonical;
-  out.log_scales = log_scales;
+  if (body.point_offsets.defined()) g.means = g.means + body.point_offsets;  // the hand residual
+  return g;
+}
 
-  // Skinning into the world.
-  out.means = transform_points(blended, canonical);
-  out.covariances = isotropic_covariances(blended, log_scales);
-  out.posed_vertices = transform_points(blended, rest);
-  out.opacities = opacities_;
-
-  at::Tensor colour_logits = attributes.colour_logits;
-  if (colour_offset_) {
-    at::Tensor normals;
-    {
-      // The body-model surface's orientation: smooth, free of the learned offsets' noise, and no gradient.
-      at::NoGradGuard no_grad;
-      normals = vertex_normals(out.posed_vertices.detach(), body_->faces());
-    }
-    const at::Tensor pose_embedding = body_->weights().matmul(rotations_6d);  // sum_j w_ij r_j
-    out.colour_offset = colour_offset_->forward(attributes.colour_projection, pose_embedding, normals);
-    colour_logits = colour_logits + out.colour_offset;
-  } else {
-    out.colour_offset = at::zeros({n, 3}, options);
+at::Tensor AvatarImpl::appearance(const FramePose& frame, const FrameBody& body,
+                                  const CanonicalAttributes& attributes, AvatarOutput& out) const {
+  if (!colour_offset_) return at::sigmoid(attributes.colour_logits);
+  at::Tensor normals;
+  {
+    // The body-model surface's orientation: smooth, free of the learned offsets' noise, and no gradient.
+    at::NoGradGuard no_grad;
+    normals = body::vertex_normals(body.posed.detach(), body_->faces());
   }
-  out.colours = at::sigmoid(colour_logits);
-  return out;
+  const at::Tensor pose_embedding = body_->weights().matmul(frame.rotations_6d);  // sum_j w_ij r_j
+  out.colour_offset = colour_offset_->forward(attributes.colour_projection, pose_embedding, normals);
+  return at::sigmoid(attributes.colour_logits + out.colour_offset);
 }
 
 void AvatarImpl::cache_static_features() {
   at::NoGradGuard no_grad;
-  Cache cache;
-  cache.features = feature_field_->static_features();
-  if (!config_.use_hexplane) cache.attributes = canonical_attributes(cache.features, 0.0);
-  cache_ = std::move(cache);
+  cache_ = std::make_unique<InferenceCache>(feature_field_->static_features(), config_.use_hexplane);
+  if (!config_.use_hexplane) cache_->keep(compute_attributes(cache_->features(), 0.0), 0.0);
 }
 
 void AvatarImpl::clear_cache() { cache_.reset(); }
@@ -307,7 +293,7 @@ int64_t parameter_count(const AvatarConfig& c, bool has_mano) {
   if (c.use_structure_offset)
     count += body::kSmplxJointCount * c.joint_embedding_size +
              MlpImpl::parameter_count(StructureOffsetImpl::shape(width, h, c.joint_embedding_size));
-  if (c.use_color_offset) count += MlpImpl::parameter_count(ColourOffsetImpl::shape(width, h));
+  if (c.use_colour_offset) count += MlpImpl::parameter_count(ColourOffsetImpl::shape(width, h));
   if (c.use_hand_residual && has_mano) count += 2 * MlpImpl::parameter_count(HandResidualImpl::shape());
   return count;
 }

@@ -3,9 +3,14 @@
 // a learned per-channel gate (and dedicated face planes), MLP heads for position/scale/colour, the structure-aware
 // position/scale offset (dominant-joint feature) and colour offset (skinning-weighted pose embedding + posed normal),
 // the MANO hand residual, expression offsets and pose correctives, and linear blend skinning of means and covariances.
-// Each module can be switched off for ablations; pose- and time-independent features are cached for inference.
-// docs/avatar.md describes the architecture, the switches, the parameter count and what differs from the authors.
-#include <optional>
+//
+// A frame runs four typed stages (avatar.cpp): the frame's body (rotations, rest and posed mesh, skinning
+// transforms), the canonical Gaussians (the rest mesh plus every learned offset), skinning into the world, and
+// appearance (colours). The canonical attributes the fused feature determines come from the InferenceCache when one
+// is kept (inference) and are computed otherwise. Each module can be switched off for ablations; a switched-off
+// module costs nothing and its outputs are undefined. docs/avatar.md describes the architecture, the switches, the
+// parameter count and what differs from the authors.
+#include <memory>
 #include <string>
 
 #include <torch/nn/module.h>
@@ -14,6 +19,7 @@
 #include "body/mano.h"
 #include "body/parts.h"
 #include "body/smplx.h"
+#include "body/smplx_pose.h"
 #include "model/canonical_body.h"
 #include "model/colour_offset.h"
 #include "model/feature_field.h"
@@ -23,6 +29,10 @@
 #include "splat/splat.h"
 
 namespace sfgs::model {
+
+class InferenceCache;
+struct CanonicalAttributes;
+struct CanonicalGaussians;
 
 struct AvatarConfig {
   int64_t subdivision_levels = 2;       // midpoint subdivisions of the body mesh (SMPL-X: 167,390 points)
@@ -34,13 +44,13 @@ struct AvatarConfig {
   int64_t joint_embedding_size = 16;
   int64_t num_betas = 10;              // at most the model's shape space
   int64_t num_expression_coeffs = 10;  // at most the model's expression space
-  // false: the model's mean hand pose is added to AvatarPose's hand poses (SMPL-X's flat_hand_mean = False, the
+  // false: the model's mean hand pose is added to the pose's hand poses (SMPL-X's flat_hand_mean = False, the
   // convention of ExAvatar's and SFGS's fits); true: the hand poses are absolute.
   bool flat_hand_mean = false;
   // Ablation switches (the paper's table): each removes exactly its module, and its parameters.
   bool use_hexplane = true;
   bool use_structure_offset = true;
-  bool use_color_offset = true;
+  bool use_colour_offset = true;
   bool use_hand_residual = true;  // also needs MANO in the AvatarBody
   bool use_face_planes = true;
 };
@@ -62,25 +72,8 @@ struct AvatarBody {
                          const std::string& face_ids_path);
 };
 
-// One frame's drive: SMPL-X parameters (axis-angle, batch 1, full hand poses) and the normalised time in [-1, 1].
-// Undefined tensors are zeros, except that undefined hand poses also skip that hand's MANO residual (the sequence
-// has no hand poses) and an undefined expression skips the expression blend shapes. Any floating dtype and device:
-// they are moved to the avatar's. Every value must be finite (forward refuses NaN or Inf, naming the field); give
-// them on the CPU to keep that check free of a device synchronisation.
-struct AvatarPose {
-  at::Tensor global_orient;    // (3)
-  at::Tensor body_pose;        // (21, 3) or (63)
-  at::Tensor jaw_pose;         // (3)
-  at::Tensor left_eye_pose;    // (3)
-  at::Tensor right_eye_pose;   // (3)
-  at::Tensor left_hand_pose;   // (15, 3) or (45)
-  at::Tensor right_hand_pose;  // (15, 3) or (45)
-  at::Tensor expression;       // (E) (padded / truncated to num_expression_coeffs)
-  at::Tensor transl;           // (3)
-  double time = 0.0;           // normalised once per sequence to [-1, 1]
-};
-
-// The posed Gaussians ready for sfgs::render, plus what the regularisers need.
+// The posed Gaussians ready for sfgs::render, plus what the regularisers need. Outputs of switched-off modules
+// (and the hand residual of a frame without hand poses) are undefined.
 struct AvatarOutput {
   at::Tensor means;        // (N, 3) world
   at::Tensor covariances;  // (N, 6) world, packed (xx, xy, xz, yy, yz, zz)
@@ -90,10 +83,10 @@ struct AvatarOutput {
   at::Tensor canonical_means;   // (N, 3): this frame's rest mesh plus every offset below
   at::Tensor log_scales;        // (N) isotropic log standard deviation (after the structure offset)
   at::Tensor mean_offset;       // (N, 3) from the feature head
-  at::Tensor structure_offset;  // (N, 3) zeros when switched off
-  at::Tensor scale_offset;      // (N) zeros when switched off
-  at::Tensor colour_offset;     // (N, 3) zeros when switched off
-  at::Tensor hand_residual;     // (N, 3) zeros off the hands or when switched off
+  at::Tensor structure_offset;  // (N, 3) structure offset
+  at::Tensor scale_offset;      // (N) structure offset
+  at::Tensor colour_offset;     // (N, 3) colour offset
+  at::Tensor hand_residual;     // (N, 3) hand residual; zero off the hands
   at::Tensor posed_vertices;    // (N, 3) the skinned mesh points without learned offsets (for geometry metrics)
 };
 
@@ -104,13 +97,16 @@ class AvatarImpl : public torch::nn::Module {
  public:
   // betas: the subject's SMPL-X shape, (B) or (1, B). The module is built on the CPU in float32; move it with to().
   AvatarImpl(const AvatarBody& body, const at::Tensor& betas, AvatarConfig config = {});
+  ~AvatarImpl() override;
 
-  AvatarOutput forward(const AvatarPose& pose);
+  // One frame: an SMPL-X pose (one frame; any floating dtype and device, moved to the avatar's; every value must be
+  // finite: give it on the CPU to keep that check free of a device synchronisation; undefined fields are at rest,
+  // undefined hand poses also skip that hand's residual) and the normalised time in [-1, 1].
+  AvatarOutput forward(const body::SmplxPose& pose, double time);
 
-  // Pose- and time-independent features and canonical attributes computed once; forward then reuses them, and
-  // with the hexplane also the time-dependent ones of the last time it saw. For inference only: forward refuses
-  // the cache in training mode. Call after training (or after loading a checkpoint, or moving the module); any
-  // parameter update invalidates the cache.
+  // Keeps the pose- and time-independent features and canonical attributes (and, with the hexplane, the
+  // time-dependent ones of the last time it saw) for inference. forward refuses the cache in training mode. Call
+  // after training (or after loading a checkpoint, or moving the module); any parameter update invalidates it.
   void cache_static_features();
   void clear_cache();
 
@@ -120,20 +116,14 @@ class AvatarImpl : public torch::nn::Module {
   const AvatarConfig& config() const;
 
  private:
-  // What the fused feature determines: canonical attributes and the feature's share of the pose-driven MLPs.
-  struct CanonicalAttributes {
-    at::Tensor mean_offset;           // (N, 3)
-    at::Tensor log_scales;            // (N) initial log-scale plus the head's offset
-    at::Tensor colour_logits;         // (N, 3)
-    at::Tensor structure_projection;  // (N, H), structure offset only
-    at::Tensor colour_projection;     // (N, H), colour offset only
-  };
-  struct Cache {
-    StaticFeatures features;
-    std::optional<CanonicalAttributes> attributes;
-    double time = 0.0;  // of the attributes (irrelevant without the hexplane)
-  };
-  CanonicalAttributes canonical_attributes(const StaticFeatures& features, double time) const;
+  struct FramePose;
+  FramePose frame_pose(const body::SmplxPose& pose) const;
+  CanonicalAttributes attributes_at(double time);
+  CanonicalAttributes compute_attributes(const StaticFeatures& features, double time) const;
+  CanonicalGaussians canonical_gaussians(const FramePose& frame, const FrameBody& body,
+                                         const CanonicalAttributes& attributes) const;
+  at::Tensor appearance(const FramePose& frame, const FrameBody& body, const CanonicalAttributes& attributes,
+                        AvatarOutput& out) const;
 
   AvatarConfig config_;
   CanonicalBody body_{nullptr};
@@ -143,7 +133,7 @@ class AvatarImpl : public torch::nn::Module {
   ColourOffset colour_offset_{nullptr};
   HandResidual hand_residual_{nullptr};
   at::Tensor opacities_;
-  std::optional<Cache> cache_;
+  std::unique_ptr<InferenceCache> cache_;
 };
 TORCH_MODULE(Avatar);
 

@@ -76,7 +76,7 @@ HandResidualImpl::Hand HandResidualImpl::make_hand(const char* name, body::Side 
   options.flat_hand_mean = true;  // the poses come with the mean already added, as SMPL-X applied them
   hand.mano = register_module(prefix + "_mano", body::Mano(mano, options));
   hand.refine = register_module(prefix + "_refine", Mlp(shape()));
-  hand.vertex_ids = register_buffer(prefix + "_vertex_ids", ids);
+  hand.vertex_ids = register_buffer(prefix + "_vertex_ids", ids.clone());  // never the caller's tensor: to() moves buffers
   hand.mano_betas = register_buffer(prefix + "_mano_betas", betas.reshape({1, shape_count}).to(at::kFloat));
   hand.smplx_hand = register_buffer(prefix + "_smplx_hand", target.to(at::kFloat));
   if (smplx.posedirs.defined()) {

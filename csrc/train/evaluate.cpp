@@ -53,7 +53,7 @@ AvatarEvaluation evaluate_avatar(const data::Dataset& dataset, data::Split split
     previous_frame = f;
     const data::Frame frame = dataset.load(f);
     const auto start = std::chrono::steady_clock::now();
-    const model::AvatarOutput out = avatar->forward(avatar_pose(dataset, f));
+    const model::AvatarOutput out = pose_avatar(avatar, dataset, f);
     const RenderResult r = render(to_gaussians(out), at::ones({3}, out.means.options()), render_camera(record));
     const at::Tensor image = r.image.to(at::kCPU);
     render_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
@@ -73,12 +73,10 @@ AvatarEvaluation evaluate_avatar(const data::Dataset& dataset, data::Split split
 void export_ply(model::Avatar& avatar, const data::Dataset* dataset, int64_t frame, const std::string& path,
                 bool overwrite) {
   at::NoGradGuard no_grad;
-  model::AvatarPose pose = rest_pose(avatar->config().num_expression_coeffs);
-  if (frame >= 0) {
-    TORCH_CHECK(dataset != nullptr && frame < dataset->size(), "export: frame ", frame, " is not in the dataset");
-    pose = avatar_pose(*dataset, frame);
-  }
-  const model::AvatarOutput out = avatar->forward(pose);
+  TORCH_CHECK(frame < 0 || (dataset != nullptr && frame < dataset->size()), "export: frame ", frame,
+              " is not in the dataset");
+  const model::AvatarOutput out = frame >= 0 ? pose_avatar(avatar, *dataset, frame)
+                                             : avatar->forward(body::SmplxPose::zeros(0), 0.0);
   at::Tensor means, cov6;
   if (frame >= 0) {
     means = out.means;

@@ -81,19 +81,23 @@ Regularisers::Regularisers(const LossWeights& weights, const at::Tensor& part_la
   mean_part_weight_ = part_weights(part_labels, weights.mean_offset_parts, device);
   scale_part_weight_ = part_weights(part_labels, weights.scale_parts, device);
   laplacian_part_weight_ = part_weights(part_labels, weights.laplacian_mean_parts, device);
-  const body::VertexNeighbors n = body::vertex_neighbors(faces, part_labels.size(0));
+  const body::VertexNeighbours n = body::vertex_neighbours(faces, part_labels.size(0));
   neighbours_ = n.indices.to(device);
   neighbour_counts_ = n.counts.to(device);
 }
 
 void Regularisers::add_terms(const model::AvatarOutput& out, LossTerms& terms) const {
-  const at::Tensor offsets = out.mean_offset + out.structure_offset;
-  terms["mean_offset"] = weights_.mean_offset *
-                         ((out.mean_offset.square().sum(1) + out.structure_offset.square().sum(1)) * mean_part_weight_).mean();
+  // Without the structure offset (switched off: undefined) only the head's offsets count.
+  const bool structure = out.structure_offset.defined();
+  const at::Tensor offsets = structure ? out.mean_offset + out.structure_offset : out.mean_offset;
+  at::Tensor squared_offsets = out.mean_offset.square().sum(1);
+  if (structure) squared_offsets = squared_offsets + out.structure_offset.square().sum(1);
+  terms["mean_offset"] = weights_.mean_offset * (squared_offsets * mean_part_weight_).mean();
   const at::Tensor scales = out.log_scales.exp();
-  terms["scale"] = weights_.scale * ((scales.square() + out.scale_offset.square()) * scale_part_weight_).mean();
+  const at::Tensor squared_scales = structure ? scales.square() + out.scale_offset.square() : scales.square();
+  terms["scale"] = weights_.scale * (squared_scales * scale_part_weight_).mean();
   // The Laplacian is linear, so L(rest + offsets) - L(rest) = L(offsets): only the offsets' roughness is penalised.
-  const body::VertexNeighbors n{neighbours_, neighbour_counts_};
+  const body::VertexNeighbours n{neighbours_, neighbour_counts_};
   terms["laplacian_mean"] =
       weights_.laplacian_mean * (body::uniform_laplacian(n, offsets).square().sum(1) * laplacian_part_weight_).mean();
   terms["laplacian_scale"] = weights_.laplacian_scale * body::uniform_laplacian(n, scales.unsqueeze(1)).square().mean();
@@ -101,8 +105,7 @@ void Regularisers::add_terms(const model::AvatarOutput& out, LossTerms& terms) c
 
 at::Tensor total_loss(LossTerms& terms) {
   at::Tensor total;
-  for (const char* key : {"image", "lab", "gradient", "face", "mean_offset", "scale", "laplacian_mean", "laplacian_scale",
-                          "joint_drift"}) {
+  for (const char* key : {"image", "lab", "gradient", "mean_offset", "scale", "laplacian_mean", "laplacian_scale"}) {
     const auto it = terms.find(key);
     if (it == terms.end()) continue;
     total = total.defined() ? total + it->second : it->second;

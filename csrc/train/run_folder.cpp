@@ -23,34 +23,15 @@ model::Avatar make_avatar(const TrainConfig& config, const at::Tensor& betas, at
   return avatar;
 }
 
-model::AvatarPose avatar_pose(const data::SmplxPose& p, double time) {
-  model::AvatarPose pose;
-  pose.global_orient = p.global_orient;
-  pose.body_pose = p.body_pose;
-  pose.jaw_pose = p.jaw_pose;
-  pose.left_eye_pose = p.left_eye_pose;
-  pose.right_eye_pose = p.right_eye_pose;
-  pose.left_hand_pose = p.left_hand_pose;
-  pose.right_hand_pose = p.right_hand_pose;
-  pose.expression = p.expression;
-  pose.transl = p.transl;
-  pose.time = time;
-  return pose;
-}
-
-model::AvatarPose avatar_pose(const data::Dataset& dataset, int64_t frame) {
+model::AvatarOutput pose_avatar(model::Avatar& avatar, const data::Dataset& dataset, int64_t frame) {
   TORCH_CHECK(frame >= 0 && frame < dataset.size(), "frame ", frame, " is not in dataset '", dataset.source, "' (",
               dataset.size(), " frames)");
-  return avatar_pose(dataset.frames[size_t(frame)].pose, dataset.normalized_time(frame));
-}
-
-model::AvatarPose rest_pose(int64_t expression_count) {
-  return avatar_pose(data::SmplxPose::zeros(expression_count), 0.0);
+  return avatar->forward(dataset.frames[size_t(frame)].pose, dataset.normalized_time(frame));
 }
 
 Camera render_camera(const data::FrameRecord& frame) {
   Camera c = frame.camera;
-  if (frame.pose.in_camera_frame) c.world_to_camera = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+  if (frame.pose_in_camera_frame) c.world_to_camera = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
   return c;
 }
 

@@ -20,12 +20,8 @@ struct RunFolder {
 // The avatar the config describes, for a subject with these betas, on `device`.
 model::Avatar make_avatar(const TrainConfig& config, const at::Tensor& betas, at::Device device);
 
-// The avatar's drive for one dataset frame (time normalised over the dataset), on the CPU: Avatar::forward moves it.
-model::AvatarPose avatar_pose(const data::Dataset& dataset, int64_t frame);
-// The same for SMPL-X parameters and a normalised time.
-model::AvatarPose avatar_pose(const data::SmplxPose& pose, double time);
-// Every joint at rest, zero expression, no translation, time 0.
-model::AvatarPose rest_pose(int64_t expression_count);
+// The avatar in dataset frame `frame`: its SMPL-X pose at its time (normalised over the dataset).
+model::AvatarOutput pose_avatar(model::Avatar& avatar, const data::Dataset& dataset, int64_t frame);
 // The camera to render that frame with (identity extrinsics for poses given in camera coordinates).
 Camera render_camera(const data::FrameRecord& frame);
 

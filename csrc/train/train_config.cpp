@@ -4,6 +4,7 @@
 #include <fstream>
 #include <functional>
 #include <map>
+#include <set>
 #include <sstream>
 
 #include <c10/util/Exception.h>
@@ -44,6 +45,17 @@ Field parts_field(PartWeights& p) {
 
 using Section = std::vector<std::pair<std::string, Field>>;
 
+// Keys of earlier versions: renamed ones are read as their new name, retired ones (which nothing used) are ignored;
+// both with a warning, so the configs saved in older runs still load.
+const std::map<std::string, std::string>& renamed_keys() {
+  static const std::map<std::string, std::string> keys = {{"avatar.use_color_offset", "use_colour_offset"}};
+  return keys;
+}
+const std::set<std::string>& retired_keys() {
+  static const std::set<std::string> keys = {"loss.face", "loss.joint_drift"};
+  return keys;
+}
+
 std::vector<std::pair<std::string, Section>> sections(TrainConfig& c) {
   model::AvatarConfig& a = c.avatar;
   LossWeights& l = c.loss;
@@ -60,14 +72,14 @@ std::vector<std::pair<std::string, Section>> sections(TrainConfig& c) {
                   {"face_plane_resolution", field(a.face_plane_resolution)}, {"hidden_width", field(a.hidden_width)},
                   {"joint_embedding_size", field(a.joint_embedding_size)}, {"num_betas", field(a.num_betas)},
                   {"num_expression_coeffs", field(a.num_expression_coeffs)}, {"use_hexplane", field(a.use_hexplane)},
-                  {"use_structure_offset", field(a.use_structure_offset)}, {"use_color_offset", field(a.use_color_offset)},
+                  {"use_structure_offset", field(a.use_structure_offset)}, {"use_colour_offset", field(a.use_colour_offset)},
                   {"use_hand_residual", field(a.use_hand_residual)}, {"use_face_planes", field(a.use_face_planes)}}},
       {"loss", {{"image", field(l.image)}, {"lab", field(l.lab)}, {"gradient", field(l.gradient)},
-                {"use_lpips", field(l.use_lpips)}, {"lpips_weights", field(l.lpips_weights)}, {"face", field(l.face)},
+                {"use_lpips", field(l.use_lpips)}, {"lpips_weights", field(l.lpips_weights)},
                 {"mean_offset", field(l.mean_offset)}, {"mean_offset_parts", parts_field(l.mean_offset_parts)},
                 {"scale", field(l.scale)}, {"scale_parts", parts_field(l.scale_parts)},
                 {"laplacian_mean", field(l.laplacian_mean)}, {"laplacian_mean_parts", parts_field(l.laplacian_mean_parts)},
-                {"laplacian_scale", field(l.laplacian_scale)}, {"joint_drift", field(l.joint_drift)}}},
+                {"laplacian_scale", field(l.laplacian_scale)}}},
       {"schedule", {{"iterations", field(s.iterations)}, {"warmup_iterations", field(s.warmup_iterations)},
                     {"decay_at", field(s.decay_at)}, {"decay_factor", field(s.decay_factor)},
                     {"learning_rate", field(s.learning_rate)}, {"colour_learning_rate", field(s.colour_learning_rate)},
@@ -95,7 +107,16 @@ TrainConfig TrainConfig::from_yaml_text(const std::string& text, const std::stri
                 "' (expected body, run, avatar, loss or schedule)");
     TORCH_CHECK(kv.second.IsMap(), "config '", source, "': section '", section, "' must be a mapping");
     for (const auto& entry : kv.second) {
-      const std::string key = entry.first.as<std::string>();
+      std::string key = entry.first.as<std::string>();
+      const std::string full = section + "." + key;
+      if (retired_keys().count(full)) {
+        TORCH_WARN("config '", source, "': '", full, "' is retired (no loss used it) and is ignored; remove it");
+        continue;
+      }
+      if (const auto renamed = renamed_keys().find(full); renamed != renamed_keys().end()) {
+        TORCH_WARN("config '", source, "': '", full, "' is deprecated; write '", section, ".", renamed->second, "'");
+        key = renamed->second;
+      }
       auto f = std::find_if(it->second.begin(), it->second.end(), [&](const auto& p) { return p.first == key; });
       TORCH_CHECK(f != it->second.end(), "config '", source, "': unknown key '", section, ".", key, "'");
       try {
@@ -184,10 +205,10 @@ void TrainConfig::validate() const {
   check_positive(schedule.colour_learning_rate, kMaxLearningRate, "schedule.colour_learning_rate");
   check_positive(schedule.adam_epsilon, 1.0, "schedule.adam_epsilon");
   for (const auto& [value, key] : {std::pair{loss.image, "loss.image"}, {loss.lab, "loss.lab"},
-                                   {loss.gradient, "loss.gradient"}, {loss.face, "loss.face"},
+                                   {loss.gradient, "loss.gradient"},
                                    {loss.mean_offset, "loss.mean_offset"}, {loss.scale, "loss.scale"},
                                    {loss.laplacian_mean, "loss.laplacian_mean"},
-                                   {loss.laplacian_scale, "loss.laplacian_scale"}, {loss.joint_drift, "loss.joint_drift"}})
+                                   {loss.laplacian_scale, "loss.laplacian_scale"}})
     check_range(value, 0, kMaxLossWeight, key);
   check_parts(loss.mean_offset_parts, "loss.mean_offset_parts");
   check_parts(loss.scale_parts, "loss.scale_parts");

@@ -19,7 +19,6 @@ struct LossWeights {
   double gradient = 0.01;   // lambda_g on L1 of image gradients
   bool use_lpips = true;    // AlexNet LPIPS (the shared weights); skipped, with a log line, when unavailable
   std::string lpips_weights;  // folder holding lpips_alex.safetensors; empty: the default search
-  double face = 0.8;        // face-texture loss; applied only when the dataset has a face texture
   // Regularisers.
   double mean_offset = 1.0;
   PartWeights mean_offset_parts{10, 1, 1000};
@@ -28,7 +27,6 @@ struct LossWeights {
   double laplacian_mean = 1e5;
   PartWeights laplacian_mean_parts{1, 50, 1};
   double laplacian_scale = 1e5;
-  double joint_drift = 1.0;
 };
 
 struct Schedule {

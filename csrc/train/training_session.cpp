@@ -95,8 +95,7 @@ void TrainingSession::open_log() {
   log_ = std::make_unique<JsonLinesLog>(run_.log_file());
   log_->write({{"event", "start"}, {"iteration", last_checkpoint_ < 0 ? 0 : last_checkpoint_},
                {"dataset", dataset_.source}, {"frames", dataset_.size()}, {"gaussians", avatar_->gaussian_count()},
-               {"device", config_.device}, {"lpips", image_loss_->lpips_status()},
-               {"face_loss", "skipped: the dataset has no face texture"}});
+               {"device", config_.device}, {"lpips", image_loss_->lpips_status()}});
 }
 
 void TrainingSession::step(int64_t it) {
@@ -112,7 +111,7 @@ void TrainingSession::step(int64_t it) {
   const at::Tensor m = mask.unsqueeze(2);
   const at::Tensor target = image * m + background * (1 - m);
 
-  const model::AvatarOutput out = avatar_->forward(avatar_pose(dataset_, f));
+  const model::AvatarOutput out = pose_avatar(avatar_, dataset_, f);
   const RenderResult r = render(to_gaussians(out), background, render_camera(dataset_.frames[size_t(f)]));
   LossTerms terms;
   image_loss_->add_terms(r.image, target, terms);
@@ -186,7 +185,7 @@ double TrainingSession::split_psnr(data::Split split) {
   for (int64_t k = 0; k < count; ++k) {
     const int64_t f = frames[size_t(k * int64_t(frames.size()) / count)];
     const data::Frame frame = dataset_.load(f);
-    const model::AvatarOutput out = avatar_->forward(avatar_pose(dataset_, f));
+    const model::AvatarOutput out = pose_avatar(avatar_, dataset_, f);
     const at::Tensor white = at::ones({3}, out.means.options());
     const RenderResult r = render(to_gaussians(out), white, render_camera(dataset_.frames[size_t(f)]));
     const at::Tensor mask = frame.eval_mask.to(device_).unsqueeze(2);

@@ -31,7 +31,6 @@ namespace {
 using model::Avatar;
 using model::AvatarConfig;
 using model::AvatarOutput;
-using model::AvatarPose;
 
 // Every output tensor, by name, for comparisons between two outputs.
 std::vector<std::pair<std::string, at::Tensor>> fields(const AvatarOutput& o) {
@@ -64,26 +63,20 @@ body::Smplx reference_model(int64_t levels) {
   return body::Smplx(procedural_avatar_body().smplx, o);
 }
 
-body::SmplxInput reference_input(const AvatarPose& p) {
-  const auto batch = [](const at::Tensor& t) { return t.defined() ? t.reshape({1, -1}) : t; };
+body::SmplxInput reference_input(const body::SmplxPose& p) {
   body::SmplxInput in;
-  in.betas = batch(subject_betas());
-  in.global_orient = batch(p.global_orient);
-  in.body_pose = batch(p.body_pose);
-  in.jaw_pose = batch(p.jaw_pose);
-  in.leye_pose = batch(p.left_eye_pose);
-  in.reye_pose = batch(p.right_eye_pose);
-  in.left_hand_pose = batch(p.left_hand_pose);
-  in.right_hand_pose = batch(p.right_hand_pose);
-  in.expression = batch(p.expression);
-  in.transl = batch(p.transl);
+  in.betas = subject_betas().reshape({1, -1});
+  for (const auto& field : body::SmplxPose::fields()) {
+    const at::Tensor& value = p.*field.member;
+    if (value.defined()) in.pose.*field.member = value.reshape({1, -1});
+  }
   return in;
 }
 
 TEST(Avatar, OutputsHaveTheirShapesAndAreFinite) {
   Avatar avatar(procedural_avatar_body(), subject_betas(), small_config());
   randomise_parameters(*avatar, 0.1, 1);
-  const AvatarOutput out = avatar->forward(test_pose(1, 0.4, /*hands=*/true));
+  const AvatarOutput out = avatar->forward(test_pose(1, 0.4, /*hands=*/true), kTestTime);
   const int64_t n = avatar->gaussian_count();
   EXPECT_EQ(n, procedural_avatar_body().smplx.v_template.size(0));  // no subdivision
   for (const auto& [name, t] : fields(out)) {
@@ -120,8 +113,8 @@ TEST(Avatar, NewAvatarReproducesTheSkinnedBodyModel) {
   AvatarConfig config = small_config();
   config.subdivision_levels = 1;
   Avatar avatar(procedural_avatar_body(), subject_betas(), config);
-  const AvatarPose pose = test_pose(2, 0.5, /*hands=*/true);
-  const AvatarOutput out = avatar->forward(pose);
+  const body::SmplxPose pose = test_pose(2, 0.5, /*hands=*/true);
+  const AvatarOutput out = avatar->forward(pose, kTestTime);
   const body::Smplx smplx = reference_model(config.subdivision_levels);
   const body::SmplxOutput expected = smplx->forward(reference_input(pose));
   const at::Tensor vertices = expected.vertices[0];
@@ -153,10 +146,10 @@ TEST(Avatar, RestPoseGivesTheCanonicalMeshTranslated) {
   AvatarConfig config = small_config();
   config.flat_hand_mean = true;
   Avatar avatar(procedural_avatar_body(), subject_betas(), config);
-  AvatarPose pose;
+  body::SmplxPose pose;
   pose.transl = at::tensor({0.1, -0.2, 0.3}, at::kFloat);
-  const AvatarOutput out = avatar->forward(pose);
-  const at::Tensor shaped = reference_model(0)->forward(reference_input(AvatarPose{})).rest_vertices[0];
+  const AvatarOutput out = avatar->forward(pose, kTestTime);
+  const at::Tensor shaped = reference_model(0)->forward(reference_input(body::SmplxPose{})).rest_vertices[0];
   EXPECT_LT(max_abs_difference(out.canonical_means, shaped), 1e-6);
   EXPECT_LT(max_abs_difference(out.means, shaped + pose.transl), 1e-6);
   const at::Tensor identity = at::tensor({1.0, 0.0, 0.0, 1.0, 0.0, 1.0}, at::kFloat);
@@ -166,7 +159,7 @@ TEST(Avatar, RestPoseGivesTheCanonicalMeshTranslated) {
 TEST(Avatar, GradientsReachEveryParameter) {
   Avatar avatar(procedural_avatar_body(), subject_betas(), small_config());
   randomise_parameters(*avatar, 0.1, 3);
-  const AvatarOutput out = avatar->forward(test_pose(3, 0.4, /*hands=*/true));
+  const AvatarOutput out = avatar->forward(test_pose(3, 0.4, /*hands=*/true), kTestTime);
   at::Generator generator = at::detail::createCPUGenerator(3);
   const auto weigh = [&](const at::Tensor& t) { return (t * at::randn(t.sizes(), generator)).sum(); };
   (weigh(out.means) + weigh(out.covariances) + weigh(out.colours)).backward();
@@ -187,20 +180,49 @@ TEST(Avatar, CachedInferenceEqualsUncached) {
     randomise_parameters(*avatar, 0.1, 4);
     avatar->eval();
     at::NoGradGuard no_grad;
-    const AvatarPose a = test_pose(4, 0.4, true, 0.3), b = test_pose(5, 0.4, true, 0.3),
-                     c = test_pose(4, 0.4, true, -0.7);
-    const AvatarOutput ua = avatar->forward(a), ub = avatar->forward(b), uc = avatar->forward(c);
+    // a and b share a time, c is a's pose at another time.
+    const body::SmplxPose a = test_pose(4, 0.4, true), b = test_pose(5, 0.4, true), c = a;
+    const double ab_time = 0.3, c_time = -0.7;
+    const AvatarOutput ua = avatar->forward(a, ab_time), ub = avatar->forward(b, ab_time), uc = avatar->forward(c, c_time);
     avatar->cache_static_features();
     for (int repeat = 0; repeat < 2; ++repeat) {  // first fills the time-dependent part, then reuses it
-      expect_identical(avatar->forward(a), ua);
-      expect_identical(avatar->forward(b), ub);
-      expect_identical(avatar->forward(c), uc);
+      expect_identical(avatar->forward(a, ab_time), ua);
+      expect_identical(avatar->forward(b, ab_time), ub);
+      expect_identical(avatar->forward(c, c_time), uc);
     }
     avatar->train();
-    expect_error([&] { avatar->forward(a); }, {"cache", "clear_cache"});
+    expect_error([&] { avatar->forward(a, ab_time); }, {"cache", "clear_cache"});
     avatar->clear_cache();
-    expect_identical(avatar->forward(a), ua);
+    expect_identical(avatar->forward(a, ab_time), ua);
   }
+}
+
+// Moving or converting an avatar (avatar->to(...) rewrites every buffer in place) must never reach into the caller's
+// body: the avatar keeps copies, not the caller's tensors.
+TEST(Avatar, OwnsItsBuffersAndLeavesTheCallersBodyAlone) {
+  const model::AvatarBody& body = procedural_avatar_body();
+  const auto& x = body.smplx;
+  const std::vector<std::pair<const char*, at::Tensor>> callers = {
+      {"smplx.v_template", x.v_template}, {"smplx.faces", x.faces},       {"smplx.weights", x.weights},
+      {"smplx.j_regressor", x.j_regressor}, {"smplx.shapedirs", x.shapedirs}, {"smplx.exprdirs", x.exprdirs},
+      {"smplx.posedirs", x.posedirs},     {"smplx.part_labels", x.part_labels},
+      {"smplx.hands_mean_left", x.hands_mean_left}, {"mano_left.v_template", body.mano_left.v_template},
+      {"mano_right.faces", body.mano_right.faces}, {"hand_vertex_ids.left", body.hand_vertex_ids.left},
+      {"hand_vertex_ids.right", body.hand_vertex_ids.right}, {"face_vertex_ids", body.face_vertex_ids}};
+  std::vector<std::pair<std::string, at::ScalarType>> before;
+  for (const auto& [name, t] : callers) before.emplace_back(name, t.defined() ? t.scalar_type() : at::kByte);
+  Avatar avatar(body, subject_betas(), small_config());
+  ASSERT_TRUE(body.has_mano);
+  std::vector<at::Tensor> owned = avatar->buffers();
+  for (const at::Tensor& p : avatar->parameters()) owned.push_back(p);
+  for (const auto& [name, t] : callers) {
+    if (!t.defined()) continue;
+    for (const at::Tensor& o : owned)
+      EXPECT_NE(o.storage().data(), t.storage().data()) << name << " is shared with the avatar";
+  }
+  avatar->to(at::kDouble);
+  for (size_t i = 0; i < callers.size(); ++i)
+    if (callers[i].second.defined()) EXPECT_EQ(callers[i].second.scalar_type(), before[i].second) << before[i].first;
 }
 
 TEST(Avatar, IsDeterministicForAFixedSeed) {
@@ -216,9 +238,9 @@ TEST(Avatar, IsDeterministicForAFixedSeed) {
     any_differs = any_differs || !p.value().equal(pc[p.key()]);
   }
   EXPECT_TRUE(any_differs);
-  const AvatarPose pose = test_pose(7, 0.4, true);
-  expect_identical(a->forward(pose), b->forward(pose));
-  expect_identical(a->forward(pose), a->forward(pose));
+  const body::SmplxPose pose = test_pose(7, 0.4, true);
+  expect_identical(a->forward(pose, kTestTime), b->forward(pose, kTestTime));
+  expect_identical(a->forward(pose, kTestTime), a->forward(pose, kTestTime));
 }
 
 // What a checkpoint holds: saving one avatar and loading it into another built with a different seed makes the two
@@ -229,8 +251,8 @@ TEST(Avatar, SaveAndLoadRoundTrips) {
   randomise_parameters(*saved, 0.1, 5);
   at::manual_seed(4);
   Avatar loaded(procedural_avatar_body(), subject_betas(), small_config());
-  const AvatarPose pose = test_pose(9, 0.4, true, 0.2);
-  EXPECT_FALSE(saved->forward(pose).colours.equal(loaded->forward(pose).colours));
+  const body::SmplxPose pose = test_pose(9, 0.4, true);
+  EXPECT_FALSE(saved->forward(pose, kTestTime).colours.equal(loaded->forward(pose, kTestTime).colours));
   torch::serialize::OutputArchive out;
   saved->save(out);
   std::ostringstream bytes;
@@ -239,7 +261,7 @@ TEST(Avatar, SaveAndLoadRoundTrips) {
   torch::serialize::InputArchive in;
   in.load_from(in_bytes);
   loaded->load(in);
-  expect_identical(saved->forward(pose), loaded->forward(pose));
+  expect_identical(saved->forward(pose, kTestTime), loaded->forward(pose, kTestTime));
 }
 
 TEST(Avatar, ParameterCountFollowsTheFormulaForEverySwitchCombination) {
@@ -247,7 +269,7 @@ TEST(Avatar, ParameterCountFollowsTheFormulaForEverySwitchCombination) {
     AvatarConfig config = small_config();
     config.use_hexplane = mask & 1;
     config.use_structure_offset = mask & 2;
-    config.use_color_offset = mask & 4;
+    config.use_colour_offset = mask & 4;
     config.use_hand_residual = mask & 8;
     config.use_face_planes = mask & 16;
     Avatar avatar(procedural_avatar_body(), subject_betas(), config);
@@ -270,15 +292,15 @@ TEST(Avatar, ExpressionIsPaddedOrTruncated) {
   AvatarConfig config = small_config();
   config.num_expression_coeffs = 6;
   Avatar avatar(procedural_avatar_body(), subject_betas(), config);
-  AvatarPose pose = test_pose(9, 0.3, false);
+  body::SmplxPose pose = test_pose(9, 0.3, false);
   pose.expression = at::tensor({0.5, -0.4, 0.3}, at::kFloat);
-  const AvatarOutput short_expression = avatar->forward(pose);
+  const AvatarOutput short_expression = avatar->forward(pose, kTestTime);
   pose.expression = at::tensor({0.5, -0.4, 0.3, 0.0, 0.0, 0.0, 0.9, 0.9}, at::kFloat);  // 6 used
-  const AvatarOutput long_expression = avatar->forward(pose);
+  const AvatarOutput long_expression = avatar->forward(pose, kTestTime);
   EXPECT_LT(max_abs_difference(long_expression.means, short_expression.means), 1e-6);
   EXPECT_LT(max_abs_difference(long_expression.colours, short_expression.colours), 1e-6);
   pose.expression = at::Tensor();
-  EXPECT_GT(max_abs_difference(avatar->forward(pose).means, short_expression.means), 1e-4);
+  EXPECT_GT(max_abs_difference(avatar->forward(pose, kTestTime).means, short_expression.means), 1e-4);
 }
 
 // The MLPs' GroupNorm (written out for speed, a formulation per device) is torch.nn.GroupNorm, gradients included.
@@ -312,26 +334,25 @@ TEST(Avatar, MlpGroupNormIsGroupNorm) {
 
 TEST(Avatar, RejectsBadInputsWithClearMessages) {
   Avatar avatar(procedural_avatar_body(), subject_betas(), small_config());
-  AvatarPose pose = test_pose(10, 0.3, true);
-  pose.time = 1.5;
-  expect_error([&] { avatar->forward(pose); }, {"time", "[-1, 1]", "1.5"});
+  body::SmplxPose pose = test_pose(10, 0.3, true);
+  expect_error([&] { avatar->forward(pose, 1.5); }, {"time", "[-1, 1]", "1.5"});
   pose = test_pose(10, 0.3, true);
   pose.body_pose = at::zeros({20, 3});
-  expect_error([&] { avatar->forward(pose); }, {"body_pose", "(21, 3)", "[20, 3]"});
+  expect_error([&] { avatar->forward(pose, kTestTime); }, {"body_pose", "(21, 3)", "[20, 3]"});
   pose = test_pose(10, 0.3, true);
   pose.transl = at::zeros({4});
-  expect_error([&] { avatar->forward(pose); }, {"transl", "3"});
+  expect_error([&] { avatar->forward(pose, kTestTime); }, {"transl", "3"});
   // Non-finite values used to render an all-white image (every Gaussian culled) without a word.
   pose = test_pose(10, 0.3, true);
   pose.body_pose = at::full({21, 3}, std::nan(""));
-  expect_error([&] { avatar->forward(pose); }, {"body_pose must be finite", "nan at index 0", "63 of 63"});
+  expect_error([&] { avatar->forward(pose, kTestTime); }, {"body_pose must be finite", "nan at index 0", "63 of 63"});
   pose = test_pose(10, 0.3, true);
   pose.body_pose = pose.body_pose.clone();
   pose.body_pose[4][1] = std::nan("");
-  expect_error([&] { avatar->forward(pose); }, {"body_pose must be finite", "at index 13", "(1 of 63"});
+  expect_error([&] { avatar->forward(pose, kTestTime); }, {"body_pose must be finite", "at index 13", "(1 of 63"});
   pose = test_pose(10, 0.3, true);
   pose.transl = at::tensor({0.0, std::numeric_limits<double>::infinity(), 0.0});
-  expect_error([&] { avatar->forward(pose); }, {"transl must be finite", "inf at index 1"});
+  expect_error([&] { avatar->forward(pose, kTestTime); }, {"transl must be finite", "inf at index 1"});
   expect_error([&] { Avatar(procedural_avatar_body(), at::zeros({2, 2, 2}), small_config()); }, {"betas", "[2, 2, 2]"});
   AvatarConfig config = small_config();
   config.hidden_width = 18;

@@ -21,7 +21,6 @@ using model::Avatar;
 using model::AvatarBody;
 using model::AvatarConfig;
 using model::AvatarOutput;
-using model::AvatarPose;
 
 constexpr double kBump = 0.003;  // metres
 
@@ -54,17 +53,17 @@ TEST(AvatarHands, ResidualIsMANOMinusSMPLXInTheCanonicalFrame) {
   expected.select(1, 1).index_fill_(0, bumped, kBump);
 
   // Rest pose: the residual is the bump, and the Gaussians sit on the bumped hand.
-  AvatarPose rest;
+  body::SmplxPose rest;
   rest.left_hand_pose = at::zeros({15, 3});
   rest.right_hand_pose = at::zeros({15, 3});
-  const AvatarOutput at_rest = avatar->forward(rest);
+  const AvatarOutput at_rest = avatar->forward(rest, kTestTime);
   EXPECT_LT(max_abs_difference(at_rest.hand_residual, expected), 1e-6);
   EXPECT_LT(max_abs_difference(at_rest.means - at_rest.posed_vertices, expected), 1e-6);
 
   // Posed: the canonical residual is unchanged (the procedural hands have no pose correctives) and the skinning
   // carries it rigidly with the fingertips.
-  const AvatarPose posed = test_pose(31, 0.5, /*hands=*/true);
-  const AvatarOutput out = avatar->forward(posed);
+  const body::SmplxPose posed = test_pose(31, 0.5, /*hands=*/true);
+  const AvatarOutput out = avatar->forward(posed, kTestTime);
   EXPECT_LT(max_abs_difference(out.hand_residual, expected), 1e-6);
   const at::Tensor moved = (out.means - out.posed_vertices).index_select(0, bumped);
   const at::Tensor length = moved.pow(2).sum(1).sqrt();  // blending two finger joints may shorten it a little
@@ -78,7 +77,7 @@ TEST(AvatarHands, ResidualIgnoresWhereTheMANOModelSits) {
   for (body::ManoModelData* mano : {&shifted.mano_left, &shifted.mano_right})
     mano->v_template = mano->v_template + at::tensor({0.05, -0.3, 0.2}, at::kDouble);
   Avatar avatar(shifted, subject_betas(), small_config());
-  EXPECT_LT(avatar->forward(test_pose(32, 0.5, true)).hand_residual.abs().max().item<double>(), 1e-5);
+  EXPECT_LT(avatar->forward(test_pose(32, 0.5, true), kTestTime).hand_residual.abs().max().item<double>(), 1e-5);
 }
 
 TEST(AvatarHands, LeftShapedirsAreRepaired) {
@@ -92,8 +91,8 @@ TEST(AvatarHands, LeftShapedirsAreRepaired) {
   randomise_parameters(*good, 0.1, 33);
   Avatar repaired(broken, subject_betas(), small_config());
   copy_parameters(*good, *repaired);
-  const AvatarPose pose = test_pose(33, 0.5, true);
-  EXPECT_LT(max_abs_difference(good->forward(pose).hand_residual, repaired->forward(pose).hand_residual), 1e-6);
+  const body::SmplxPose pose = test_pose(33, 0.5, true);
+  EXPECT_LT(max_abs_difference(good->forward(pose, kTestTime).hand_residual, repaired->forward(pose, kTestTime).hand_residual), 1e-6);
 }
 
 TEST(AvatarHands, LoadsTheOfficialFileLayouts) {
@@ -112,8 +111,8 @@ TEST(AvatarHands, LoadsTheOfficialFileLayouts) {
   randomise_parameters(*built, 0.1, 34);
   Avatar from_files(loaded, subject_betas(), small_config());
   copy_parameters(*built, *from_files);
-  const AvatarPose pose = test_pose(34, 0.5, true);
-  const AvatarOutput a = built->forward(pose), b = from_files->forward(pose);
+  const body::SmplxPose pose = test_pose(34, 0.5, true);
+  const AvatarOutput a = built->forward(pose, kTestTime), b = from_files->forward(pose, kTestTime);
   EXPECT_LT(max_abs_difference(a.means, b.means), 1e-6);
   EXPECT_LT(max_abs_difference(a.colours, b.colours), 1e-6);
 
@@ -127,7 +126,7 @@ TEST(AvatarHands, AnnyStandInsGiveASmallHandResidual) {
       AvatarBody::load(dir + "/anny_smplx_layout.npz", dir + "/anny_mano_left.npz", dir + "/anny_mano_right.npz",
                        dir + "/MANO_SMPLX_vertex_ids.npz", dir + "/FLAME_SMPLX_vertex_ids.npy");
   Avatar avatar(anny, subject_betas(), small_config());
-  const AvatarOutput out = avatar->forward(test_pose(35, 0.5, true));
+  const AvatarOutput out = avatar->forward(test_pose(35, 0.5, true), kTestTime);
   EXPECT_TRUE(at::isfinite(out.means).all().item<bool>());
   // MANO's shape space fitted to the subject's hand leaves millimetres; the residual stays on the hands.
   const double residual = out.hand_residual.abs().max().item<double>();

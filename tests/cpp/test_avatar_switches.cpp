@@ -16,7 +16,6 @@ namespace {
 using model::Avatar;
 using model::AvatarConfig;
 using model::AvatarOutput;
-using model::AvatarPose;
 
 constexpr double kTolerance = 1e-6;
 
@@ -49,14 +48,14 @@ TEST(AvatarSwitches, WithoutHexplaneNothingDependsOnTime) {
   Pair p = full_and_ablated([](AvatarConfig& c) { c.use_hexplane = false; });
   EXPECT_FALSE(has_parameter_containing(p.ablated, "hexplane"));
   EXPECT_FALSE(has_parameter_containing(p.ablated, "gate"));
-  const AvatarOutput early = p.ablated->forward(test_pose(1, 0.4, true, -0.6));
-  const AvatarOutput late = p.ablated->forward(test_pose(1, 0.4, true, 0.8));
+  const AvatarOutput early = p.ablated->forward(test_pose(1, 0.4, true), -0.6);
+  const AvatarOutput late = p.ablated->forward(test_pose(1, 0.4, true), 0.8);
   EXPECT_TRUE(early.means.equal(late.means));
   EXPECT_TRUE(early.covariances.equal(late.covariances));
   EXPECT_TRUE(early.colours.equal(late.colours));
   // With it, the canonical attributes move with time.
-  const AvatarOutput full_early = p.full->forward(test_pose(1, 0.4, true, -0.6));
-  const AvatarOutput full_late = p.full->forward(test_pose(1, 0.4, true, 0.8));
+  const AvatarOutput full_early = p.full->forward(test_pose(1, 0.4, true), -0.6);
+  const AvatarOutput full_late = p.full->forward(test_pose(1, 0.4, true), 0.8);
   EXPECT_GT(max_abs_difference(full_early.mean_offset, full_late.mean_offset), 1e-4);
   EXPECT_GT(max_abs_difference(full_early.colours, full_late.colours), 1e-4);
 }
@@ -64,10 +63,11 @@ TEST(AvatarSwitches, WithoutHexplaneNothingDependsOnTime) {
 TEST(AvatarSwitches, WithoutStructureOffsetOnlyItsOffsetsGo) {
   Pair p = full_and_ablated([](AvatarConfig& c) { c.use_structure_offset = false; });
   EXPECT_FALSE(has_parameter_containing(p.ablated, "structure"));
-  const AvatarPose pose = test_pose(2, 0.4, true);
-  const AvatarOutput full = p.full->forward(pose), ablated = p.ablated->forward(pose);
-  EXPECT_EQ(ablated.structure_offset.abs().max().item<double>(), 0.0);
-  EXPECT_EQ(ablated.scale_offset.abs().max().item<double>(), 0.0);
+  const body::SmplxPose pose = test_pose(2, 0.4, true);
+  const AvatarOutput full = p.full->forward(pose, kTestTime), ablated = p.ablated->forward(pose, kTestTime);
+  // A switched-off module costs nothing: its outputs are not even allocated.
+  EXPECT_FALSE(ablated.structure_offset.defined());
+  EXPECT_FALSE(ablated.scale_offset.defined());
   EXPECT_GT(full.structure_offset.abs().max().item<double>(), 1e-4);
   EXPECT_LT(max_abs_difference(full.mean_offset, ablated.mean_offset), kTolerance);
   EXPECT_LT(max_abs_difference(full.colours, ablated.colours), kTolerance);
@@ -75,19 +75,19 @@ TEST(AvatarSwitches, WithoutStructureOffsetOnlyItsOffsetsGo) {
   EXPECT_LT(max_abs_difference(full.canonical_means - ablated.canonical_means, full.structure_offset), kTolerance);
   EXPECT_LT(max_abs_difference(full.log_scales - ablated.log_scales, full.scale_offset), kTolerance);
   // The structure offset is what follows the pose; the canonical head's offset does not.
-  const AvatarOutput other = p.full->forward(test_pose(3, 0.4, true));
+  const AvatarOutput other = p.full->forward(test_pose(3, 0.4, true), kTestTime);
   EXPECT_GT(max_abs_difference(full.structure_offset, other.structure_offset), 1e-4);
   EXPECT_TRUE(full.mean_offset.equal(other.mean_offset));
 }
 
 TEST(AvatarSwitches, WithoutColourOffsetColoursDoNotDependOnPose) {
-  Pair p = full_and_ablated([](AvatarConfig& c) { c.use_color_offset = false; });
+  Pair p = full_and_ablated([](AvatarConfig& c) { c.use_colour_offset = false; });
   EXPECT_FALSE(has_parameter_containing(p.ablated, "colour_offset"));
-  const AvatarPose a = test_pose(4, 0.4, true), b = test_pose(5, 0.4, true);
-  const AvatarOutput ablated_a = p.ablated->forward(a), ablated_b = p.ablated->forward(b);
+  const body::SmplxPose a = test_pose(4, 0.4, true), b = test_pose(5, 0.4, true);
+  const AvatarOutput ablated_a = p.ablated->forward(a, kTestTime), ablated_b = p.ablated->forward(b, kTestTime);
   EXPECT_TRUE(ablated_a.colours.equal(ablated_b.colours));
-  EXPECT_EQ(ablated_a.colour_offset.abs().max().item<double>(), 0.0);
-  const AvatarOutput full_a = p.full->forward(a), full_b = p.full->forward(b);
+  EXPECT_FALSE(ablated_a.colour_offset.defined());
+  const AvatarOutput full_a = p.full->forward(a, kTestTime), full_b = p.full->forward(b, kTestTime);
   EXPECT_GT(max_abs_difference(full_a.colours, full_b.colours), 1e-4);
   EXPECT_LT(max_abs_difference(full_a.means, ablated_a.means), kTolerance);
   EXPECT_LT(max_abs_difference(full_a.covariances, ablated_a.covariances), kTolerance);
@@ -96,9 +96,9 @@ TEST(AvatarSwitches, WithoutColourOffsetColoursDoNotDependOnPose) {
 TEST(AvatarSwitches, WithoutHandResidualOnlyHandPointsChange) {
   Pair p = full_and_ablated([](AvatarConfig& c) { c.use_hand_residual = false; });
   EXPECT_FALSE(has_parameter_containing(p.ablated, "hand_residual"));
-  const AvatarPose pose = test_pose(6, 0.4, true);
-  const AvatarOutput full = p.full->forward(pose), ablated = p.ablated->forward(pose);
-  EXPECT_EQ(ablated.hand_residual.abs().max().item<double>(), 0.0);
+  const body::SmplxPose pose = test_pose(6, 0.4, true);
+  const AvatarOutput full = p.full->forward(pose, kTestTime), ablated = p.ablated->forward(pose, kTestTime);
+  EXPECT_FALSE(ablated.hand_residual.defined());
   EXPECT_LT(max_abs_difference(full.canonical_means - ablated.canonical_means, full.hand_residual), kTolerance);
   // Without subdivision the residual lives on the MANO-corresponding vertices only.
   const auto& ids = procedural_avatar_body().hand_vertex_ids;
@@ -113,13 +113,13 @@ TEST(AvatarSwitches, WithoutHandResidualOnlyHandPointsChange) {
 
 TEST(AvatarSwitches, HandResidualIsSkippedForHandsWithoutPoses) {
   Pair p = full_and_ablated([](AvatarConfig& c) { c.use_hand_residual = false; });
-  AvatarPose pose = test_pose(7, 0.4, /*hands=*/false);
-  const AvatarOutput no_hands = p.full->forward(pose);
-  EXPECT_EQ(no_hands.hand_residual.abs().max().item<double>(), 0.0);
-  EXPECT_LT(max_abs_difference(no_hands.means, p.ablated->forward(pose).means), kTolerance);
+  body::SmplxPose pose = test_pose(7, 0.4, /*hands=*/false);
+  const AvatarOutput no_hands = p.full->forward(pose, kTestTime);
+  EXPECT_FALSE(no_hands.hand_residual.defined());
+  EXPECT_LT(max_abs_difference(no_hands.means, p.ablated->forward(pose, kTestTime).means), kTolerance);
   // Only the left hand posed: only the left hand gets a residual.
   pose.left_hand_pose = test_pose(8, 0.4, true).left_hand_pose;
-  const AvatarOutput left_only = p.full->forward(pose);
+  const AvatarOutput left_only = p.full->forward(pose, kTestTime);
   const auto& ids = procedural_avatar_body().hand_vertex_ids;
   EXPECT_GT(left_only.hand_residual.index_select(0, ids.left).abs().max().item<double>(), 1e-4);
   EXPECT_EQ(left_only.hand_residual.index_select(0, ids.right).abs().max().item<double>(), 0.0);
@@ -130,8 +130,8 @@ TEST(AvatarSwitches, WithoutFacePlanesOnlyFacePointsChange) {
   EXPECT_FALSE(has_parameter_containing(p.ablated, "face"));
   EXPECT_TRUE(has_parameter_containing(p.full, "face_triplane"));
   EXPECT_TRUE(has_parameter_containing(p.full, "face_hexplane"));
-  const AvatarPose pose = test_pose(9, 0.4, true);
-  const AvatarOutput full = p.full->forward(pose), ablated = p.ablated->forward(pose);
+  const body::SmplxPose pose = test_pose(9, 0.4, true);
+  const AvatarOutput full = p.full->forward(pose, kTestTime), ablated = p.ablated->forward(pose, kTestTime);
   const at::Tensor face = p.full->part_labels().eq(static_cast<int64_t>(body::BodyPart::kFace));
   const at::Tensor elsewhere = face.logical_not();
   for (const auto& [name, a, b] : {std::tuple{"means", full.means, ablated.means},

@@ -42,24 +42,23 @@ model::AvatarConfig small_config() {
   return c;
 }
 
-model::AvatarPose test_pose(int64_t seed, double angle, bool hands, double time) {
+body::SmplxPose test_pose(int64_t seed, double angle, bool hands) {
   at::Generator generator = at::detail::createCPUGenerator(static_cast<uint64_t>(seed));
   const auto uniform = [&](at::IntArrayRef shape, double bound) {
     return at::empty(shape, at::kFloat).uniform_(-bound, bound, generator);
   };
-  model::AvatarPose p;
+  body::SmplxPose p;
   p.global_orient = uniform({3}, angle);
   p.body_pose = uniform({body::kSmplxBodyJointCount, 3}, angle);
   p.jaw_pose = uniform({3}, angle);
-  p.left_eye_pose = uniform({3}, angle);
-  p.right_eye_pose = uniform({3}, angle);
+  p.leye_pose = uniform({3}, angle);
+  p.reye_pose = uniform({3}, angle);
   if (hands) {
     p.left_hand_pose = uniform({body::kHandJointCount, 3}, angle);
     p.right_hand_pose = uniform({body::kHandJointCount, 3}, angle);
   }
   p.expression = uniform({10}, 1.0);
   p.transl = uniform({3}, 0.5);
-  p.time = time;
   return p;
 }
 

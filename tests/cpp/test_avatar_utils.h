@@ -6,6 +6,7 @@
 
 #include <ATen/core/Tensor.h>
 
+#include "body/smplx_pose.h"
 #include "model/avatar.h"
 
 namespace sfgs::testing {
@@ -18,9 +19,12 @@ at::Tensor subject_betas();
 // A config small enough for tests: no subdivision, 4-channel 16^2 planes, 16-wide MLPs.
 model::AvatarConfig small_config();
 
+// The normalised time the avatar tests render at unless a test is about time.
+inline constexpr double kTestTime = 0.25;
+
 // A deterministic pose: every joint rotated by up to `angle` radians, an expression, a translation; hand poses
 // only when `hands`.
-model::AvatarPose test_pose(int64_t seed, double angle, bool hands, double time = 0.25);
+body::SmplxPose test_pose(int64_t seed, double angle, bool hands);
 
 // Every parameter replaced by N(0, std^2) noise from a generator seeded with `seed`.
 void randomise_parameters(model::AvatarImpl& avatar, double std, int64_t seed);

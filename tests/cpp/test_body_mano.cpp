@@ -42,9 +42,9 @@ void expect_mano_matches_the_body(const body::SmplxModelData& smplx, const ManoM
   so.flat_hand_mean = true;
   so.dtype = at::kDouble;
   body::SmplxInput in;
-  (side == Side::kLeft ? in.left_hand_pose : in.right_hand_pose) = pose;
-  in.body_pose = at::zeros({1, 63}, at::kDouble);
-  in.body_pose.narrow(1, 3 * (body::smplx_hand_joint(side, 0) - 1), 3).copy_(wrist);
+  (side == Side::kLeft ? in.pose.left_hand_pose : in.pose.right_hand_pose) = pose;
+  in.pose.body_pose = at::zeros({1, 63}, at::kDouble);
+  in.pose.body_pose.narrow(1, 3 * (body::smplx_hand_joint(side, 0) - 1), 3).copy_(wrist);
   const at::Tensor body_vertices = body::Smplx(smplx, so)->forward(in).vertices[0].index_select(0, ids);
   ManoInput mi;
   mi.hand_pose = pose;

@@ -120,7 +120,7 @@ TEST(BodyMesh, NeighboursAndTheUniformLaplacian) {
       for (int64_t k : {id(i, j), id(i + 1, j + 1), id(i, j + 1)}) f.push_back(k);
     }
   const at::Tensor faces = at::tensor(f, at::kLong).view({-1, 3});
-  const body::VertexNeighbors all = body::vertex_neighbors(faces, 36);
+  const body::VertexNeighbours all = body::vertex_neighbours(faces, 36);
   EXPECT_EQ(all.indices.size(1), 6);
   EXPECT_EQ(all.counts[id(2, 2)].item<int64_t>(), 6);
   EXPECT_EQ(all.counts[id(0, 5)].item<int64_t>(), 2);
@@ -137,7 +137,7 @@ TEST(BodyMesh, NeighboursAndTheUniformLaplacian) {
   EXPECT_LT(lap.select(2, 3).abs().max().item<double>(), 1e-15);  // constants everywhere
   EXPECT_GT(lap[0][id(0, 5)].abs().max().item<double>(), 1e-3);   // a corner is not the mean of its neighbours
   // Capped neighbourhoods keep the lowest-indexed neighbours.
-  const body::VertexNeighbors capped = body::vertex_neighbors(faces, 36, 4);
+  const body::VertexNeighbours capped = body::vertex_neighbours(faces, 36, 4);
   EXPECT_EQ(capped.indices.size(1), 4);
   EXPECT_TRUE(capped.indices[id(2, 2)].equal(all.indices[id(2, 2)].narrow(0, 0, 4)));
   EXPECT_EQ(capped.counts[id(2, 2)].item<int64_t>(), 4);

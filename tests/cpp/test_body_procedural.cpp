@@ -150,15 +150,15 @@ TEST(BodyProcedural, MirroredPosesGiveMirroredBodies) {
   at::manual_seed(17);
   SmplxInput in;
   in.betas = at::randn({1, 10}, at::kDouble);
-  in.expression = at::randn({1, 10}, at::kDouble);
-  in.transl = at::randn({1, 3}, at::kDouble);
-  in.global_orient = 0.4 * at::randn({1, 3}, at::kDouble);
-  in.body_pose = 0.4 * at::randn({1, 63}, at::kDouble);
-  in.jaw_pose = 0.2 * at::randn({1, 3}, at::kDouble);
-  in.leye_pose = 0.2 * at::randn({1, 3}, at::kDouble);
-  in.reye_pose = 0.2 * at::randn({1, 3}, at::kDouble);
-  in.left_hand_pose = 0.4 * at::randn({1, 45}, at::kDouble);
-  in.right_hand_pose = 0.4 * at::randn({1, 45}, at::kDouble);
+  in.pose.expression = at::randn({1, 10}, at::kDouble);
+  in.pose.transl = at::randn({1, 3}, at::kDouble);
+  in.pose.global_orient = 0.4 * at::randn({1, 3}, at::kDouble);
+  in.pose.body_pose = 0.4 * at::randn({1, 63}, at::kDouble);
+  in.pose.jaw_pose = 0.2 * at::randn({1, 3}, at::kDouble);
+  in.pose.leye_pose = 0.2 * at::randn({1, 3}, at::kDouble);
+  in.pose.reye_pose = 0.2 * at::randn({1, 3}, at::kDouble);
+  in.pose.left_hand_pose = 0.4 * at::randn({1, 45}, at::kDouble);
+  in.pose.right_hand_pose = 0.4 * at::randn({1, 45}, at::kDouble);
   const auto out = model->forward(in);
   // Mirror every joint's rotation (x, -y, -z), swap the sides, mirror the expression and the translation.
   const at::Tensor pose =
@@ -167,23 +167,23 @@ TEST(BodyProcedural, MirroredPosesGiveMirroredBodies) {
       {at::zeros({25, 3}, at::kDouble), b.smplx.hands_mean_left.view({15, 3}), b.smplx.hands_mean_right.view({15, 3})});
   SmplxInput mirrored;
   mirrored.betas = in.betas;
-  mirrored.expression = in.expression.index_select(1, at::tensor(b.mirrored_expressions));
-  mirrored.transl = mirror_x(in.transl);
-  mirrored.global_orient = pose.select(1, 0);
-  mirrored.body_pose = pose.narrow(1, 1, 21).flatten(1);
-  mirrored.jaw_pose = pose.select(1, 22);
-  mirrored.leye_pose = pose.select(1, 23);
-  mirrored.reye_pose = pose.select(1, 24);
-  mirrored.left_hand_pose = (pose - mean).narrow(1, 25, 15).flatten(1);
-  mirrored.right_hand_pose = (pose - mean).narrow(1, 40, 15).flatten(1);
+  mirrored.pose.expression = in.pose.expression.index_select(1, at::tensor(b.mirrored_expressions));
+  mirrored.pose.transl = mirror_x(in.pose.transl);
+  mirrored.pose.global_orient = pose.select(1, 0);
+  mirrored.pose.body_pose = pose.narrow(1, 1, 21).flatten(1);
+  mirrored.pose.jaw_pose = pose.select(1, 22);
+  mirrored.pose.leye_pose = pose.select(1, 23);
+  mirrored.pose.reye_pose = pose.select(1, 24);
+  mirrored.pose.left_hand_pose = (pose - mean).narrow(1, 25, 15).flatten(1);
+  mirrored.pose.right_hand_pose = (pose - mean).narrow(1, 40, 15).flatten(1);
   const auto back = model->forward(mirrored);
   EXPECT_LT(max_error(back.vertices[0].index_select(0, b.mirrored_vertices), mirror_x(out.vertices[0])), 1e-10);
   EXPECT_LT(max_error(back.joints[0].index_select(0, mirrored_joints()), mirror_x(out.joints[0])), 1e-10);
   // With PCA, the same coefficients give mirror-image hands.
   const Smplx pca(b.smplx, options(true));
   SmplxInput hands;
-  hands.left_hand_pose = at::randn({1, 6}, at::kDouble);
-  hands.right_hand_pose = hands.left_hand_pose;
+  hands.pose.left_hand_pose = at::randn({1, 6}, at::kDouble);
+  hands.pose.right_hand_pose = hands.pose.left_hand_pose;
   const at::Tensor v = pca->forward(hands).vertices[0];
   EXPECT_LT(max_error(v.index_select(0, b.mirrored_vertices), mirror_x(v)), 1e-10);
 }
@@ -205,8 +205,8 @@ TEST(BodyProcedural, TheJawOpensTheMouthAndTheEyesTurnInPlace) {
   const auto& d = procedural_body().smplx;
   const Smplx model(d, options(true));
   SmplxInput open;
-  open.jaw_pose = at::tensor({0.3, 0.0, 0.0}, at::kDouble).view({1, 3});
-  open.leye_pose = at::tensor({0.0, 0.8, 0.0}, at::kDouble).view({1, 3});
+  open.pose.jaw_pose = at::tensor({0.3, 0.0, 0.0}, at::kDouble).view({1, 3});
+  open.pose.leye_pose = at::tensor({0.0, 0.8, 0.0}, at::kDouble).view({1, 3});
   body::SmplxOptions flat = options(true);
   flat.flat_hand_mean = true;
   const at::Tensor v = Smplx(d, flat)->forward(open).vertices[0];
@@ -290,7 +290,7 @@ TEST(BodyProcedural, WrittenFilesLoadIntoTheSameModels) {
   const Smplx from_file(folder.file("procedural_smplx.npz"), options(true));
   const Smplx in_memory(b.smplx, options(true));
   SmplxInput in;
-  in.body_pose = 0.3 * at::randn({1, 63}, at::kDouble);
+  in.pose.body_pose = 0.3 * at::randn({1, 63}, at::kDouble);
   EXPECT_TRUE(from_file->forward(in).vertices.equal(in_memory->forward(in).vertices));
   const body::ManoModelData left = body::ManoModelData::load(folder.file("procedural_mano_left.npz"));
   EXPECT_TRUE(left.shapedirs.equal(b.mano_left.shapedirs));

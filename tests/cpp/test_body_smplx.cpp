@@ -68,15 +68,15 @@ SmplxInput random_input(int64_t batch, int64_t betas, int64_t expression, int64_
   const auto r = [&](std::vector<int64_t> shape) { return scale * at::randn(shape, at::kDouble); };
   SmplxInput in;
   in.betas = r({batch, betas});
-  in.global_orient = r({batch, 3});
-  in.body_pose = r({batch, 63});
-  in.jaw_pose = r({batch, 3});
-  in.leye_pose = r({batch, 3});
-  in.reye_pose = r({batch, 3});
-  in.left_hand_pose = r({batch, hand_size});
-  in.right_hand_pose = r({batch, hand_size});
-  in.expression = r({batch, expression});
-  in.transl = r({batch, 3});
+  in.pose.global_orient = r({batch, 3});
+  in.pose.body_pose = r({batch, 63});
+  in.pose.jaw_pose = r({batch, 3});
+  in.pose.leye_pose = r({batch, 3});
+  in.pose.reye_pose = r({batch, 3});
+  in.pose.left_hand_pose = r({batch, hand_size});
+  in.pose.right_hand_pose = r({batch, hand_size});
+  in.pose.expression = r({batch, expression});
+  in.pose.transl = r({batch, 3});
   return in;
 }
 
@@ -117,17 +117,17 @@ TEST(BodySmplx, JointsAreTheRegressorAppliedToTheShapedMesh) {
     SmplxInput in = random_input(3, 10, e, 45, 0.3, 11);
     const auto out = model->forward(in);
     const at::Tensor shaped = d.v_template + at::einsum("vck,bk->bvc", {d.shapedirs.narrow(2, 0, 10), in.betas}) +
-                              at::einsum("vck,bk->bvc", {d.exprdirs.narrow(2, 0, e), in.expression});
+                              at::einsum("vck,bk->bvc", {d.exprdirs.narrow(2, 0, e), in.pose.expression});
     EXPECT_LT(max_error(out.rest_joints, at::einsum("jv,bvc->bjc", {d.j_regressor, shaped})), 1e-12);
     if (!d.posedirs.defined()) EXPECT_LT(max_error(out.rest_vertices, shaped), 1e-12);
     // Unposed, the output joints are the regressor on the output mesh, moved by the translation.
     SmplxInput rest;
     rest.betas = in.betas;
-    rest.expression = in.expression;
-    rest.transl = in.transl;
+    rest.pose.expression = in.pose.expression;
+    rest.pose.transl = in.pose.transl;
     const auto still = model->forward(rest);
     EXPECT_LT(max_error(still.joints, at::einsum("jv,bvc->bjc", {d.j_regressor, still.vertices})), 1e-12);
-    EXPECT_LT(max_error(still.vertices - in.transl.unsqueeze(1), shaped), 1e-12);
+    EXPECT_LT(max_error(still.vertices - in.pose.transl.unsqueeze(1), shaped), 1e-12);
   }
 }
 
@@ -138,7 +138,7 @@ TEST(BodySmplx, PoseCorrectivesAreTheFeatureTimesPosedirs) {
   const auto out = model->forward(in);
   const at::Tensor feature = (out.rotations.narrow(1, 1, 54) - at::eye(3, at::kDouble)).flatten(1);
   const at::Tensor shaped = d.v_template + at::einsum("vck,bk->bvc", {d.shapedirs, in.betas}) +
-                            at::einsum("vck,bk->bvc", {d.exprdirs, in.expression});
+                            at::einsum("vck,bk->bvc", {d.exprdirs, in.pose.expression});
   EXPECT_LT(max_error(out.rest_vertices, shaped + at::einsum("vcp,bp->bvc", {d.posedirs, feature})), 1e-12);
   // And the posed vertices are the blended transforms applied to that rest mesh.
   const at::Tensor blended = at::einsum("vj,bjrc->bvrc", {d.weights, out.skinning_transforms});
@@ -173,13 +173,13 @@ void expect_subtree_moves_rigidly(const SmplxModelData& d, int64_t j, const at::
   SmplxInput posed = rest;
   at::Tensor full = at::zeros({1, 55, 3}, at::kDouble);
   full[0][j] = rotation;
-  posed.global_orient = full.select(1, 0);
-  posed.body_pose = full.narrow(1, 1, 21).flatten(1);
-  posed.jaw_pose = full.select(1, 22);
-  posed.leye_pose = full.select(1, 23);
-  posed.reye_pose = full.select(1, 24);
-  posed.left_hand_pose = full.narrow(1, 25, 15).flatten(1);
-  posed.right_hand_pose = full.narrow(1, 40, 15).flatten(1);
+  posed.pose.global_orient = full.select(1, 0);
+  posed.pose.body_pose = full.narrow(1, 1, 21).flatten(1);
+  posed.pose.jaw_pose = full.select(1, 22);
+  posed.pose.leye_pose = full.select(1, 23);
+  posed.pose.reye_pose = full.select(1, 24);
+  posed.pose.left_hand_pose = full.narrow(1, 25, 15).flatten(1);
+  posed.pose.right_hand_pose = full.narrow(1, 40, 15).flatten(1);
   const auto a = model->forward(rest), b = model->forward(posed);
   const at::Tensor r = body::axis_angle_to_matrix(rotation);
   const at::Tensor centre = a.joints[0][j];
@@ -222,11 +222,11 @@ TEST(BodySmplx, HandPcaIsTheComponentsTimesTheCoefficientsPlusTheMean) {
   const Smplx full(d, double_options(10, 8, false, false));
   const SmplxInput in = random_input(2, 10, 8, 6, 0.5, 21);
   SmplxInput as_full = in;
-  as_full.left_hand_pose = in.left_hand_pose.matmul(d.hands_components_left.narrow(0, 0, 6));
-  as_full.right_hand_pose = in.right_hand_pose.matmul(d.hands_components_right.narrow(0, 0, 6));
+  as_full.pose.left_hand_pose = in.pose.left_hand_pose.matmul(d.hands_components_left.narrow(0, 0, 6));
+  as_full.pose.right_hand_pose = in.pose.right_hand_pose.matmul(d.hands_components_right.narrow(0, 0, 6));
   const auto a = pca->forward(in), b = full->forward(as_full);
   EXPECT_LT(max_error(a.vertices, b.vertices), 1e-12);
-  EXPECT_LT(max_error(a.full_pose.narrow(1, 25, 15).flatten(1), as_full.left_hand_pose + d.hands_mean_left), 1e-14);
+  EXPECT_LT(max_error(a.full_pose.narrow(1, 25, 15).flatten(1), as_full.pose.left_hand_pose + d.hands_mean_left), 1e-14);
 }
 
 TEST(BodySmplx, AnnyHandPcaWithIdentityComponentsEqualsTheFullPose) {
@@ -240,8 +240,8 @@ TEST(BodySmplx, AnnyHandPcaWithIdentityComponentsEqualsTheFullPose) {
   // Six components: the first six axis-angle values of each hand.
   const Smplx six(anny_smplx(), double_options(10, 10, true, false));
   SmplxInput few = random_input(2, 10, 10, 6, 0.4, 23), padded = few;
-  padded.left_hand_pose = at::cat({few.left_hand_pose, at::zeros({2, 39}, at::kDouble)}, 1);
-  padded.right_hand_pose = at::cat({few.right_hand_pose, at::zeros({2, 39}, at::kDouble)}, 1);
+  padded.pose.left_hand_pose = at::cat({few.pose.left_hand_pose, at::zeros({2, 39}, at::kDouble)}, 1);
+  padded.pose.right_hand_pose = at::cat({few.pose.right_hand_pose, at::zeros({2, 39}, at::kDouble)}, 1);
   EXPECT_LT(max_error(six->forward(few).vertices, full->forward(padded).vertices), 1e-12);
 }
 
@@ -252,14 +252,14 @@ TEST(BodySmplx, RotationMatricesCanReplaceTheAxisAngles) {
   const auto a = model->forward(in);
   SmplxInput by_matrix;
   by_matrix.betas = in.betas;
-  by_matrix.expression = in.expression;
-  by_matrix.transl = in.transl;
+  by_matrix.pose.expression = in.pose.expression;
+  by_matrix.pose.transl = in.pose.transl;
   by_matrix.rotations = body::rotation_6d_to_matrix(body::matrix_to_rotation_6d(a.rotations));
   const auto b = model->forward(by_matrix);
   EXPECT_LT(max_error(a.vertices, b.vertices), 1e-12);
   EXPECT_FALSE(b.full_pose.defined());
   SmplxInput both = by_matrix;
-  both.jaw_pose = in.jaw_pose;
+  both.pose.jaw_pose = in.pose.jaw_pose;
   expect_error([&] { model->forward(both); }, {"either rotations or axis-angle poses", "jaw_pose"});
 }
 
@@ -286,12 +286,12 @@ TEST(BodySmplx, ConvertingAModuleLeavesTheModelDataAndOtherModulesAlone) {
   SmplxInput in = random_input(2, 10, 10, 6, 0.3, 45), as_float;
   for (const auto& [source, target] :
        std::vector<std::pair<const at::Tensor*, at::Tensor*>>{{&in.betas, &as_float.betas},
-                                                              {&in.body_pose, &as_float.body_pose},
-                                                              {&in.left_hand_pose, &as_float.left_hand_pose},
-                                                              {&in.expression, &as_float.expression}}) {
+                                                              {&in.pose.body_pose, &as_float.pose.body_pose},
+                                                              {&in.pose.left_hand_pose, &as_float.pose.left_hand_pose},
+                                                              {&in.pose.expression, &as_float.pose.expression}}) {
     *target = source->to(at::kFloat);
   }
-  in.global_orient = in.jaw_pose = in.leye_pose = in.reye_pose = in.right_hand_pose = in.transl = at::Tensor();
+  in.pose.global_orient = in.pose.jaw_pose = in.pose.leye_pose = in.pose.reye_pose = in.pose.right_hand_pose = in.pose.transl = at::Tensor();
   EXPECT_LT(max_error(converted->forward(as_float).vertices.to(at::kDouble), untouched->forward(in).vertices), 1e-5);
 }
 
@@ -303,15 +303,15 @@ TEST(BodySmplx, BatchesAreIndependent) {
     SmplxInput one;
     for (const auto& [source, target] :
          std::vector<std::pair<const at::Tensor*, at::Tensor*>>{{&in.betas, &one.betas},
-                                                                {&in.global_orient, &one.global_orient},
-                                                                {&in.body_pose, &one.body_pose},
-                                                                {&in.jaw_pose, &one.jaw_pose},
-                                                                {&in.leye_pose, &one.leye_pose},
-                                                                {&in.reye_pose, &one.reye_pose},
-                                                                {&in.left_hand_pose, &one.left_hand_pose},
-                                                                {&in.right_hand_pose, &one.right_hand_pose},
-                                                                {&in.expression, &one.expression},
-                                                                {&in.transl, &one.transl}})
+                                                                {&in.pose.global_orient, &one.pose.global_orient},
+                                                                {&in.pose.body_pose, &one.pose.body_pose},
+                                                                {&in.pose.jaw_pose, &one.pose.jaw_pose},
+                                                                {&in.pose.leye_pose, &one.pose.leye_pose},
+                                                                {&in.pose.reye_pose, &one.pose.reye_pose},
+                                                                {&in.pose.left_hand_pose, &one.pose.left_hand_pose},
+                                                                {&in.pose.right_hand_pose, &one.pose.right_hand_pose},
+                                                                {&in.pose.expression, &one.pose.expression},
+                                                                {&in.pose.transl, &one.pose.transl}})
       *target = source->narrow(0, b, 1);
     EXPECT_LT(max_error(model->forward(one).vertices[0], all.vertices[b]), 1e-12);
   }
@@ -345,15 +345,15 @@ TEST(BodySmplx, GradientsReachEveryInputAndMatchFiniteDifferences) {
   in.vertex_offsets = 0.05 * at::randn({2, 6, 3}, at::kDouble);
   in.joint_offsets = 0.05 * at::randn({2, 55, 3}, at::kDouble);
   const std::vector<std::pair<const char*, at::Tensor*>> inputs = {{"betas", &in.betas},
-                                                                   {"global_orient", &in.global_orient},
-                                                                   {"body_pose", &in.body_pose},
-                                                                   {"jaw_pose", &in.jaw_pose},
-                                                                   {"leye_pose", &in.leye_pose},
-                                                                   {"reye_pose", &in.reye_pose},
-                                                                   {"left_hand_pose", &in.left_hand_pose},
-                                                                   {"right_hand_pose", &in.right_hand_pose},
-                                                                   {"expression", &in.expression},
-                                                                   {"transl", &in.transl},
+                                                                   {"global_orient", &in.pose.global_orient},
+                                                                   {"body_pose", &in.pose.body_pose},
+                                                                   {"jaw_pose", &in.pose.jaw_pose},
+                                                                   {"leye_pose", &in.pose.leye_pose},
+                                                                   {"reye_pose", &in.pose.reye_pose},
+                                                                   {"left_hand_pose", &in.pose.left_hand_pose},
+                                                                   {"right_hand_pose", &in.pose.right_hand_pose},
+                                                                   {"expression", &in.pose.expression},
+                                                                   {"transl", &in.pose.transl},
                                                                    {"vertex_offsets", &in.vertex_offsets},
                                                                    {"joint_offsets", &in.joint_offsets}};
   const at::Tensor wv = at::randn({2, model->vertex_count(), 3}, at::kDouble), wj = at::randn({2, 55, 3}, at::kDouble);
@@ -386,17 +386,17 @@ TEST(BodySmplx, InputsAreCheckedWithClearMessages) {
     model->forward(in);
   };
   expect_error([&] { run([](SmplxInput& in) {
-                       in.body_pose = at::zeros({2, 60}, at::kDouble);
+                       in.pose.body_pose = at::zeros({2, 60}, at::kDouble);
                      }); },
                {"body_pose", "shape [2, 63]", "got a Double tensor of shape [2, 60]"});
   expect_error([&] { run([](SmplxInput& in) {
                        in.betas = at::zeros({3, 10}, at::kDouble);
                      }); },
                {"disagree on the batch size", "betas has 3", "global_orient has 2"});
-  expect_error([&] { run([](SmplxInput& in) { in.transl = in.transl.to(at::kFloat); }); },
+  expect_error([&] { run([](SmplxInput& in) { in.pose.transl = in.pose.transl.to(at::kFloat); }); },
                {"transl must be a Double tensor", "got a Float tensor"});
   expect_error([&] { run([](SmplxInput& in) {
-                       in.left_hand_pose = at::zeros({2, 45}, at::kDouble);
+                       in.pose.left_hand_pose = at::zeros({2, 45}, at::kDouble);
                      }); },
                {"left_hand_pose (PCA coefficients)", "[2, 6]"});
   expect_error([&] { run([](SmplxInput& in) {
@@ -408,7 +408,7 @@ TEST(BodySmplx, InputsAreCheckedWithClearMessages) {
   expect_error([&] { Smplx(procedural_body().smplx, too_many); }, {"num_pca_comps must lie in [1, 45]"});
   // (B, 21, 3) poses are as good as (B, 63).
   SmplxInput in = random_input(2, 10, 8, 6, 0.3, 72), shaped = in;
-  shaped.body_pose = in.body_pose.view({2, 21, 3});
+  shaped.pose.body_pose = in.pose.body_pose.view({2, 21, 3});
   EXPECT_TRUE(model->forward(in).vertices.equal(model->forward(shaped).vertices));
 }
 

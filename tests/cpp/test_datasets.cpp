@@ -170,7 +170,7 @@ TEST(NeumanDataset, ReadsCamerasPosesMasksAndSplits) {
   EXPECT_NEAR(b.camera.world_to_camera[1], -1.0, 1e-12);
   EXPECT_NEAR(b.camera.world_to_camera[4], 1.0, 1e-12);
   EXPECT_NEAR(b.camera.world_to_camera[0], 0.0, 1e-12);
-  EXPECT_TRUE(b.pose.in_camera_frame);
+  EXPECT_TRUE(b.pose_in_camera_frame);
   EXPECT_FLOAT_EQ(b.pose.body_pose[0][0].item<float>(), 0.3f);
   EXPECT_FLOAT_EQ(b.pose.left_hand_pose[0][0].item<float>(), 0.2f);
   EXPECT_EQ(b.pose.expression.numel(), 2);

@@ -63,7 +63,7 @@ TEST(XhumansDataset, ReadsTakesCamerasDepthMasksAndSplits) {
   EXPECT_EQ(d.frames[2].sequence, 1);
   EXPECT_FLOAT_EQ(d.frames[1].pose.transl[2].item<float>(), 4.0f);
   EXPECT_FLOAT_EQ(d.frames[1].pose.jaw_pose[0].item<float>(), 0.2f);
-  EXPECT_FALSE(d.frames[1].pose.in_camera_frame);
+  EXPECT_FALSE(d.frames[1].pose_in_camera_frame);
   EXPECT_EQ(d.betas.numel(), 10) << "without smplx_optimized/ the fit's betas are used";
   const Frame f = d.load(0);
   EXPECT_EQ(f.mask.sum().item<float>(), 6.0f);

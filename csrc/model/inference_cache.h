@@ -1,0 +1,42 @@
+#pragma once
+// What an avatar keeps between frames at inference: the features that depend on neither pose nor time, and the
+// canonical attributes the fused feature determines, for the last time they were computed at (without the
+// hexplane they hold for every time). Training never uses it: its tensors are detached.
+#include <optional>
+
+#include <ATen/core/Tensor.h>
+
+#include "model/feature_field.h"
+
+namespace sfgs::model {
+
+// What the fused feature determines for every point: the canonical attributes and the feature's share of the
+// pose-driven networks' first layers (undefined where that network is switched off).
+struct CanonicalAttributes {
+  at::Tensor mean_offset;           // (N, 3)
+  at::Tensor log_scales;            // (N) initial log-scale plus the head's offset
+  at::Tensor colour_logits;         // (N, 3)
+  at::Tensor structure_projection;  // (N, H), structure offset only
+  at::Tensor colour_projection;     // (N, H), colour offset only
+};
+
+class InferenceCache {
+ public:
+  // time_dependent: whether the attributes change with time (the hexplane is in use).
+  InferenceCache(StaticFeatures features, bool time_dependent);
+
+  const StaticFeatures& features() const { return features_; }
+  at::Device device() const { return features_.triplane.device(); }
+  // The attributes kept for `time`, if any.
+  const CanonicalAttributes* attributes(double time) const;
+  // Keeps `attributes` (detached) as those of `time`.
+  void keep(const CanonicalAttributes& attributes, double time);
+
+ private:
+  StaticFeatures features_;
+  bool time_dependent_;
+  std::optional<CanonicalAttributes> attributes_;
+  double time_ = 0.0;
+};
+
+}  // namespace sfgs::model
