@@ -94,6 +94,11 @@ inline constexpr double kMinHandPoseBasisNorm = 1e-6;
 // so a vertex on the vertical line through the centre gets a zero direction instead of NaN.
 inline constexpr double kMinCheekPuffRadialLength = 1e-9;
 
+// ---- reference mesh renderer (data/mesh_renderer.h) ---------------------------------------------------------
+// Summed face normals shorter than this (a vertex whose faces all have zero area) are divided by it instead, so
+// such a vertex gets a zero normal, which shading treats as facing the camera, rather than NaN.
+inline constexpr double kMeshRendererMinNormalLength = 1e-20;
+
 // ---- avatar model (docs/avatar.md) ------------------------------------------------------------------------
 // The feature planes are read at the points' positions in SFGS's star ("big") pose: both hips rotated this far
 // (radians) about the forward axis, so the inner thighs no longer share plane texels.
