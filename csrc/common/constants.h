@@ -84,6 +84,20 @@ inline constexpr double kSkinningWeightSumTolerance = 1e-4;
 // The official MANO_LEFT shares its shapedirs x components with MANO_RIGHT (vchoutas/smplx#48): when the two
 // agree within this fraction of the right model's sum |shapedirs[:, 0, :]|, the left x components are negated.
 inline constexpr double kManoLeftShapedirsBugTolerance = 1e-6;
+// Procedural body UVs: a triangle corner closer to its cylinder chart's axis than this fraction of the chart's mean
+// radius has no defined angle around it; it takes the angle of its triangle's centre and a UV row of its own.
+inline constexpr double kUvPoleRadiusFraction = 1e-6;
+// Procedural hand pose basis: Gram-Schmidt drops a candidate whose remainder is shorter than this, as it lies in
+// the span of the rows already taken (unit candidates leave either about 1 or rounding noise of about 1e-16).
+inline constexpr double kMinHandPoseBasisNorm = 1e-6;
+// Procedural cheek-puff direction: horizontal distances from the head's centre are floored here before they divide,
+// so a vertex on the vertical line through the centre gets a zero direction instead of NaN.
+inline constexpr double kMinCheekPuffRadialLength = 1e-9;
+
+// ---- reference mesh renderer (data/mesh_renderer.h) ---------------------------------------------------------
+// Summed face normals shorter than this (a vertex whose faces all have zero area) are divided by it instead, so
+// such a vertex gets a zero normal, which shading treats as facing the camera, rather than NaN.
+inline constexpr double kMeshRendererMinNormalLength = 1e-20;
 
 // ---- avatar model (docs/avatar.md) ------------------------------------------------------------------------
 // The feature planes are read at the points' positions in SFGS's star ("big") pose: both hips rotated this far

@@ -9,6 +9,8 @@
 
 #include "body/mesh.h"
 #include "body/parts.h"
+#include "body/procedural/catmull_clark.h"
+#include "body/procedural/poly_mesh.h"
 #include "body/skeleton.h"
 #include "body/smplx.h"
 #include "test_body_utils.h"
@@ -74,6 +76,35 @@ TEST(BodyProcedural, IsDeterministicAndInTheSmplxLayout) {
   EXPECT_GT(z(J::kLeftEye), z(J::kHead) + 0.05);
   const double height = (d.v_template.select(1, 1).max() - d.v_template.select(1, 1).min()).item<double>();
   EXPECT_NEAR(height, 1.76, 0.05);
+}
+
+// One subdivision step on a cube, the smallest closed cage: the counts of vertex, edge and face points, affine
+// stencil rows (weights sum to 1) and a mirror map that is an involution and matches the subdivided positions.
+TEST(BodyProcedural, CatmullClarkStepOnACube) {
+  namespace P = body::procedural;
+  std::vector<P::Vec3> corners;
+  for (int i = 0; i < 8; ++i) corners.push_back({i & 1 ? 1.0 : -1.0, i & 2 ? 1.0 : -1.0, i & 4 ? 1.0 : -1.0});
+  P::PolyMesh cube;
+  cube.vertex_count = 8;
+  cube.faces = {{0, 1, 3, 2}, {4, 6, 7, 5}, {0, 4, 5, 1}, {2, 3, 7, 6}, {0, 2, 6, 4}, {1, 5, 7, 3}};
+  cube.charts = {0, 1, 2, 3, 4, 5};
+  const P::Subdivided fine = P::catmull_clark(cube, P::mirror_by_position(corners));
+  EXPECT_EQ(fine.mesh.vertex_count, 8 + 12 + 6);
+  ASSERT_EQ(fine.mesh.faces.size(), 24u);
+  for (size_t q = 0; q < fine.mesh.faces.size(); ++q) {
+    EXPECT_EQ(fine.mesh.faces[q].size(), 4u);
+    EXPECT_EQ(fine.mesh.charts[q], cube.charts[q / 4]);  // each coarse face becomes its own four quads
+  }
+  at::Tensor coarse = at::empty({8, 3}, at::kDouble);
+  for (int i = 0; i < 8; ++i)
+    for (int k = 0; k < 3; ++k) coarse[i][k] = corners[i][k];
+  EXPECT_TRUE(fine.stencil.apply(at::ones({8, 1}, at::kDouble)).sub(1).abs().max().item<double>() < 1e-15);
+  const at::Tensor points = fine.stencil.apply(coarse);
+  const at::Tensor mirror = at::tensor(fine.mirror, at::kLong);
+  EXPECT_TRUE(mirror.index_select(0, mirror).equal(at::arange(26, at::kLong)));
+  EXPECT_LT(max_error(points.index_select(0, mirror), mirror_x(points)), 1e-15);
+  // Vertex points of a cube's corners (valence 3) move to 5/9 of the way: (Q + 2R + 0 S) / 3.
+  EXPECT_NEAR(points[7][0].item<double>(), 5.0 / 9.0, 1e-15);
 }
 
 TEST(BodyProcedural, IsAClosedOutwardSurfaceOfThreeComponents) {
