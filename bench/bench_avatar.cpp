@@ -105,42 +105,20 @@ void print(const char* what, const Timing& t) {
   std::printf("  %-44s %10.1f ms  (%.1f - %.1f)\n", what, t.median, t.min, t.max);
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
-  sfgs::reuse_freed_host_memory();
-  const Arguments args = parse(argc, argv);
-  if (args.device != "cpu" && args.device != "cuda") {
-    std::fprintf(stderr, "bench_avatar: --device must be cpu or cuda, got '%s'\n", args.device.c_str());
-    return 2;
-  }
-  if (args.device == "cuda" && !torch::cuda::is_available()) {
-    std::fprintf(stderr, "bench_avatar: --device cuda, but this LibTorch sees no CUDA device\n");
-    return 1;
-  }
-  if (!std::getenv("OMP_NUM_THREADS")) at::set_num_threads(int(std::max(1u, std::thread::hardware_concurrency())));
-  const c10::Device device(args.device == "cuda" ? c10::kCUDA : c10::kCPU);
-  const auto sync = [&] {
+// Wall-clock milliseconds that include the device's queued work (synchronising first on CUDA).
+struct Clock {
+  c10::Device device;
+  std::chrono::steady_clock::time_point now() const {
     if (device.is_cuda()) torch::cuda::synchronize();
-  };
-  const auto now = [&] {
-    sync();
     return std::chrono::steady_clock::now();
-  };
-  const auto since = [&](std::chrono::steady_clock::time_point start) {
-    sync();
-    return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
-  };
+  }
+  double since(std::chrono::steady_clock::time_point start) const {
+    return std::chrono::duration<double, std::milli>(now() - start).count();
+  }
+};
 
-  const sfgs::model::AvatarBody body = sfgs::model::AvatarBody::procedural();
-  sfgs::model::AvatarConfig config;
-  config.subdivision_levels = args.levels >= 0 ? args.levels : closest_level(body.smplx);
-  const auto build_start = std::chrono::steady_clock::now();
-  sfgs::model::Avatar avatar(body, at::zeros({10}), config);
-  const double build_ms =
-      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - build_start).count();
-  avatar->to(device);
-
+void print_model(const sfgs::model::AvatarBody& body, const sfgs::model::AvatarConfig& config,
+                 sfgs::model::Avatar& avatar, const Arguments& args, double build_ms) {
   int64_t parameters = 0;
   for (const at::Tensor& p : avatar->parameters()) parameters += p.numel();
   std::printf(
@@ -155,45 +133,70 @@ int main(int argc, char** argv) {
     for (const at::Tensor& p : child.value()->parameters()) count += p.numel();
     if (count > 0) std::printf("  %-20s %10ld\n", child.key().c_str(), long(count));
   }
+}
 
+void bench_training(sfgs::model::Avatar& avatar, const Clock& clock, int repeats) {
   avatar->train();
-  at::Tensor loss;
-  print("training forward (autograd recording)", measure(args.repeats, [&](int r) {
-          const auto start = now();
-          const sfgs::model::AvatarOutput out = avatar->forward(pose_at(r), 0.1);
-          loss = out.means.sum() + out.covariances.sum() + out.colours.sum();
-          return since(start);
+  const auto loss_of = [](const sfgs::model::AvatarOutput& out) {
+    return out.means.sum() + out.covariances.sum() + out.colours.sum();
+  };
+  print("training forward (autograd recording)", measure(repeats, [&](int r) {
+          const auto start = clock.now();
+          const at::Tensor loss = loss_of(avatar->forward(pose_at(r), 0.1));
+          return clock.since(start);
         }));
-  print("training backward", measure(args.repeats, [&](int r) {
-          const sfgs::model::AvatarOutput out = avatar->forward(pose_at(r), 0.1);
-          loss = out.means.sum() + out.covariances.sum() + out.colours.sum();
-          const auto start = now();
+  print("training backward", measure(repeats, [&](int r) {
+          const at::Tensor loss = loss_of(avatar->forward(pose_at(r), 0.1));
+          const auto start = clock.now();
           torch::autograd::backward({loss});
-          return since(start);
+          return clock.since(start);
         }));
   avatar->zero_grad();
+}
 
+void bench_inference(sfgs::model::Avatar& avatar, const Clock& clock, int repeats) {
   avatar->eval();
   at::NoGradGuard no_grad;
-  print("inference forward, no cache", measure(args.repeats, [&](int r) {
-          const auto start = now();
-          avatar->forward(pose_at(r), 0.1);
-          return since(start);
-        }));
-  print("cache_static_features()", measure(args.repeats, [&](int) {
-          const auto start = now();
-          avatar->cache_static_features();
-          return since(start);
-        }));
-  print("cached inference forward, fixed time", measure(args.repeats, [&](int r) {
-          const auto start = now();
-          avatar->forward(pose_at(r), 0.1);
-          return since(start);
-        }));
-  print("cached inference forward, new time each call", measure(args.repeats, [&](int r) {
-          const auto start = now();
-          avatar->forward(pose_at(r), -0.9 + 0.01 * (r + 2));
-          return since(start);
-        }));
+  const auto timed = [&](const std::function<void(int)>& f) {
+    return measure(repeats, [&](int r) {
+      const auto start = clock.now();
+      f(r);
+      return clock.since(start);
+    });
+  };
+  print("inference forward, no cache", timed([&](int r) { avatar->forward(pose_at(r), 0.1); }));
+  print("cache_static_features()", timed([&](int) { avatar->cache_static_features(); }));
+  print("cached inference forward, fixed time", timed([&](int r) { avatar->forward(pose_at(r), 0.1); }));
+  print("cached inference forward, new time each call",
+        timed([&](int r) { avatar->forward(pose_at(r), -0.9 + 0.01 * (r + 2)); }));
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  sfgs::reuse_freed_host_memory();
+  const Arguments args = parse(argc, argv);
+  if (args.device != "cpu" && args.device != "cuda") {
+    std::fprintf(stderr, "bench_avatar: --device must be cpu or cuda, got '%s'\n", args.device.c_str());
+    return 2;
+  }
+  if (args.device == "cuda" && !torch::cuda::is_available()) {
+    std::fprintf(stderr, "bench_avatar: --device cuda, but this LibTorch sees no CUDA device\n");
+    return 1;
+  }
+  if (!std::getenv("OMP_NUM_THREADS")) at::set_num_threads(int(std::max(1u, std::thread::hardware_concurrency())));
+  const Clock clock{c10::Device(args.device == "cuda" ? c10::kCUDA : c10::kCPU)};
+
+  const sfgs::model::AvatarBody body = sfgs::model::AvatarBody::procedural();
+  sfgs::model::AvatarConfig config;
+  config.subdivision_levels = args.levels >= 0 ? args.levels : closest_level(body.smplx);
+  const auto build_start = std::chrono::steady_clock::now();
+  sfgs::model::Avatar avatar(body, at::zeros({10}), config);
+  const double build_ms =
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - build_start).count();
+  avatar->to(clock.device);
+  print_model(body, config, avatar, args, build_ms);
+  bench_training(avatar, clock, args.repeats);
+  bench_inference(avatar, clock, args.repeats);
   return 0;
 }

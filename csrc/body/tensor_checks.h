@@ -1,19 +1,13 @@
 #pragma once
 // How the body-model code checks tensors at its public boundaries, names them in error messages ("a Float tensor
 // of shape [2, 3] on cpu") and copies them into module buffers.
-#include <sstream>
 #include <string>
 
 #include <ATen/core/Tensor.h>
 
-namespace sfgs::body {
+#include "common/tensor_description.h"
 
-inline std::string describe(const at::Tensor& t) {
-  if (!t.defined()) return "an undefined tensor";
-  std::ostringstream s;
-  s << "a " << t.scalar_type() << " tensor of shape " << t.sizes() << " on " << t.device();
-  return s.str();
-}
+namespace sfgs::body {
 
 // Checks `t` is defined with exactly this shape, dtype and device; `what` names it ("Smplx: betas").
 inline void check_tensor(const at::Tensor& t, const std::string& what, at::IntArrayRef shape, at::ScalarType dtype,

@@ -7,6 +7,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "cli/plot.h"
+#include "common/constants.h"
 #include "data/image_io.h"
 
 namespace sfgs::cli {
@@ -17,7 +18,7 @@ const cv::Scalar kInk(40, 40, 40), kGrid(225, 225, 225), kValColour(200, 110, 30
 
 // A step of 1, 2 or 5 times a power of ten giving about `ticks` intervals over `span`.
 double tick_step(double span, int ticks) {
-  const double raw = std::max(span, 1e-9) / ticks, power = std::pow(10.0, std::floor(std::log10(raw)));
+  const double raw = std::max(span, kMinSpan) / ticks, power = std::pow(10.0, std::floor(std::log10(raw)));
   for (const double m : {1.0, 2.0, 5.0})
     if (m * power >= raw) return m * power;
   return 10.0 * power;
@@ -40,11 +41,11 @@ void draw_panel(cv::Mat& canvas, int left, const std::vector<train::ErrorCurvePo
   const auto px = [&](double v) { return x0 + int(std::lround((x1 - x0) * v / x_high)); };
   const auto py = [&](double v) { return y0 - int(std::lround((y0 - y1) * (v - y_low) / (y_high - y_low))); };
   const double xs = tick_step(x_high, 5), ys = tick_step(y_high - y_low, 6);
-  for (double v = 0; v <= x_high + 1e-9; v += xs) {
+  for (double v = 0; v <= x_high + kMinSpan; v += xs) {
     cv::line(canvas, {px(v), y0}, {px(v), y1}, kGrid);
     cv::putText(canvas, label(v), {px(v) - 10, y0 + 18}, cv::FONT_HERSHEY_SIMPLEX, 0.4, kInk, 1, cv::LINE_AA);
   }
-  for (double v = std::ceil(y_low / ys) * ys; v <= y_high + 1e-9; v += ys) {
+  for (double v = std::ceil(y_low / ys) * ys; v <= y_high + kMinSpan; v += ys) {
     cv::line(canvas, {x0, py(v)}, {x1, py(v)}, kGrid);
     cv::putText(canvas, label(v), {x0 - 34, py(v) + 4}, cv::FONT_HERSHEY_SIMPLEX, 0.4, kInk, 1, cv::LINE_AA);
   }
@@ -82,7 +83,7 @@ bool write_error_curve_plot(const std::vector<train::ErrorCurvePoint>& points, c
   cv::putText(canvas, "test", {2 * kPanelWidth - 80, 18}, cv::FONT_HERSHEY_SIMPLEX, 0.5, kTestColour, 2, cv::LINE_AA);
   // OpenCV draws BGR; the PNG writer takes RGB floats in [0, 1].
   const at::Tensor bgr = at::from_blob(canvas.data, {canvas.rows, canvas.cols, 3}, at::kByte);
-  data::write_png(png_path, bgr.flip({2}).to(at::kFloat).div(255.0), overwrite);
+  data::write_png(png_path, bgr.flip({2}).to(at::kFloat).div(kEightBitMax), overwrite);
   return true;
 }
 

@@ -94,11 +94,6 @@ inline constexpr double kMinHandPoseBasisNorm = 1e-6;
 // so a vertex on the vertical line through the centre gets a zero direction instead of NaN.
 inline constexpr double kMinCheekPuffRadialLength = 1e-9;
 
-// ---- reference mesh renderer (data/mesh_renderer.h) ---------------------------------------------------------
-// Summed face normals shorter than this (a vertex whose faces all have zero area) are divided by it instead, so
-// such a vertex gets a zero normal, which shading treats as facing the camera, rather than NaN.
-inline constexpr double kMeshRendererMinNormalLength = 1e-20;
-
 // ---- avatar model (docs/avatar.md) ------------------------------------------------------------------------
 // The feature planes are read at the points' positions in SFGS's star ("big") pose: both hips rotated this far
 // (radians) about the forward axis, so the inner thighs no longer share plane texels.
@@ -130,5 +125,16 @@ inline constexpr long kMaxIterations = 100000000;
 inline constexpr long kMaxPlaneChannels = 1024;
 inline constexpr long kMaxPlaneResolution = 4096;
 inline constexpr long kMaxHiddenWidth = 4096;
+
+// ---- images, export and plots -----------------------------------------------------------------------------------
+// 8-bit images hold value * 255: PNG frames, videos and masks are read and written at this scale.
+inline constexpr double kEightBitMax = 255.0;
+// Quaternions shorter than this are normalised against it instead (a zero rotation becomes zero, never NaN).
+inline constexpr double kMinQuaternionNorm = 1e-12;
+// Covariance eigenvalues are clamped to this before their logarithm (the exported log scale of a flat Gaussian).
+inline constexpr double kMinExportedVariance = 1e-20;
+// Spans and durations below this (seconds, or axis units of a plot) are treated as this, so nothing divides by zero
+// and tick loops include their last tick despite rounding.
+inline constexpr double kMinSpan = 1e-9;
 
 }  // namespace sfgs

@@ -1,4 +1,5 @@
 #include "data/image_io.h"
+#include "common/constants.h"
 
 #include <stdexcept>
 #include <vector>
@@ -37,7 +38,7 @@ std::pair<int64_t, int64_t> image_size(const std::string& path) {
   return {w, h};
 }
 
-at::Tensor read_image_rgb(const std::string& path) { return read_8bit(path, 3).to(at::kFloat).div_(255.0f); }
+at::Tensor read_image_rgb(const std::string& path) { return read_8bit(path, 3).to(at::kFloat).div_(kEightBitMax); }
 
 at::Tensor read_mask(const std::string& path, MaskEncoding encoding) {
   if (encoding == MaskEncoding::kDepthForeground) {
@@ -54,7 +55,7 @@ void write_png(const std::string& path, const at::Tensor& image, bool overwrite)
               "write_png('", path, "'): expected an (H, W) or (H, W, 3) image, got ",
               image.defined() ? image.sizes() : at::IntArrayRef{});
   TORCH_CHECK(image.isfinite().all().item<bool>(), "write_png('", path, "'): the image has NaN or Inf values");
-  const at::Tensor bytes = image.detach().cpu().to(at::kFloat).clamp(0, 1).mul(255).round().to(at::kByte).contiguous();
+  const at::Tensor bytes = image.detach().cpu().to(at::kFloat).clamp(0, 1).mul(kEightBitMax).round().to(at::kByte).contiguous();
   const int h = int(bytes.size(0)), w = int(bytes.size(1)), c = bytes.dim() == 3 ? int(bytes.size(2)) : 1;
   std::vector<unsigned char> encoded;
   const auto append = [](void* context, void* data, int size) {

@@ -8,6 +8,7 @@
 #include <ATen/ATen.h>
 #include <ATen/Parallel.h>
 
+#include "body/mesh.h"
 #include "common/constants.h"
 
 namespace sfgs::data {
@@ -74,17 +75,6 @@ void check_mesh(const TexturedMesh& m, const at::Tensor& background) {
   TORCH_CHECK(background.defined() && background.numel() == 3, "render_mesh: background must have 3 values");
 }
 
-// Area-weighted vertex normals in camera space.
-at::Tensor vertex_normals(const at::Tensor& points, const at::Tensor& faces) {
-  const at::Tensor a = points.index_select(0, faces.select(1, 0));
-  const at::Tensor b = points.index_select(0, faces.select(1, 1));
-  const at::Tensor c = points.index_select(0, faces.select(1, 2));
-  const at::Tensor face_normal = at::cross(b - a, c - a, 1);
-  at::Tensor normals = at::zeros_like(points);
-  for (int k = 0; k < 3; ++k) normals.index_add_(0, faces.select(1, k), face_normal);
-  return normals / normals.norm(2, 1, true).clamp_min(kMeshRendererMinNormalLength);
-}
-
 CameraSpaceMesh to_camera(const TexturedMesh& mesh, const Camera& camera) {
   const auto f64 = at::TensorOptions().dtype(at::kDouble);
   const at::Tensor view =
@@ -94,7 +84,7 @@ CameraSpaceMesh to_camera(const TexturedMesh& mesh, const Camera& camera) {
   CameraSpaceMesh out;
   out.points = (mesh.vertices.detach().cpu().to(at::kDouble).matmul(rotation.t()) + translation).contiguous();
   out.faces = mesh.faces.cpu().to(at::kLong).contiguous();
-  out.normals = vertex_normals(out.points, out.faces).contiguous();
+  out.normals = body::vertex_normals(out.points, out.faces).contiguous();  // area-weighted, camera space
   return out;
 }
 

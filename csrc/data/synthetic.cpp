@@ -1,4 +1,5 @@
 #include "data/synthetic.h"
+#include "common/constants.h"
 
 #include <array>
 #include <cmath>
@@ -47,7 +48,8 @@ struct HandShake {
   }
   std::array<double, 3> at(double t) const {
     std::array<double, 3> offset{};
-    for (size_t k = 0; k < phase.size(); ++k) offset[k % 3] += kHandShakeMetres / 3 * std::sin(kTwoPi * frequency[k] * t + phase[k]);
+    for (size_t k = 0; k < phase.size(); ++k)
+      offset[k % 3] += kHandShakeMetres / 3 * std::sin(kTwoPi * frequency[k] * t + phase[k]);
     return offset;
   }
 };
@@ -125,35 +127,21 @@ SmplxPose synthetic_pose(int64_t index, double frames_per_second, int64_t expres
   return p;
 }
 
-Dataset write_synthetic_video(const std::string& folder, const SyntheticVideoOptions& options) {
-  TORCH_CHECK(options.frames >= 1, "sfgs synth: --frames must be at least 1, got ", options.frames);
-  TORCH_CHECK(options.width >= 16 && options.height >= 16 && options.width <= kMaxImageSide &&
-                  options.height <= kMaxImageSide,
-              "sfgs synth: image sides must be in [16, ", kMaxImageSide, "], got ", options.width, " x ", options.height);
-  TORCH_CHECK(options.frames_per_second > 0, "sfgs synth: frames per second must be positive");
-  fs::create_directories(fs::path(folder) / "images");
-  fs::create_directories(fs::path(folder) / "masks");
-  fs::create_directories(fs::path(folder) / "meshes");
+namespace {
 
+// The body layer the video is posed with (axis-angle hands: the motion gives the hands' rotations).
+body::Smplx synthetic_body_layer(const SyntheticVideoOptions& options) {
   const body::SmplxModelData model = options.body_model.empty() ? body::make_procedural_body().smplx
                                                                 : body::SmplxModelData::load(options.body_model);
   body::SmplxOptions layer_options;
   layer_options.num_betas = std::min<int64_t>(kSynthBetas, model.shapedirs.size(2));
   layer_options.num_expression_coeffs = std::min<int64_t>(kSynthExpressions, model.exprdirs.size(2));
   layer_options.use_pca = false;
-  layer_options.flat_hand_mean = true;  // the motion's hand poses are the hands' rotations
-  const body::Smplx smplx(model, layer_options);
-  const int64_t expressions = smplx->options().num_expression_coeffs;
+  layer_options.flat_hand_mean = true;
+  return body::Smplx(model, layer_options);
+}
 
-  at::Generator gen = at::make_generator<at::CPUGeneratorImpl>(options.seed);
-  const at::Tensor betas = at::empty({smplx->options().num_betas}).normal_(0.0, 0.6, gen);
-  std::vector<SmplxPose> poses;
-  for (int64_t i = 0; i < options.frames; ++i) poses.push_back(synthetic_pose(i, options.frames_per_second, expressions));
-  body::SmplxInput input;
-  input.betas = betas.unsqueeze(0).expand({options.frames, -1}).contiguous();
-  input.pose = SmplxPose::stack(poses);
-  const at::Tensor vertices = smplx->forward(input).vertices.detach().to(at::kFloat);
-
+TexturedMesh subject_mesh(const body::Smplx& smplx, const SyntheticVideoOptions& options) {
   TexturedMesh mesh;
   mesh.faces = smplx->faces();
   if (smplx->uvs().defined()) {
@@ -161,20 +149,70 @@ Dataset write_synthetic_video(const std::string& folder, const SyntheticVideoOpt
     mesh.face_uvs = smplx->uv_faces();
     mesh.texture = options.texture.empty() ? generated_texture() : read_image_rgb(options.texture);
   } else {
-    TORCH_CHECK(options.texture.empty(), "sfgs synth: '", options.body_model, "' has no UVs (vt/ft), so --texture cannot apply");
+    TORCH_CHECK(options.texture.empty(), "sfgs synth: '", options.body_model,
+                "' has no UVs (vt/ft), so --texture cannot apply");
+  }
+  return mesh;
+}
+
+// The hand-held camera: it frames the subject of the first frame and keeps that distance while it drifts around
+// it and shakes.
+class SyntheticCamera {
+ public:
+  SyntheticCamera(const at::Tensor& first_vertices, const SyntheticVideoOptions& options)
+      : options_(options), shake_(options.seed),
+        duration_(double(options.frames) / options.frames_per_second),
+        focal_(kFocalPerPixel * double(std::max(options.width, options.height))) {
+    const at::Tensor lo = std::get<0>(first_vertices.min(0)), hi = std::get<0>(first_vertices.max(0));
+    const at::Tensor centre = (lo + hi) / 2;
+    const double extent_y = (hi[1] - lo[1]).item<double>(), extent_x = (hi[0] - lo[0]).item<double>();
+    distance_ = focal_ * std::max(extent_y / (kSubjectFill * double(options.height)),
+                                  extent_x / (kSubjectFill * double(options.width)));
+    target_ = {centre[0].item<double>(), centre[1].item<double>(), centre[2].item<double>()};
   }
 
-  // Frame the subject of the first frame; the camera keeps that distance while it drifts.
-  const at::Tensor first = vertices[0];
-  const at::Tensor lo = std::get<0>(first.min(0)), hi = std::get<0>(first.max(0));
-  const at::Tensor centre = (lo + hi) / 2;
-  const double extent_y = (hi[1] - lo[1]).item<double>(), extent_x = (hi[0] - lo[0]).item<double>();
-  const double focal = kFocalPerPixel * double(std::max(options.width, options.height));
-  const double distance = focal * std::max(extent_y / (kSubjectFill * double(options.height)),
-                                           extent_x / (kSubjectFill * double(options.width)));
-  const std::array<double, 3> target{centre[0].item<double>(), centre[1].item<double>(), centre[2].item<double>()};
-  const HandShake shake(options.seed);
-  const double duration = double(options.frames) / options.frames_per_second;
+  Camera at(double t) const {
+    const double phase = kTwoPi * t / std::max(duration_, kMinSpan);
+    const double angle = kOrbitRadians * std::sin(phase);
+    const auto wobble = shake_.at(t);
+    const std::array<double, 3> eye{target_[0] + distance_ * std::sin(angle) + wobble[0],
+                                    target_[1] + 0.1 * distance_ * std::sin(0.5 * phase) + wobble[1],
+                                    target_[2] + distance_ * std::cos(angle) + wobble[2]};
+    Camera camera = Camera::looking_forward(focal_, options_.width, options_.height);
+    camera.world_to_camera =
+        look_at(eye, {target_[0] + 0.3 * wobble[0], target_[1] + 0.3 * wobble[1], target_[2]});
+    return camera;
+  }
+
+ private:
+  const SyntheticVideoOptions& options_;
+  HandShake shake_;
+  double duration_, focal_, distance_ = 0;
+  std::array<double, 3> target_{};
+};
+
+}  // namespace
+
+Dataset write_synthetic_video(const std::string& folder, const SyntheticVideoOptions& options) {
+  TORCH_CHECK(options.frames >= 1, "sfgs synth: --frames must be at least 1, got ", options.frames);
+  TORCH_CHECK(options.width >= 16 && options.height >= 16 && options.width <= kMaxImageSide &&
+                  options.height <= kMaxImageSide,
+              "sfgs synth: image sides must be in [16, ", kMaxImageSide, "], got ", options.width, " x ", options.height);
+  TORCH_CHECK(options.frames_per_second > 0, "sfgs synth: frames per second must be positive");
+  for (const char* sub : {"images", "masks", "meshes"}) fs::create_directories(fs::path(folder) / sub);
+
+  const body::Smplx smplx = synthetic_body_layer(options);
+  at::Generator gen = at::make_generator<at::CPUGeneratorImpl>(options.seed);
+  const at::Tensor betas = at::empty({smplx->options().num_betas}).normal_(0.0, 0.6, gen);
+  std::vector<SmplxPose> poses;
+  for (int64_t i = 0; i < options.frames; ++i)
+    poses.push_back(synthetic_pose(i, options.frames_per_second, smplx->options().num_expression_coeffs));
+  body::SmplxInput input;
+  input.betas = betas.unsqueeze(0).expand({options.frames, -1}).contiguous();
+  input.pose = SmplxPose::stack(poses);
+  const at::Tensor vertices = smplx->forward(input).vertices.detach().to(at::kFloat);
+  TexturedMesh mesh = subject_mesh(smplx, options);
+  const SyntheticCamera camera(vertices[0], options);
 
   Dataset d;
   d.source = folder;
@@ -184,19 +222,12 @@ Dataset write_synthetic_video(const std::string& folder, const SyntheticVideoOpt
   const at::Tensor white = at::ones({3});
   io::write_npy((fs::path(folder) / "meshes" / "faces.npy").string(), mesh.faces, options.overwrite);
   for (int64_t i = 0; i < options.frames; ++i) {
-    const double t = double(i) / options.frames_per_second;
-    const double angle = kOrbitRadians * std::sin(kTwoPi * t / std::max(duration, 1e-9));
-    const auto wobble = shake.at(t);
-    const std::array<double, 3> eye{target[0] + distance * std::sin(angle) + wobble[0],
-                                    target[1] + 0.1 * distance * std::sin(0.5 * kTwoPi * t / std::max(duration, 1e-9)) + wobble[1],
-                                    target[2] + distance * std::cos(angle) + wobble[2]};
     FrameRecord r;
     char name[16];
     std::snprintf(name, sizeof(name), "%06lld", static_cast<long long>(i));
     r.name = name;
-    r.time = t;
-    r.camera = Camera::looking_forward(focal, options.width, options.height);
-    r.camera.world_to_camera = look_at(eye, {target[0] + 0.3 * wobble[0], target[1] + 0.3 * wobble[1], target[2]});
+    r.time = double(i) / options.frames_per_second;
+    r.camera = camera.at(r.time);
     r.pose = poses[size_t(i)];
     r.image_path = (fs::path(folder) / "images" / (r.name + ".png")).string();
     r.mask_path = (fs::path(folder) / "masks" / (r.name + ".png")).string();

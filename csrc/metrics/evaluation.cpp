@@ -13,7 +13,6 @@
 namespace sfgs::metrics {
 namespace {
 
-using detail::describe;
 
 std::string format_number(const char* format, double value) {
   char text[64];

@@ -4,10 +4,9 @@
 
 #include <ATen/core/Tensor.h>
 
-namespace sfgs::metrics::detail {
+#include "common/tensor_description.h"
 
-// "a Float tensor of shape [2, 3] on cpu" (or "an undefined tensor"), for error messages.
-std::string describe(const at::Tensor& t);
+namespace sfgs::metrics::detail {
 
 // Checks that two images are defined, floating, on one device with one dtype, of equal shape (H, W, C) or
 // (B, H, W, C), non-empty, and (when channels > 0) have that many channels. `metric` prefixes the messages.

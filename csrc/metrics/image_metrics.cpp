@@ -14,13 +14,6 @@
 namespace sfgs::metrics {
 namespace detail {
 
-std::string describe(const at::Tensor& t) {
-  if (!t.defined()) return "an undefined tensor";
-  std::ostringstream s;
-  s << "a " << t.scalar_type() << " tensor of shape " << t.sizes() << " on " << t.device();
-  return s.str();
-}
-
 void check_image_pair(const char* metric, const at::Tensor& prediction, const at::Tensor& target, int64_t channels) {
   for (const auto* image : {&prediction, &target}) {
     const char* name = image == &prediction ? "prediction" : "target";
@@ -52,7 +45,6 @@ at::Tensor match_batch_layout(const at::Tensor& per_image, const at::Tensor& ima
 
 namespace {
 
-using detail::describe;
 
 // The normalised 1D Gaussian g[i] ~ exp(-(i - r)^2 / (2 sigma^2)), in float64 whatever the images' dtype.
 std::vector<double> gaussian_taps() {

@@ -16,7 +16,6 @@
 namespace sfgs::metrics {
 namespace {
 
-using detail::describe;
 
 struct ConvShape {
   std::string name;  // without ".weight" / ".bias"

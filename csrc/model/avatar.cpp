@@ -100,13 +100,13 @@ at::Tensor joint_pose(const at::Tensor& pose, int64_t joints, const char* name, 
   TORCH_CHECK(at::isFloatingType(pose.scalar_type()) && pose.numel() == 3 * joints &&
                   (pose.dim() == 1 || (pose.dim() == 2 && pose.size(0) == joints)),
               "Avatar: pose.", name, " must be a floating (", joints, ", 3) or (", 3 * joints, ") tensor, got ",
-              body::describe(pose));
+              describe(pose));
   return pose.reshape({joints, 3}).to(options);
 }
 
 at::Tensor vector_input(const at::Tensor& t, const char* name, const at::TensorOptions& options) {
   TORCH_CHECK(at::isFloatingType(t.scalar_type()) && (t.dim() == 1 || (t.dim() == 2 && t.size(0) == 1)),
-              "Avatar: pose.", name, " must be a floating (n) or (1, n) tensor, got ", body::describe(t));
+              "Avatar: pose.", name, " must be a floating (n) or (1, n) tensor, got ", describe(t));
   return t.flatten().to(options);
 }
 

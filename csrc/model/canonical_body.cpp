@@ -53,7 +53,7 @@ ShapedModel shape_model(const body::SmplxModelData& data, const at::Tensor& beta
   TORCH_CHECK(num_betas >= 0, "Avatar: num_betas must be >= 0, got ", num_betas);
   TORCH_CHECK(betas.defined() && at::isFloatingType(betas.scalar_type()) &&
                   (betas.dim() == 1 || (betas.dim() == 2 && betas.size(0) == 1)),
-              "Avatar: betas must be a floating (B) or (1, B) tensor, got ", body::describe(betas));
+              "Avatar: betas must be a floating (B) or (1, B) tensor, got ", describe(betas));
   const int64_t count = std::min(num_betas, data.shapedirs.size(2));
   const at::Tensor given = betas.flatten().to(at::kCPU, at::kDouble);
   ShapedModel shaped;
@@ -79,7 +79,7 @@ CanonicalBodyImpl::CanonicalBodyImpl(const body::SmplxModelData& data, const Sha
               "CanonicalBody: the shaped model does not belong to '", data.source, "'");
   TORCH_CHECK(coarse_part_labels.defined() && coarse_part_labels.dim() == 1 && coarse_part_labels.size(0) == v &&
                   coarse_part_labels.scalar_type() == at::kByte,
-              "Avatar: part labels must be a uint8 (", v, ") tensor, got ", body::describe(coarse_part_labels));
+              "Avatar: part labels must be a uint8 (", v, ") tensor, got ", describe(coarse_part_labels));
   const int64_t expressions = std::min(num_expression_coeffs, data.exprdirs.size(2));
   mesh_ = register_module("mesh", body::SkinnedMesh(subject_mesh(data, shaped, expressions), at::kFloat,
                                                     subdivision_levels));

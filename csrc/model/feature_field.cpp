@@ -36,13 +36,13 @@ FeatureFieldImpl::FeatureFieldImpl(const FeatureFieldOptions& options, const at:
     : options_(options) {
   TORCH_CHECK(coordinates.defined() && coordinates.dim() == 2 && coordinates.size(1) == 3 &&
                   at::isFloatingType(coordinates.scalar_type()),
-              "FeatureField: coordinates must be a floating (N, 3) tensor, got ", body::describe(coordinates));
+              "FeatureField: coordinates must be a floating (N, 3) tensor, got ", describe(coordinates));
   const int64_t n = coordinates.size(0);
   TORCH_CHECK(face_points.defined() && face_points.dim() == 1 && face_points.scalar_type() == at::kLong,
-              "FeatureField: face_points must be an int64 (K) tensor, got ", body::describe(face_points));
+              "FeatureField: face_points must be an int64 (K) tensor, got ", describe(face_points));
   const int64_t k = face_points.size(0);
   TORCH_CHECK(face_coordinates.defined() && face_coordinates.sizes() == at::IntArrayRef({k, 3}),
-              "FeatureField: face_coordinates must have shape (", k, ", 3), got ", body::describe(face_coordinates));
+              "FeatureField: face_coordinates must have shape (", k, ", 3), got ", describe(face_coordinates));
   TORCH_CHECK(!options_.use_face_planes || k > 0,
               "FeatureField: the face planes need face points, but the body has no face region (switch "
               "use_face_planes off, or give the face vertex ids)");

@@ -43,7 +43,7 @@ HandResidualImpl::Hand HandResidualImpl::make_hand(const char* name, body::Side 
   const int64_t k = mano.v_template.size(0);
   TORCH_CHECK(vertex_ids.defined() && vertex_ids.dim() == 1 && vertex_ids.size(0) == k, "HandResidual: the ", prefix,
               " hand's vertex ids must give one SMPL-X vertex for each of the ", k, " vertices of '", mano.source,
-              "', got ", body::describe(vertex_ids));
+              "', got ", describe(vertex_ids));
   const at::Tensor ids = vertex_ids.to(at::kCPU, at::kLong);
   TORCH_CHECK(ids.min().item<int64_t>() >= 0 && ids.max().item<int64_t>() < coarse_vertex_count_, "HandResidual: the ",
               prefix, " hand's vertex ids must lie in [0, ", coarse_vertex_count_, ")");

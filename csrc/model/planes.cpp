@@ -26,7 +26,7 @@ void check_coordinates(const at::Tensor& coordinates, const at::Tensor& planes, 
   TORCH_CHECK(coordinates.defined() && coordinates.dim() == 2 && coordinates.size(1) == 3 &&
                   coordinates.scalar_type() == planes.scalar_type() && coordinates.device() == planes.device(),
               what, ": coordinates must be a ", planes.scalar_type(), " tensor of shape (N, 3) on ", planes.device(),
-              ", got ", body::describe(coordinates));
+              ", got ", describe(coordinates));
 }
 
 }  // namespace

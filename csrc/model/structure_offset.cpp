@@ -23,9 +23,9 @@ StructureOffsetImpl::StructureOffsetImpl(int64_t feature_width, int64_t hidden_w
                                          const at::Tensor& canonical_joints, const at::Tensor& dominant_joints) {
   TORCH_CHECK(embedding_size > 0, "StructureOffset: the joint embedding size must be positive, got ", embedding_size);
   TORCH_CHECK(canonical_joints.defined() && canonical_joints.dim() == 2 && canonical_joints.size(1) == 3,
-              "StructureOffset: canonical_joints must have shape (J, 3), got ", body::describe(canonical_joints));
+              "StructureOffset: canonical_joints must have shape (J, 3), got ", describe(canonical_joints));
   TORCH_CHECK(dominant_joints.defined() && dominant_joints.dim() == 1 && dominant_joints.scalar_type() == at::kLong,
-              "StructureOffset: dominant_joints must be an int64 (N) tensor, got ", body::describe(dominant_joints));
+              "StructureOffset: dominant_joints must be an int64 (N) tensor, got ", describe(dominant_joints));
   canonical_joints_ = register_buffer("canonical_joints", canonical_joints.to(at::kFloat));
   dominant_joints_ = register_buffer("dominant_joints", dominant_joints);
   // torch.nn.Embedding's initialisation.

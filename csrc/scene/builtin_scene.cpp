@@ -1,4 +1,5 @@
 #include "scene/builtin_scene.h"
+#include "common/constants.h"
 
 #include <cmath>
 
@@ -17,7 +18,7 @@ at::Tensor log_uniform(int64_t n, int64_t cols, double lo, double hi, at::Genera
 
 at::Tensor random_unit_quaternions(int64_t n, at::Generator& gen) {
   const at::Tensor q = at::empty({n, 4}, at::kDouble).normal_(0.0, 1.0, gen);
-  return q / q.norm(2, 1, true).clamp_min(1e-12);
+  return q / q.norm(2, 1, true).clamp_min(kMinQuaternionNorm);
 }
 
 GaussianScene finish(at::Tensor means, at::Tensor scales, at::Tensor rotations, at::Tensor opacities,

@@ -1,4 +1,5 @@
 #include "train/evaluate.h"
+#include "common/constants.h"
 
 #include <chrono>
 #include <cmath>
@@ -30,7 +31,7 @@ at::Tensor quaternions_from_matrices(const at::Tensor& r) {
   const at::Tensor z = 0.5 * at::sqrt((1 - m00 - m11 + m22).clamp_min(0)) *
                        at::sign(r.select(1, 1).select(1, 0) - r.select(1, 0).select(1, 1));
   const at::Tensor q = at::stack({w, x, y, z}, 1);
-  return q / q.norm(2, 1, true).clamp_min(1e-12);
+  return q / q.norm(2, 1, true).clamp_min(kMinQuaternionNorm);
 }
 
 }  // namespace
@@ -95,7 +96,7 @@ void export_ply(model::Avatar& avatar, const data::Dataset* dataset, int64_t fra
   // Columns are the axes; flip one where needed so the rotation is proper.
   const at::Tensor det_sign = at::sign(at::linalg_det(eigenvectors)).unsqueeze(1).unsqueeze(2);
   const at::Tensor axes = at::cat({eigenvectors.slice(2, 0, 2), eigenvectors.slice(2, 2, 3) * det_sign}, 2);
-  const at::Tensor log_scales = at::log(eigenvalues.clamp_min(1e-20)).mul(0.5).to(at::kFloat);
+  const at::Tensor log_scales = at::log(eigenvalues.clamp_min(kMinExportedVariance)).mul(0.5).to(at::kFloat);
   const at::Tensor rotation = quaternions_from_matrices(axes).to(at::kFloat);
   const at::Tensor f_dc = ((out.colours.to(at::kCPU, at::kFloat) - 0.5) / kShC0);
   const at::Tensor o = out.opacities.to(at::kCPU, at::kFloat).clamp(kOpacityClamp, 1 - kOpacityClamp);

@@ -101,7 +101,12 @@ TEST(SfgsDataset, CorruptAndInconsistentFilesAreClearErrors) {
   bad = d;
   bad.frames[0].pose.body_pose = at::zeros({20, 3});
   expect_error_mentioning([&] { write_sfgs_dataset(bad, dir.str(), true); }, "body_pose has shape");
-  // A camera whose rotation is singular, and a non-finite pose value, in dataset.json: named by frame and field.
+}
+
+// A camera whose rotation is singular, and a non-finite pose value, in dataset.json: named by frame and field.
+TEST(SfgsDataset, BadCamerasAndPoseValuesInTheIndexAreNamed) {
+  TempFolder dir;
+  const Dataset d = small_dataset(dir);
   write_sfgs_dataset(d, dir.str(), true);
   const std::string index = dir.str() + "/dataset.json";
   nlohmann::json j = nlohmann::json::parse(std::ifstream(index));

@@ -16,7 +16,8 @@ import torch
 import sfgs
 
 SFGS = os.environ.get("SFGS_EXECUTABLE", "")
-pytestmark = pytest.mark.skipif(not os.path.isfile(SFGS), reason="SFGS_EXECUTABLE does not name the sfgs executable")
+pytestmark = [pytest.mark.cli,
+              pytest.mark.skipif(not os.path.isfile(SFGS), reason="SFGS_EXECUTABLE does not name the sfgs executable")]
 
 TINY = """
 run: {seed: 3, log_every: 1, validate_every: 100, checkpoint_every: %d}

@@ -1,0 +1,12 @@
+#pragma once
+// How every error message of sfgs names a tensor it did not expect.
+#include <string>
+
+#include <ATen/core/Tensor.h>
+
+namespace sfgs {
+
+// "a Float tensor of shape [2, 3] on cpu", or "an undefined tensor".
+std::string describe(const at::Tensor& t);
+
+}  // namespace sfgs
