@@ -10,7 +10,7 @@
 #include <torch/csrc/autograd/autograd.h>
 #include <torch/cuda.h>
 
-#include "cuda/rasterize_kernels.h"
+#include "cuda/diagnostics.h"
 #include "splat_test_utils.h"
 
 namespace sfgs::testing {
