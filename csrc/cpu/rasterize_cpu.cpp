@@ -16,6 +16,7 @@ template <typename T> TileLists<T> tile_lists(const ForwardContext& c) {
 template <typename T>
 Forward forward_typed(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings) {
   check_background_finite(in.background);
+  check_opacities(in.opacities);
   const SplatScene<T> scene = make_scene<T>(in, camera, settings);
   const TileGrid grid = make_grid(camera.width, camera.height);
   Projection projection = project(scene, grid, in.means.options());

@@ -1,6 +1,6 @@
 #pragma once
 // The CPU reference backend's stages, in pipeline order (rasterize_cpu.cpp runs them):
-//   project_cpu.cpp         project every Gaussian, count each one's touched tiles
+//   project_cpu.cpp         project every Gaussian, refuse absurd workloads, count each one's touched tiles
 //   binning_cpu.cpp         emit (tile, Gaussian) intersections Gaussian-major, sort them by (tile, depth, Gaussian)
 //   blend_forward_cpu.cpp   blend each tile front to back
 //   blend_backward_cpu.cpp  replay each pixel's blend, write every pair's gradient into its intersection's slot, sum
@@ -28,6 +28,7 @@ struct Projection {
   std::vector<int64_t> tiles_touched;  // tiles each Gaussian touches (exact test); 0: culled
 };
 
+// Refuses (c10::Error) a scene whose Gaussian-tile pairs could exceed kCpuMaxTilePairs before testing any tile.
 template <typename T> Projection project(const SplatScene<T>& scene, const TileGrid& grid, const at::TensorOptions& real);
 
 // ---- binning -----------------------------------------------------------------------------------------------------

@@ -17,6 +17,9 @@ template <typename T>
 __global__ void project_kernel(const SplatScene<T> s, const ForwardBuffers<T> b, const TileGrid grid) {
   const int64_t i = int64_t(blockIdx.x) * blockDim.x + threadIdx.x;
   if (i >= s.count) return;
+  const T opacity = s.opacities[i];
+  if (!(opacity >= T(0) && opacity <= T(1)))  // NaN fails both comparisons
+    atomicAdd(reinterpret_cast<unsigned long long*>(&b.bin_stats->invalid_opacities), 1ull);
   int64_t touched = 0;
   uint64_t mask = 0;
   TileRect rect{1, 1, 0, 0};

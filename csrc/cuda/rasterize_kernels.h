@@ -9,8 +9,10 @@
 //                      tile's intersection count, spread over 32 counters per tile (Gaussian i counts in i % 32) so
 //                      that the atomics do not queue on one address; a scan of the counters gives every bucket's
 //                      offset, and one block derives the tiles' offsets, the blends' tile order (longest first) and
-//                      BinStats (intersection count, longest tile) in buffers.bin_stats.
-//   -- the caller reads BinStats: the forward pass's one host synchronisation (it sizes the buffers) --
+//                      BinStats (intersection count, longest tile, and the opacities outside [0, 1] it counted) in
+//                      buffers.bin_stats.
+//   -- the caller reads BinStats: the forward pass's one host synchronisation (it sizes the buffers, and invalid
+//      opacities are reported right after it) --
 //   bin_intersections  each Gaussian writes a (depth bits, index) record into the next slot of its bucket of each
 //                      touched tile's run, and one block per tile radix sorts its run in shared memory by depth
 //                      bits relative to the tile's nearest, carrying the index, with ties re-sorted by index: the
@@ -53,8 +55,9 @@ static_assert(kMaxImageSide / kTileSize <= INT16_MAX, "tile coordinates must fit
 
 // What the caller reads after project_gaussians to size the rest of the pass.
 struct BinStats {
-  int64_t intersections;    // (Gaussian, tile) pairs that pass the tile test
-  int64_t max_tile_length;  // intersections of the busiest tile
+  int64_t intersections;      // (Gaussian, tile) pairs that pass the tile test
+  int64_t max_tile_length;    // intersections of the busiest tile
+  int64_t invalid_opacities;  // opacities outside [0, 1] or not finite (an error the caller reports)
 };
 
 template <typename T> struct ForwardBuffers {

@@ -13,6 +13,7 @@
 
 #include "cuda/rasterize_kernels.h"
 #include "splat/backend.h"
+#include "splat/validation.h"
 
 namespace sfgs::splat::cuda {
 namespace {
@@ -84,17 +85,25 @@ void check_inputs(const SplatInputs& in) {
 }
 
 // The forward pass's one host synchronisation: BinStats sizes the per-intersection buffers and picks the binning
-// path.
-kernels::BinStats read_bin_stats(const at::Tensor& device_stats, const at::cuda::CUDAStream& stream) {
-  static_assert(sizeof(kernels::BinStats) == 2 * sizeof(int64_t), "BinStats is read as two int64 values");
-  const at::Tensor host = at::empty({2}, at::TensorOptions().dtype(at::kLong).pinned_memory(true));
+// path, and carries the count of invalid opacities, which is an error.
+kernels::BinStats read_bin_stats(const at::Tensor& device_stats, const at::Tensor& opacities,
+                                 const at::cuda::CUDAStream& stream) {
+  static_assert(sizeof(kernels::BinStats) == 3 * sizeof(int64_t), "BinStats is read as three int64 values");
+  const at::Tensor host = at::empty({3}, at::TensorOptions().dtype(at::kLong).pinned_memory(true));
   C10_CUDA_CHECK(cudaMemcpyAsync(host.data_ptr<int64_t>(), device_stats.data_ptr<int64_t>(),
                                  sizeof(kernels::BinStats), cudaMemcpyDeviceToHost, stream));
   at::cuda::CUDAEvent copied;
   copied.record(stream);
   copied.synchronize();
   const int64_t* v = host.data_ptr<int64_t>();
-  return kernels::BinStats{v[0], v[1]};
+  const kernels::BinStats stats{v[0], v[1], v[2]};
+  if (stats.invalid_opacities > 0) {
+    // The error path may synchronise again: it names the first offender.
+    const int64_t first = (~((opacities >= 0) & (opacities <= 1))).nonzero()[0][0].item<int64_t>();
+    TORCH_CHECK(false, "sfgs::render: ",
+                opacity_problem(stats.invalid_opacities, opacities.numel(), first, opacities[first].item<double>()));
+  }
+  return stats;
 }
 
 template <typename T>
@@ -117,7 +126,7 @@ Forward forward_typed(const SplatInputs& in, const CameraSpec& camera, const Bac
   c.tile_rects = at::empty({n, 4}, real.dtype(at::kShort));
   c.tile_offsets = at::empty({tiles + 1}, i64);
   c.tile_order = at::empty({tiles}, i32);
-  const at::Tensor bin_stats = at::empty({2}, i64);
+  const at::Tensor bin_stats = at::empty({3}, i64);
   out.outputs.radii = at::empty({n, 2}, i32);
   kernels::ForwardBuffers<T> buffers{};
   buffers.projected = c.projected.data_ptr<T>();
@@ -140,7 +149,7 @@ Forward forward_typed(const SplatInputs& in, const CameraSpec& camera, const Bac
   buffers.final_transmittance = c.final_transmittance.data_ptr<T>();
   buffers.contributors = c.contributors.data_ptr<int32_t>();
 
-  const kernels::BinStats stats = n > 0 ? read_bin_stats(bin_stats, stream) : kernels::BinStats{0, 0};
+  const kernels::BinStats stats = n > 0 ? read_bin_stats(bin_stats, in.opacities, stream) : kernels::BinStats{0, 0, 0};
   c.isect_gaussian = at::empty({stats.intersections}, i32);
   buffers.isect_gaussian = c.isect_gaussian.data_ptr<int32_t>();
   kernels::bin_intersections(scene, buffers, stats, scratch.allocator(), stream);

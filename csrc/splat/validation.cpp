@@ -39,6 +39,16 @@ void check_means(const at::Tensor& means, bool on_backend_device) {
               means.size(0));
 }
 
+template <typename T> void check_opacity_values(const T* v, int64_t count) {
+  int64_t invalid = 0, first = -1;
+  for (int64_t i = 0; i < count; ++i)
+    if (!(v[i] >= T(0) && v[i] <= T(1))) {  // NaN fails both comparisons
+      first = invalid == 0 ? i : first;
+      ++invalid;
+    }
+  TORCH_CHECK(invalid == 0, "sfgs::render: ", opacity_problem(invalid, count, first, double(v[first])));
+}
+
 }  // namespace
 
 void check_backend_device(const at::Tensor& means) {
@@ -98,6 +108,18 @@ CameraSpec validated_camera(const Camera& c) {
 void check_background_finite(const at::Tensor& background) {
   TORCH_CHECK(background.isfinite().all().item<bool>(), "sfgs::render: background must be finite, got ",
               background.cpu());
+}
+
+std::string opacity_problem(int64_t invalid, int64_t count, int64_t first_index, double first_value) {
+  std::ostringstream s;
+  s << "opacities must be finite and in [0, 1]; " << invalid << " of " << count << " are not (first: index "
+    << first_index << ", value " << first_value << ")";
+  return s.str();
+}
+
+void check_opacities(const at::Tensor& opacities) {
+  if (opacities.scalar_type() == at::kDouble) check_opacity_values(opacities.data_ptr<double>(), opacities.numel());
+  else check_opacity_values(opacities.data_ptr<float>(), opacities.numel());
 }
 
 }  // namespace sfgs::splat

@@ -25,7 +25,11 @@ void check_backend_device(const at::Tensor& means);
 // camera_problem() as an error; the CameraSpec the backends take otherwise.
 CameraSpec validated_camera(const Camera& camera);
 
-// A value check that reads the data (a device-to-host read on CUDA).
+// Value checks that read the data (host tensors only; CUDA folds the opacity check into its forward pass).
 void check_background_finite(const at::Tensor& background);
+void check_opacities(const at::Tensor& opacities);  // contiguous (N)
+
+// The error text for opacities outside [0, 1] or not finite, shared by both backends.
+std::string opacity_problem(int64_t invalid, int64_t count, int64_t first_index, double first_value);
 
 }  // namespace sfgs::splat

@@ -399,12 +399,11 @@ TEST(CudaStress, OpacityExactlyZeroAndOne) {
 TEST(CudaStress, NonFiniteValuesCullOnlyTheirGaussian) {
   SKIP_WITHOUT_CUDA();
   for (double bad : {kNaN, kInf, -kInf}) {
-    for (const std::string field : {"means", "scales", "rotations", "opacities", "features"}) {
+    for (const std::string field : {"means", "scales", "rotations", "features"}) {
       TestScene s = base_scene(64);
       at::Tensor& t = field == "means"       ? s.gaussians.means
                       : field == "scales"    ? s.gaussians.scales
                       : field == "rotations" ? s.gaussians.rotations
-                      : field == "opacities" ? s.gaussians.opacities
                                              : s.gaussians.features;
       t.view({-1})[t.numel() / t.size(0) * 3] = bad;
       const Rendered r = expect_parity(s, field + " = " + std::to_string(bad));
@@ -420,6 +419,36 @@ TEST(CudaStress, NonFiniteValuesCullOnlyTheirGaussian) {
   TestScene q = base_scene(64);
   set_row(q.gaussians.rotations, 0, {0, 0, 0, 0});
   EXPECT_FALSE(visible(expect_parity(q, "zero quaternion"), 0));
+}
+
+// Opacities outside [0, 1] or not finite: the projection kernel counts them into BinStats, and the forward pass
+// reports them right after its one read of BinStats, with the CPU's message.
+TEST(CudaStress, OpacitiesOutsideTheUnitIntervalAreErrors) {
+  SKIP_WITHOUT_CUDA();
+  SceneSpec spec;
+  spec.count = 4000;
+  TestScene s = random_scene(spec, 2);
+  s.gaussians.opacities[17] = 5.0;
+  s.gaussians.opacities[100] = kNaN;
+  s.gaussians.opacities[3999] = -0.5;
+  const std::string expected =
+      "sfgs::render: opacities must be finite and in [0, 1]; 3 of 4000 are not (first: index 17, value 5)";
+  for (at::ScalarType dtype : {at::kFloat, at::kDouble})
+    for (at::Device device : {at::Device(at::kCPU), kCuda}) {
+      TestScene d = s;
+      for (auto& [name, t] : differentiable_inputs(d)) *t = t->to(device, dtype);
+      try {
+        render(d.gaussians, d.background, d.camera);
+        ADD_FAILURE() << "expected an error on " << device << " in " << dtype;
+      } catch (const c10::Error& e) {
+        EXPECT_NE(std::string(e.what_without_backtrace()).find(expected), std::string::npos)
+            << e.what_without_backtrace();
+      }
+    }
+  // The stream is usable afterwards, and opacities of exactly 0 and 1 are fine.
+  s.gaussians.opacities.fill_(1.0);
+  s.gaussians.opacities[5] = 0.0;
+  expect_parity(s, "opacities 0 and 1 after an error");
 }
 
 TEST(CudaStress, ThousandsOfGaussiansOnOnePixel) {

@@ -53,6 +53,14 @@ def test_torch_ops_call_is_sfgs_render(covariances):
         assert torch.equal(g, e), name
 
 
+def test_errors_name_the_argument():
+    s = scene()
+    s["opacities"] = s["opacities"].clone()
+    s["opacities"][4] = 1.5
+    with pytest.raises(RuntimeError, match=r"opacities must be finite and in \[0, 1\]; 1 of 7 are not \(first: index 4"):
+        torch.ops.sfgs.render_gaussians(*op_arguments(s))
+
+
 # opcheck runs the op under schema, autograd-registration and fake-tensor checks (torch >= 2.4).
 # test_aot_dispatch_dynamic is left out: AOT dispatch traces the forward with fake tensors, where no backend kernel
 # runs, so the autograd node gets none of the state its backward needs (the intersection lists, whose sizes depend
