@@ -22,9 +22,12 @@ namespace {
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 constexpr double kInf = std::numeric_limits<double>::infinity();
 
-// Parity bounds of issue 3: relative L2 error of every output and of every gradient.
-constexpr double kFloat64ForwardBound = 1e-5;
-constexpr double kFloat64GradientBound = 1e-4;
+// float64 parity: relative L2 error of every output and of every gradient. Both backends evaluate the same functions
+// (splat/pair_math.h, splat/stages.h) in the same order per pixel; what differs is the order of sums (warp
+// reductions, atomics, per-tile partials) and fused multiply-adds, which cost a few ulps per operation, about 1e-13
+// relative on these scenes (the CPU reference agrees with its brute-force twin to 1e-12). 1e-9 leaves four orders of
+// magnitude for accumulation over deep pixels; to be confirmed on the GPU.
+constexpr double kFloat64ParityBound = 1e-9;
 // float32 CUDA against float64 CPU. Rounding alone stays near 1e-6 (forward) and 1e-4 (gradients); the bounds leave
 // room for the discrete decisions float32 can take differently on large scenes: two Gaussians whose depths round to
 // the same float swap order, a pair's alpha crossing 1/255, a pixel's transmittance crossing 1e-4.
@@ -124,7 +127,7 @@ Rendered expect_parity(const TestScene& scene, const std::string& label, const R
                        LossTerms terms = {}) {
   const Rendered cpu = render_on(scene, at::kCPU, at::kDouble, options, terms);
   const Rendered cuda = render_on(scene, kCuda, at::kDouble, options, terms);
-  expect_close(cuda, cpu, Bounds{kFloat64ForwardBound, kFloat64GradientBound, true}, label);
+  expect_close(cuda, cpu, Bounds{kFloat64ParityBound, kFloat64ParityBound, true}, label);
   expect_finite(cuda, label);
   expect_finite(render_on(scene, kCuda, at::kFloat, options, terms), label + " float32");
   return cuda;
@@ -166,7 +169,7 @@ TEST_P(CudaParity, Float64MatchesCpu) {
   const TestScene scene = parity_scene(c, 101 + uint64_t(c.count));
   const Rendered cpu = render_on(scene, at::kCPU, at::kDouble, parity_options(c));
   const Rendered cuda = render_on(scene, kCuda, at::kDouble, parity_options(c));
-  expect_close(cuda, cpu, Bounds{kFloat64ForwardBound, kFloat64GradientBound, true}, c.name);
+  expect_close(cuda, cpu, Bounds{kFloat64ParityBound, kFloat64ParityBound, true}, c.name);
 }
 
 // Image sizes are not multiples of the tile size; opacities reach 1 (alpha clamp) and scenes are deep enough that
@@ -225,7 +228,7 @@ TEST(CudaDeterministic, BitIdenticalGradientsAcrossRuns) {
   }
   const Rendered cpu = render_on(scene, at::kCPU, at::kDouble);
   expect_close(render_on(scene, kCuda, at::kDouble, deterministic), cpu,
-               Bounds{kFloat64ForwardBound, kFloat64GradientBound, true}, "deterministic float64 vs CPU");
+               Bounds{kFloat64ParityBound, kFloat64ParityBound, true}, "deterministic float64 vs CPU");
 }
 
 // ---- binning paths ------------------------------------------------------------------------------------------------
