@@ -25,7 +25,7 @@
 #include <torch/csrc/autograd/autograd.h>
 #include <torch/cuda.h>
 
-#include "cuda/rasterize_kernels.h"
+#include "cuda/diagnostics.h"
 #include "splat/backend.h"
 #include "splat/splat.h"
 
@@ -200,10 +200,13 @@ Result measure(const Workload& w) {
   const backend::BackendSettings settings{backend::ProjectionSettings{sfgs::kLowPassVariancePx2, false}, false};
   const backend::OutputGradients grads{s.grad_image, s.grad_alpha, at::Tensor()};
   const auto backend_forward = [&] { return backend::cuda::forward(inputs, camera, settings); };
-  const auto backend_train = [&] { backend::cuda::backward(inputs, camera, settings, backend_forward(), grads); };
+  const auto backend_train = [&] {
+    const backend::cuda::Forward f = backend_forward();
+    backend::cuda::backward(inputs, camera, settings, f.outputs.image, f.context, grads);
+  };
 
   Result r{w, 0, 0, 0, 0, 0, 0, 0, {}, 0, 0};
-  r.intersections = backend_forward().saved[2].numel();  // splat_cuda.cpp kSavedIsectGaussian: one per intersection
+  r.intersections = backend_forward().context.isect_gaussian.numel();
   r.op_forward = time_ms(render);
   r.op_training = time_ms(train);
   r.backend_forward = time_ms(backend_forward);

@@ -45,6 +45,11 @@ inline constexpr double kMinTransmittance = 1e-4;
 inline constexpr int kTileSize = 16;
 // Largest accepted image side (pixels); larger images are refused with a clear error.
 inline constexpr long kMaxImageSide = 16384;
+// The CPU backend refuses a render whose Gaussians' tile rectangles add up to more tiles than this (the bound on its
+// Gaussian-tile pairs, checked before the exact tile test): each pair costs 24 bytes of intersection lists and
+// (7 + C) values of backward gradient slots, 104 bytes for RGB in float64, so this caps those at about 3.5 GB and the
+// run time at minutes, not hours. The avatar workloads stay under a tenth of it (1M Gaussians at 1080 x 1920: 2.7M).
+inline constexpr long kCpuMaxTilePairs = 1L << 25;
 
 // ---- metrics (docs/metrics.md) -----------------------------------------------------------------------------
 // Images are compared on values in [0, 1]: PSNR, SSIM's C1/C2 and LPIPS's 2v - 1 mapping assume this range.

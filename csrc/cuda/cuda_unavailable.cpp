@@ -8,12 +8,12 @@ namespace sfgs::splat::cuda {
 
 bool available() { return false; }
 
-ForwardOutputs forward(const SplatInputs&, const CameraSpec&, const BackendSettings&) {
+Forward forward(const SplatInputs&, const CameraSpec&, const BackendSettings&) {
   TORCH_CHECK(false, "sfgs: this build has no CUDA backend (rebuild against a CUDA LibTorch)");
 }
 
-InputGradients backward(const SplatInputs&, const CameraSpec&, const BackendSettings&, const ForwardOutputs&,
-                        const OutputGradients&) {
+InputGradients backward(const SplatInputs&, const CameraSpec&, const BackendSettings&, const at::Tensor&,
+                        const ForwardContext&, const OutputGradients&) {
   TORCH_CHECK(false, "sfgs: this build has no CUDA backend (rebuild against a CUDA LibTorch)");
 }
 

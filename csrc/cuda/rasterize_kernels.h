@@ -9,8 +9,10 @@
 //                      tile's intersection count, spread over 32 counters per tile (Gaussian i counts in i % 32) so
 //                      that the atomics do not queue on one address; a scan of the counters gives every bucket's
 //                      offset, and one block derives the tiles' offsets, the blends' tile order (longest first) and
-//                      BinStats (intersection count, longest tile) in buffers.bin_stats.
-//   -- the caller reads BinStats: the forward pass's one host synchronisation (it sizes the buffers) --
+//                      BinStats (intersection count, longest tile, and the opacities outside [0, 1] it counted) in
+//                      buffers.bin_stats.
+//   -- the caller reads BinStats: the forward pass's one host synchronisation (it sizes the buffers, and invalid
+//      opacities are reported right after it) --
 //   bin_intersections  each Gaussian writes a (depth bits, index) record into the next slot of its bucket of each
 //                      touched tile's run, and one block per tile radix sorts its run in shared memory by depth
 //                      bits relative to the tile's nearest, carrying the index, with ties re-sorted by index: the
@@ -26,25 +28,23 @@
 // Gaussian with a transposing shuffle reduction, and the contributing warps' sums are added in warp order, once per
 // (tile, Gaussian): into per-Gaussian accumulators with atomics, or, in deterministic mode, into that
 // intersection's own slot, which a per-Gaussian kernel sums in a fixed order before the projection VJP.
+//
+// Files, by stage: project.cu, binning.cu, blend_forward.cu, blend_backward.cu (with the per-Gaussian backward);
+// kernel_common.cuh, warp_utils.cuh and blend_common.cuh hold what they share; diagnostics.h the switches that only
+// tests and benchmarks use.
 #include <cstddef>
 #include <cstdint>
 #include <functional>
 
 #include <cuda_runtime_api.h>
 
-#include "splat/pair_math.h"
+#include "splat/stages.h"
 
 namespace sfgs::splat::cuda_kernels {
 
 // Returns device memory of at least `bytes` that stays valid for all work queued on the stream before the
 // allocation is released (the glue releases it when the backend call returns).
 using ScratchAllocator = std::function<void*(std::size_t bytes)>;
-
-// Gradient w.r.t. one projected Gaussian, summed over the pixels it was blended into; the feature gradients follow
-// it in a deterministic-mode intersection slot.
-enum ProjectedGradField : int {
-  kGradMeanX, kGradMeanY, kGradConicA, kGradConicB, kGradConicC, kGradOpacity, kGradDepth, kProjectedGradWidth
-};
 
 // Inclusive tile rectangle of a Gaussian; empty (x0 > x1) when it touches no tile. Tile coordinates fit in 16 bits
 // because image sides are at most kMaxImageSide.
@@ -53,24 +53,11 @@ struct TileRect {
 };
 static_assert(kMaxImageSide / kTileSize <= INT16_MAX, "tile coordinates must fit TileRect");
 
-template <typename T> struct SplatScene {
-  PinholeCamera<T> camera;
-  ProjectionSettings projection;
-  const T* means;        // (N, 3)
-  const T* scales;       // (N, 3), null when covariances are given
-  const T* rotations;    // (N, 4), null when covariances are given
-  const T* covariances;  // (N, 6), null when scales and rotations are given
-  const T* opacities;    // (N)
-  const T* features;     // (N, C)
-  const T* background;   // (C)
-  int64_t count;         // N
-  int channels;          // C
-};
-
 // What the caller reads after project_gaussians to size the rest of the pass.
 struct BinStats {
   int64_t intersections;      // (Gaussian, tile) pairs that pass the tile test
   int64_t max_tile_length;    // intersections of the busiest tile
+  int64_t invalid_opacities;  // opacities outside [0, 1] or not finite (an error the caller reports)
 };
 
 template <typename T> struct ForwardBuffers {
@@ -117,17 +104,6 @@ template <typename T> struct BackwardInputs {
   const T* grad_depth_sum;  // (H, W), null likewise
 };
 
-// Every array is fully written by backward().
-template <typename T> struct Gradients {
-  T* means;
-  T* scales;       // null when covariances are given
-  T* rotations;    // null when covariances are given
-  T* covariances;  // null when scales and rotations are given
-  T* opacities;
-  T* features;
-  T* background;
-};
-
 // Sets buffers' scratch pointers (from `scratch`, which must outlive bin_intersections) and fills bin_stats.
 template <typename T>
 void project_gaussians(const SplatScene<T>& scene, ForwardBuffers<T>& buffers, const ScratchAllocator& scratch,
@@ -138,35 +114,9 @@ void bin_intersections(const SplatScene<T>& scene, const ForwardBuffers<T>& buff
                        const ScratchAllocator& scratch, cudaStream_t stream);
 template <typename T> void blend(const SplatScene<T>& scene, const ForwardBuffers<T>& buffers, cudaStream_t stream);
 // deterministic: bit-identical gradients across runs (per-intersection slots, fixed-order sums) at the cost of
-// (7 + C) values of memory per intersection.
+// (7 + C) values of memory per intersection. Every array of gradients is fully written.
 template <typename T>
 void backward(const SplatScene<T>& scene, const BackwardInputs<T>& inputs, const Gradients<T>& gradients,
               bool deterministic, const ScratchAllocator& scratch, cudaStream_t stream);
-
-// Which binning path bin_intersections takes: the per-tile shared-memory sort when every tile fits it (kAuto), or
-// always the radix path (kRadix), for tests and benchmarks that compare the two. Global, not thread-safe.
-enum class Binning { kAuto, kRadix };
-void set_binning(Binning binning);
-// The path the latest bin_intersections call took (kAuto: the per-tile sort).
-Binning last_binning();
-
-// The order in which the blends take the tiles: longest runs first (the default), or row-major, for benchmarks that
-// measure what the ordering gains. Global, not thread-safe.
-enum class TileOrder { kLongestFirst, kRowMajor };
-void set_tile_order(TileOrder order);
-
-// Benchmarks time the pipeline's stages by recording their own events when these are called; the stages are named
-// "project", "emit", "tile sort", "blend", "blend backward" and "project backward", and on the radix path
-// "depth sort" and "tile ranges" too.
-class StageObserver {
- public:
-  virtual void begin(const char* stage, cudaStream_t stream) = 0;
-  virtual void end(const char* stage, cudaStream_t stream) = 0;
-
- protected:
-  ~StageObserver() = default;
-};
-// Installs the observer for all later calls on every thread (null removes it); for benchmarks, not thread-safe.
-void set_stage_observer(StageObserver* observer);
 
 }  // namespace sfgs::splat::cuda_kernels

@@ -1,6 +1,6 @@
-// CUDA backend of the splatting op: the torch side of csrc/cuda/rasterize_kernels.h. Allocates outputs and saved
-// state as tensors on the inputs' device, scratch from torch's caching allocator, and queues every kernel on the
-// current stream of that device.
+// CUDA backend of the splatting op: the torch side of csrc/cuda/rasterize_kernels.h, and the orchestration of its
+// stages. Allocates outputs and the cuda::ForwardContext as tensors on the inputs' device, scratch from torch's
+// caching allocator, and queues every kernel on the current stream of that device.
 #include <algorithm>
 #include <cstdint>
 #include <vector>
@@ -13,17 +13,12 @@
 
 #include "cuda/rasterize_kernels.h"
 #include "splat/backend.h"
+#include "splat/validation.h"
 
 namespace sfgs::splat::cuda {
 namespace {
 
 namespace kernels = sfgs::splat::cuda_kernels;
-
-// Indices into ForwardOutputs::saved.
-enum SavedField {
-  kSavedProjected, kSavedTileRects, kSavedIsectGaussian, kSavedTileOffsets, kSavedTileOrder, kSavedFinalT,
-  kSavedContributors, kSavedImage, kSavedDepthSum, kSavedCount
-};
 
 // Scratch memory held until the backend call returns. The caching allocator hands a freed block only to work queued
 // later on the same stream, so kernels queued before the return may still use it. Requests are carved out of blocks
@@ -89,116 +84,105 @@ void check_inputs(const SplatInputs& in) {
   check_on_device(in.background, "background", in.means);
 }
 
-template <typename T>
-kernels::SplatScene<T> make_scene(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings) {
-  return kernels::SplatScene<T>{to_pinhole<T>(camera),
-                                settings.projection,
-                                in.means.data_ptr<T>(),
-                                data_or_null<T>(in.scales),
-                                data_or_null<T>(in.rotations),
-                                data_or_null<T>(in.covariances),
-                                in.opacities.data_ptr<T>(),
-                                in.features.data_ptr<T>(),
-                                in.background.data_ptr<T>(),
-                                in.means.size(0),
-                                int(in.features.size(1))};
+// The forward pass's one host synchronisation: BinStats sizes the per-intersection buffers and picks the binning
+// path, and carries the count of invalid opacities, which is an error.
+kernels::BinStats read_bin_stats(const at::Tensor& device_stats, const at::Tensor& opacities,
+                                 const at::cuda::CUDAStream& stream) {
+  static_assert(sizeof(kernels::BinStats) == 3 * sizeof(int64_t), "BinStats is read as three int64 values");
+  const at::Tensor host = at::empty({3}, at::TensorOptions().dtype(at::kLong).pinned_memory(true));
+  C10_CUDA_CHECK(cudaMemcpyAsync(host.data_ptr<int64_t>(), device_stats.data_ptr<int64_t>(),
+                                 sizeof(kernels::BinStats), cudaMemcpyDeviceToHost, stream));
+  at::cuda::CUDAEvent copied;
+  copied.record(stream);
+  copied.synchronize();
+  const int64_t* v = host.data_ptr<int64_t>();
+  const kernels::BinStats stats{v[0], v[1], v[2]};
+  if (stats.invalid_opacities > 0) {
+    // The error path may synchronise again: it names the first offender.
+    const int64_t first = (~((opacities >= 0) & (opacities <= 1))).nonzero()[0][0].item<int64_t>();
+    TORCH_CHECK(false, "sfgs::render: ",
+                opacity_problem(stats.invalid_opacities, opacities.numel(), first, opacities[first].item<double>()));
+  }
+  return stats;
 }
 
-int64_t tile_count(const CameraSpec& camera) {
-  return int64_t((camera.width + kTileSize - 1) / kTileSize) * ((camera.height + kTileSize - 1) / kTileSize);
-}
-
 template <typename T>
-ForwardOutputs forward_typed(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings) {
+Forward forward_typed(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings) {
   const c10::cuda::CUDAGuard guard(in.means.device());
   const at::cuda::CUDAStream stream = at::cuda::getCurrentCUDAStream();
   TorchScratch scratch(in.means.device());
-  const kernels::SplatScene<T> scene = make_scene<T>(in, camera, settings);
+  const SplatScene<T> scene = make_scene<T>(in, camera, settings);
   const int64_t n = scene.count, h = camera.height, w = camera.width, channels = scene.channels;
+  const int64_t tiles = tile_count(make_grid(camera.width, camera.height));
   const auto real = in.means.options();
   const auto i32 = real.dtype(at::kInt);
   const auto i64 = real.dtype(at::kLong);
 
   // Everything but the per-intersection buffers is allocated before the size read, while the device projects.
-  ForwardOutputs out;
-  out.saved.resize(kSavedCount);
+  Forward out;
+  ForwardContext& c = out.context;
   static_assert(sizeof(kernels::TileRect) == 4 * sizeof(int16_t), "TileRect is saved as an (N, 4) int16 tensor");
-  static_assert(sizeof(kernels::BinStats) == 2 * sizeof(int64_t), "BinStats is read as two int64 values");
-  const at::Tensor projected = out.saved[kSavedProjected] = at::empty({n, kProjectedWidth}, real);
-  const at::Tensor tile_rects = out.saved[kSavedTileRects] = at::empty({n, 4}, real.dtype(at::kShort));
-  const at::Tensor tile_offsets = out.saved[kSavedTileOffsets] = at::empty({tile_count(camera) + 1}, i64);
-  const at::Tensor tile_order = out.saved[kSavedTileOrder] = at::empty({tile_count(camera)}, i32);
-  const at::Tensor bin_stats = at::empty({2}, i64);
-  out.radii = at::empty({n, 2}, i32);
+  c.projected = at::empty({n, kProjectedWidth}, real);
+  c.tile_rects = at::empty({n, 4}, real.dtype(at::kShort));
+  c.tile_offsets = at::empty({tiles + 1}, i64);
+  c.tile_order = at::empty({tiles}, i32);
+  const at::Tensor bin_stats = at::empty({3}, i64);
+  out.outputs.radii = at::empty({n, 2}, i32);
   kernels::ForwardBuffers<T> buffers{};
-  buffers.projected = projected.data_ptr<T>();
-  buffers.tile_rects = reinterpret_cast<kernels::TileRect*>(tile_rects.data_ptr<int16_t>());
-  buffers.radii = out.radii.data_ptr<int32_t>();
-  buffers.tile_offsets = tile_offsets.data_ptr<int64_t>();
-  buffers.tile_order = tile_order.data_ptr<int32_t>();
+  buffers.projected = c.projected.data_ptr<T>();
+  buffers.tile_rects = reinterpret_cast<kernels::TileRect*>(c.tile_rects.data_ptr<int16_t>());
+  buffers.radii = out.outputs.radii.data_ptr<int32_t>();
+  buffers.tile_offsets = c.tile_offsets.data_ptr<int64_t>();
+  buffers.tile_order = c.tile_order.data_ptr<int32_t>();
   buffers.bin_stats = reinterpret_cast<kernels::BinStats*>(bin_stats.data_ptr<int64_t>());
   kernels::project_gaussians(scene, buffers, scratch.allocator(), stream);
-  out.image = out.saved[kSavedImage] = at::empty({h, w, channels}, real);
-  const at::Tensor depth_sum = out.saved[kSavedDepthSum] = at::empty({h, w}, real);
-  out.depth = at::empty({h, w}, real);
-  out.alpha = at::empty({h, w}, real);
-  const at::Tensor final_t = out.saved[kSavedFinalT] = at::empty({h, w}, real);
-  const at::Tensor contributors = out.saved[kSavedContributors] = at::empty({h, w}, i32);
-  buffers.image = out.image.data_ptr<T>();
-  buffers.alpha = out.alpha.data_ptr<T>();
-  buffers.depth_sum = depth_sum.data_ptr<T>();
-  buffers.depth = out.depth.data_ptr<T>();
-  buffers.final_transmittance = final_t.data_ptr<T>();
-  buffers.contributors = contributors.data_ptr<int32_t>();
+  out.outputs.image = at::empty({h, w, channels}, real);
+  out.outputs.alpha = at::empty({h, w}, real);
+  out.outputs.depth = at::empty({h, w}, real);
+  c.depth_sum = at::empty({h, w}, real);
+  c.final_transmittance = at::empty({h, w}, real);
+  c.contributors = at::empty({h, w}, i32);
+  buffers.image = out.outputs.image.data_ptr<T>();
+  buffers.alpha = out.outputs.alpha.data_ptr<T>();
+  buffers.depth_sum = c.depth_sum.data_ptr<T>();
+  buffers.depth = out.outputs.depth.data_ptr<T>();
+  buffers.final_transmittance = c.final_transmittance.data_ptr<T>();
+  buffers.contributors = c.contributors.data_ptr<int32_t>();
 
-  // The forward pass's one host synchronisation: the intersection count sizes the per-intersection buffers, and the
-  // longest tile picks the binning path.
-  kernels::BinStats stats{0, 0};
-  if (n > 0) {
-    const at::Tensor stats_host = at::empty({2}, at::TensorOptions().dtype(at::kLong).pinned_memory(true));
-    C10_CUDA_CHECK(cudaMemcpyAsync(stats_host.data_ptr<int64_t>(), buffers.bin_stats, sizeof(kernels::BinStats),
-                                   cudaMemcpyDeviceToHost, stream));
-    at::cuda::CUDAEvent copied;
-    copied.record(stream);
-    copied.synchronize();
-    stats = kernels::BinStats{stats_host.data_ptr<int64_t>()[0], stats_host.data_ptr<int64_t>()[1]};
-  }
-  const at::Tensor isect_gaussian = out.saved[kSavedIsectGaussian] = at::empty({stats.intersections}, i32);
-  buffers.isect_gaussian = isect_gaussian.data_ptr<int32_t>();
+  const kernels::BinStats stats = n > 0 ? read_bin_stats(bin_stats, in.opacities, stream) : kernels::BinStats{0, 0, 0};
+  c.isect_gaussian = at::empty({stats.intersections}, i32);
+  buffers.isect_gaussian = c.isect_gaussian.data_ptr<int32_t>();
   kernels::bin_intersections(scene, buffers, stats, scratch.allocator(), stream);
-
   kernels::blend(scene, buffers, stream);
   return out;
 }
 
 template <typename T>
 InputGradients backward_typed(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings,
-                              const ForwardOutputs& fwd, const OutputGradients& grads) {
+                              const at::Tensor& image, const ForwardContext& c, const OutputGradients& grads) {
   const c10::cuda::CUDAGuard guard(in.means.device());
   const at::cuda::CUDAStream stream = at::cuda::getCurrentCUDAStream();
   TorchScratch scratch(in.means.device());
-  TORCH_CHECK(fwd.saved.size() == kSavedCount, "sfgs CUDA backend: backward got ", fwd.saved.size(),
-              " saved tensors, expected ", int(kSavedCount), " (was the forward pass run by another backend?)");
-  const kernels::SplatScene<T> scene = make_scene<T>(in, camera, settings);
+  const SplatScene<T> scene = make_scene<T>(in, camera, settings);
   const at::Tensor grad_image = grads.image.defined() ? grads.image.contiguous() : at::Tensor();
   const at::Tensor grad_alpha = grads.alpha.defined() ? grads.alpha.contiguous() : at::Tensor();
   const at::Tensor grad_depth = grads.depth_sum.defined() ? grads.depth_sum.contiguous() : at::Tensor();
   check_on_device(grad_image, "the image gradient", in.means);
   check_on_device(grad_alpha, "the alpha gradient", in.means);
   check_on_device(grad_depth, "the depth gradient", in.means);
+  check_on_device(image, "the saved image", in.means);
 
-  const std::vector<at::Tensor>& saved = fwd.saved;
   const kernels::BackwardInputs<T> inputs{
-      saved[kSavedProjected].data_ptr<T>(),
-      reinterpret_cast<const kernels::TileRect*>(saved[kSavedTileRects].data_ptr<int16_t>()),
-      saved[kSavedIsectGaussian].data_ptr<int32_t>(),
-      saved[kSavedTileOffsets].data_ptr<int64_t>(),
-      saved[kSavedTileOrder].data_ptr<int32_t>(),
-      saved[kSavedIsectGaussian].numel(),
-      saved[kSavedImage].data_ptr<T>(),
-      saved[kSavedDepthSum].data_ptr<T>(),
-      saved[kSavedFinalT].data_ptr<T>(),
-      saved[kSavedContributors].data_ptr<int32_t>(),
+      c.projected.data_ptr<T>(),
+      reinterpret_cast<const kernels::TileRect*>(c.tile_rects.data_ptr<int16_t>()),
+      c.isect_gaussian.data_ptr<int32_t>(),
+      c.tile_offsets.data_ptr<int64_t>(),
+      c.tile_order.data_ptr<int32_t>(),
+      c.isect_gaussian.numel(),
+      image.data_ptr<T>(),
+      c.depth_sum.data_ptr<T>(),
+      c.final_transmittance.data_ptr<T>(),
+      c.contributors.data_ptr<int32_t>(),
       data_or_null<T>(grad_image),
       data_or_null<T>(grad_alpha),
       data_or_null<T>(grad_depth)};
@@ -214,13 +198,13 @@ InputGradients backward_typed(const SplatInputs& in, const CameraSpec& camera, c
     out.scales = at::empty_like(in.scales);
     out.rotations = at::empty_like(in.rotations);
   }
-  const kernels::Gradients<T> gradients{out.means.data_ptr<T>(),
-                                        mutable_data_or_null<T>(out.scales),
-                                        mutable_data_or_null<T>(out.rotations),
-                                        mutable_data_or_null<T>(out.covariances),
-                                        out.opacities.data_ptr<T>(),
-                                        out.features.data_ptr<T>(),
-                                        out.background.data_ptr<T>()};
+  const Gradients<T> gradients{out.means.data_ptr<T>(),
+                               mutable_data_or_null<T>(out.scales),
+                               mutable_data_or_null<T>(out.rotations),
+                               mutable_data_or_null<T>(out.covariances),
+                               out.opacities.data_ptr<T>(),
+                               out.features.data_ptr<T>(),
+                               out.background.data_ptr<T>()};
   kernels::backward(scene, inputs, gradients, settings.deterministic, scratch.allocator(), stream);
   return out;
 }
@@ -229,17 +213,18 @@ InputGradients backward_typed(const SplatInputs& in, const CameraSpec& camera, c
 
 bool available() { return true; }
 
-ForwardOutputs forward(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings) {
+Forward forward(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings) {
   check_inputs(in);
   if (in.means.scalar_type() == at::kDouble) return forward_typed<double>(in, camera, settings);
   return forward_typed<float>(in, camera, settings);
 }
 
 InputGradients backward(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings,
-                        const ForwardOutputs& forward, const OutputGradients& grads) {
+                        const at::Tensor& image, const ForwardContext& context, const OutputGradients& grads) {
   check_inputs(in);
-  if (in.means.scalar_type() == at::kDouble) return backward_typed<double>(in, camera, settings, forward, grads);
-  return backward_typed<float>(in, camera, settings, forward, grads);
+  if (in.means.scalar_type() == at::kDouble)
+    return backward_typed<double>(in, camera, settings, image, context, grads);
+  return backward_typed<float>(in, camera, settings, image, context, grads);
 }
 
 }  // namespace sfgs::splat::cuda

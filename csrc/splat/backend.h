@@ -1,12 +1,12 @@
 #pragma once
-// The contract between the splatting op (splat.cpp: validation, autograd) and its two backends (csrc/cpu,
-// csrc/cuda). Inputs arrive validated, contiguous, of one floating dtype and on one device.
+// The contract between the splatting op (csrc/splat/op.cpp: kernels, autograd) and its two backends (csrc/cpu,
+// csrc/cuda). Inputs arrive validated, contiguous, of one floating dtype and on one device. Each backend's forward
+// returns the op's outputs and a typed ForwardContext: what its backward needs besides the inputs and outputs.
 #include <array>
-#include <vector>
 
 #include <ATen/core/Tensor.h>
 
-#include "splat/pair_math.h"
+#include "splat/stages.h"
 
 namespace sfgs::splat {
 
@@ -47,13 +47,24 @@ struct BackendSettings {
   bool deterministic;  // CUDA: reduce gradients in a fixed order (bit-identical runs); the CPU path always is
 };
 
-// Forward results plus whatever the backend needs to replay the blend backwards.
+// The inputs as the raw arrays of stages.h (the tensors must outlive the scene).
+template <typename T>
+SplatScene<T> make_scene(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings) {
+  const auto data = [](const at::Tensor& t) { return t.defined() ? t.data_ptr<T>() : nullptr; };
+  return SplatScene<T>{to_pinhole<T>(camera),         settings.projection,
+                       data(in.means),                data(in.scales),
+                       data(in.rotations),            data(in.covariances),
+                       data(in.opacities),            data(in.features),
+                       data(in.background),           in.means.size(0),
+                       int(in.features.size(1))};
+}
+
+// The op's outputs.
 struct ForwardOutputs {
-  at::Tensor image;      // (H, W, C)
-  at::Tensor alpha;      // (H, W)
-  at::Tensor depth;      // (H, W): expected depth, expected_depth_of(sum of depth * blend weight, alpha)
-  at::Tensor radii;      // (N, 2) int32 half extents in pixels of the alpha >= kMinAlpha ellipse; 0 = culled
-  std::vector<at::Tensor> saved;  // backend-private state for backward
+  at::Tensor image;  // (H, W, C)
+  at::Tensor alpha;  // (H, W)
+  at::Tensor depth;  // (H, W): expected depth, expected_depth_of(sum of depth * blend weight, alpha)
+  at::Tensor radii;  // (N, 2) int32 half extents in pixels of the alpha >= kMinAlpha ellipse; 0 = culled
 };
 
 // Gradients w.r.t. the image, alpha and the weighted depth sum (the op turns the expected-depth gradient into these).
@@ -66,16 +77,47 @@ struct InputGradients {
 };
 
 namespace cpu {
-ForwardOutputs forward(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings);
+// Everything below is indexed as the forward pass left it: intersections in emission order (Gaussian-major, each
+// Gaussian's touched tiles row-major), which is also the order of their gradient slots.
+struct ForwardContext {
+  at::Tensor projected;            // (N, kProjectedWidth) ProjectedField rows; rows of culled Gaussians are zero
+  at::Tensor gaussian_offsets;     // (N + 1) int64: Gaussian i owns intersections [offsets[i], offsets[i + 1])
+  at::Tensor isect_gaussian;       // (intersections) int64: the Gaussian of each intersection
+  at::Tensor tile_offsets;         // (tiles + 1) int64: start of each tile's run in tile_order
+  at::Tensor tile_order;           // (intersections) int64: intersections sorted by (tile, depth, Gaussian)
+  at::Tensor final_transmittance;  // (H, W)
+  at::Tensor contributors;         // (H, W) int32: run position + 1 of the pixel's last blended Gaussian, 0 for none
+};
+struct Forward {
+  ForwardOutputs outputs;
+  ForwardContext context;
+};
+Forward forward(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings);
 InputGradients backward(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings,
-                        const ForwardOutputs& forward, const OutputGradients& grads);
+                        const ForwardContext& context, const OutputGradients& grads);
 }  // namespace cpu
 
 namespace cuda {
 bool available();  // compiled with CUDA support
-ForwardOutputs forward(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings);
+// Per-intersection state is in sorted order: each tile's run holds its Gaussians by (depth, index).
+struct ForwardContext {
+  at::Tensor projected;            // (N, kProjectedWidth) ProjectedField rows; rows of culled Gaussians not written
+  at::Tensor tile_rects;           // (N, 4) int16 inclusive tile rectangles (cuda_kernels::TileRect); empty: culled
+  at::Tensor isect_gaussian;       // (intersections) int32, tile runs in (depth, index) order
+  at::Tensor tile_offsets;         // (tiles + 1) int64: start of each tile's run
+  at::Tensor tile_order;           // (tiles) int32: the order in which the blends take the tiles
+  at::Tensor final_transmittance;  // (H, W)
+  at::Tensor contributors;         // (H, W) int32: run position + 1 of the pixel's last blended Gaussian, 0 for none
+  at::Tensor depth_sum;            // (H, W): sum of depth * blend weight
+};
+struct Forward {
+  ForwardOutputs outputs;
+  ForwardContext context;
+};
+Forward forward(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings);
+// image: the forward pass's image output; the backward blend reads what every pixel's composite added up to.
 InputGradients backward(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings,
-                        const ForwardOutputs& forward, const OutputGradients& grads);
+                        const at::Tensor& image, const ForwardContext& context, const OutputGradients& grads);
 }  // namespace cuda
 
 }  // namespace sfgs::splat

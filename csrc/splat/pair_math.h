@@ -309,7 +309,7 @@ SFGS_HD void project_gaussian_vjp(const PinholeCamera<T>& cam, const ProjectionS
                                   const Vec3<T>& mean, const Mat3<T>& covariance, T opacity,
                                   const Vec2<T>& grad_mean2d, const Vec3<T>& grad_conic, T grad_opacity_out,
                                   T grad_depth, Vec3<T>& grad_mean, Mat3<T>& grad_covariance, T& grad_opacity) {
-  ProjectionTerms<T> t;
+  ProjectionTerms<T> t{};  // projection_terms fills every field for the accepted Gaussians this is called for
   projection_terms(cam, settings, mean, covariance, t);
   const T inv_det = T(1) / t.det;
   Mat2<T> conic;

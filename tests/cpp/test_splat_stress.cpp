@@ -3,6 +3,7 @@
 // which inputs are culled and which are errors (test_splat_validation.cpp).
 #include <cmath>
 #include <limits>
+#include <string>
 
 #include <gtest/gtest.h>
 #include <torch/csrc/autograd/autograd.h>
@@ -113,15 +114,14 @@ TEST(SplatStress, OpacityExactlyZeroAndOne) {
   EXPECT_GT(r.grads[0][1].abs().sum().item<double>(), 0.0) << "the clamp zeroes only the centre pixels' gradient";
 }
 
+// Non-finite opacities are errors instead (test_splat_validation.cpp).
 TEST(SplatStress, NonFiniteValuesCullOnlyTheirGaussian) {
   for (double bad : {kNaN, kInf, -kInf}) {
-    for (const char* field : {"means", "scales", "rotations", "opacities", "features"}) {
+    for (const char* field : {"means", "scales", "rotations", "features"}) {
       TestScene s = base_scene();
-      const TestScene clean = base_scene();
       at::Tensor& t = std::string(field) == "means"       ? s.gaussians.means
                       : std::string(field) == "scales"    ? s.gaussians.scales
                       : std::string(field) == "rotations" ? s.gaussians.rotations
-                      : std::string(field) == "opacities" ? s.gaussians.opacities
                                                           : s.gaussians.features;
       t.view({-1})[t.numel() / t.size(0) * 3] = bad;  // Gaussian 3's first entry
       const StressResult r = render_and_check(s);
@@ -168,6 +168,28 @@ TEST(SplatStress, OneByOneAndHugeImages) {
   const StressResult r = render_and_check(big);
   EXPECT_EQ(r.render.image.sizes(), at::IntArrayRef({4096, 4096, 3}));
   EXPECT_GT(r.render.alpha.max().item<float>(), 0.5f);
+}
+
+// A CPU render whose Gaussians' tile rectangles add up to more than kCpuMaxTilePairs tiles is refused before any
+// tile is tested: here 40 Gaussians of 1 km each cover all 1024 x 1024 tiles of a 16384 x 16384 image (a bound of
+// 4.2e7 pairs); the refusal costs one projection pass. The 1000 Gaussians behind the camera do not count.
+TEST(SplatStress, AbsurdCpuWorkloadIsRefusedBeforeBinning) {
+  TestScene s = base_scene(1040);
+  s.camera = Camera::looking_forward(8000.0, kMaxImageSide, kMaxImageSide);
+  s.gaussians.means = at::tensor({0.0, 0.0, 3.0}, at::kDouble).repeat({1040, 1});
+  s.gaussians.means.narrow(0, 40, 1000).select(1, 2).fill_(-3.0);
+  s.gaussians.scales = at::full({1040, 3}, 1e3, at::kDouble);
+  try {
+    render(s.gaussians, s.background, s.camera);
+    ADD_FAILURE() << "expected the CPU backend to refuse the render";
+  } catch (const c10::Error& e) {
+    const std::string message = e.what_without_backtrace();
+    EXPECT_NE(message.find("sfgs::render (CPU): this image would need up to 4.2e+07 Gaussian-tile pairs (40 Gaussians "
+                           "on screen, the largest covering 1024 x 1024 tiles), more than the CPU backend's limit of "
+                           "3.4e+07; render on CUDA, use a smaller image, or check the scales"),
+              std::string::npos)
+        << message;
+  }
 }
 
 }  // namespace

@@ -12,9 +12,9 @@
 namespace sfgs::testing {
 namespace {
 
-void expect_error(const std::function<void(TestScene&)>& spoil, const std::string& message) {
+void expect_error(const std::function<void(TestScene&)>& spoil, const std::string& message, int64_t count = 4) {
   SceneSpec spec;
-  spec.count = 4;
+  spec.count = count;
   TestScene s = random_scene(spec, 2);
   spoil(s);
   try {
@@ -98,6 +98,25 @@ TEST(SplatValidation, SingularOrImproperRotationsAreRefused) {
   const auto rounded = [](double v) { return std::round(v * 1e7) / 1e7; };
   set_rotation(s, {rounded(c), 0, rounded(sn), 0, 1, 0, rounded(-sn), 0, rounded(c)});
   EXPECT_TRUE(camera_problem(s.camera).empty()) << camera_problem(s.camera);
+}
+
+// Opacities arrive activated: a value outside [0, 1] or not finite is a bug upstream, named with how many there are and
+// the first of them.
+TEST(SplatValidation, OpacitiesOutsideTheUnitIntervalAreErrors) {
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  expect_error(
+      [nan](TestScene& s) {
+        s.gaussians.opacities[17] = 5.0;
+        s.gaussians.opacities[100] = nan;
+        s.gaussians.opacities[3999] = -0.5;
+      },
+      "sfgs::render: opacities must be finite and in [0, 1]; 3 of 4000 are not (first: index 17, value 5)", 4000);
+  expect_error(
+      [](TestScene& s) {
+        s.gaussians.opacities = s.gaussians.opacities.unsqueeze(1).clone();
+        s.gaussians.opacities[2][0] = -std::numeric_limits<double>::infinity();
+      },
+      "opacities must be finite and in [0, 1]; 1 of 4 are not (first: index 2, value -inf)");
 }
 
 TEST(SplatValidation, NonFiniteBackgroundIsAnError) {

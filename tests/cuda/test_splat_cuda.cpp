@@ -10,7 +10,7 @@
 #include <torch/csrc/autograd/autograd.h>
 #include <torch/cuda.h>
 
-#include "cuda/rasterize_kernels.h"
+#include "cuda/diagnostics.h"
 #include "splat_test_utils.h"
 
 namespace sfgs::testing {
@@ -22,9 +22,12 @@ namespace {
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 constexpr double kInf = std::numeric_limits<double>::infinity();
 
-// Parity bounds of issue 3: relative L2 error of every output and of every gradient.
-constexpr double kFloat64ForwardBound = 1e-5;
-constexpr double kFloat64GradientBound = 1e-4;
+// float64 parity: relative L2 error of every output and of every gradient. Both backends evaluate the same functions
+// (splat/pair_math.h, splat/stages.h) in the same order per pixel; what differs is the order of sums (warp
+// reductions, atomics, per-tile partials) and fused multiply-adds, which cost a few ulps per operation, about 1e-13
+// relative on these scenes (the CPU reference agrees with its brute-force twin to 1e-12). 1e-9 leaves four orders of
+// magnitude for accumulation over deep pixels; to be confirmed on the GPU.
+constexpr double kFloat64ParityBound = 1e-9;
 // float32 CUDA against float64 CPU. Rounding alone stays near 1e-6 (forward) and 1e-4 (gradients); the bounds leave
 // room for the discrete decisions float32 can take differently on large scenes: two Gaussians whose depths round to
 // the same float swap order, a pair's alpha crossing 1/255, a pixel's transmittance crossing 1e-4.
@@ -124,7 +127,7 @@ Rendered expect_parity(const TestScene& scene, const std::string& label, const R
                        LossTerms terms = {}) {
   const Rendered cpu = render_on(scene, at::kCPU, at::kDouble, options, terms);
   const Rendered cuda = render_on(scene, kCuda, at::kDouble, options, terms);
-  expect_close(cuda, cpu, Bounds{kFloat64ForwardBound, kFloat64GradientBound, true}, label);
+  expect_close(cuda, cpu, Bounds{kFloat64ParityBound, kFloat64ParityBound, true}, label);
   expect_finite(cuda, label);
   expect_finite(render_on(scene, kCuda, at::kFloat, options, terms), label + " float32");
   return cuda;
@@ -166,7 +169,7 @@ TEST_P(CudaParity, Float64MatchesCpu) {
   const TestScene scene = parity_scene(c, 101 + uint64_t(c.count));
   const Rendered cpu = render_on(scene, at::kCPU, at::kDouble, parity_options(c));
   const Rendered cuda = render_on(scene, kCuda, at::kDouble, parity_options(c));
-  expect_close(cuda, cpu, Bounds{kFloat64ForwardBound, kFloat64GradientBound, true}, c.name);
+  expect_close(cuda, cpu, Bounds{kFloat64ParityBound, kFloat64ParityBound, true}, c.name);
 }
 
 // Image sizes are not multiples of the tile size; opacities reach 1 (alpha clamp) and scenes are deep enough that
@@ -225,7 +228,7 @@ TEST(CudaDeterministic, BitIdenticalGradientsAcrossRuns) {
   }
   const Rendered cpu = render_on(scene, at::kCPU, at::kDouble);
   expect_close(render_on(scene, kCuda, at::kDouble, deterministic), cpu,
-               Bounds{kFloat64ForwardBound, kFloat64GradientBound, true}, "deterministic float64 vs CPU");
+               Bounds{kFloat64ParityBound, kFloat64ParityBound, true}, "deterministic float64 vs CPU");
 }
 
 // ---- binning paths ------------------------------------------------------------------------------------------------
@@ -399,12 +402,11 @@ TEST(CudaStress, OpacityExactlyZeroAndOne) {
 TEST(CudaStress, NonFiniteValuesCullOnlyTheirGaussian) {
   SKIP_WITHOUT_CUDA();
   for (double bad : {kNaN, kInf, -kInf}) {
-    for (const std::string field : {"means", "scales", "rotations", "opacities", "features"}) {
+    for (const std::string field : {"means", "scales", "rotations", "features"}) {
       TestScene s = base_scene(64);
       at::Tensor& t = field == "means"       ? s.gaussians.means
                       : field == "scales"    ? s.gaussians.scales
                       : field == "rotations" ? s.gaussians.rotations
-                      : field == "opacities" ? s.gaussians.opacities
                                              : s.gaussians.features;
       t.view({-1})[t.numel() / t.size(0) * 3] = bad;
       const Rendered r = expect_parity(s, field + " = " + std::to_string(bad));
@@ -420,6 +422,36 @@ TEST(CudaStress, NonFiniteValuesCullOnlyTheirGaussian) {
   TestScene q = base_scene(64);
   set_row(q.gaussians.rotations, 0, {0, 0, 0, 0});
   EXPECT_FALSE(visible(expect_parity(q, "zero quaternion"), 0));
+}
+
+// Opacities outside [0, 1] or not finite: the projection kernel counts them into BinStats, and the forward pass
+// reports them right after its one read of BinStats, with the CPU's message.
+TEST(CudaStress, OpacitiesOutsideTheUnitIntervalAreErrors) {
+  SKIP_WITHOUT_CUDA();
+  SceneSpec spec;
+  spec.count = 4000;
+  TestScene s = random_scene(spec, 2);
+  s.gaussians.opacities[17] = 5.0;
+  s.gaussians.opacities[100] = kNaN;
+  s.gaussians.opacities[3999] = -0.5;
+  const std::string expected =
+      "sfgs::render: opacities must be finite and in [0, 1]; 3 of 4000 are not (first: index 17, value 5)";
+  for (at::ScalarType dtype : {at::kFloat, at::kDouble})
+    for (at::Device device : {at::Device(at::kCPU), kCuda}) {
+      TestScene d = s;
+      for (auto& [name, t] : differentiable_inputs(d)) *t = t->to(device, dtype);
+      try {
+        render(d.gaussians, d.background, d.camera);
+        ADD_FAILURE() << "expected an error on " << device << " in " << dtype;
+      } catch (const c10::Error& e) {
+        EXPECT_NE(std::string(e.what_without_backtrace()).find(expected), std::string::npos)
+            << e.what_without_backtrace();
+      }
+    }
+  // The stream is usable afterwards, and opacities of exactly 0 and 1 are fine.
+  s.gaussians.opacities.fill_(1.0);
+  s.gaussians.opacities[5] = 0.0;
+  expect_parity(s, "opacities 0 and 1 after an error");
 }
 
 TEST(CudaStress, ThousandsOfGaussiansOnOnePixel) {

@@ -1,0 +1,24 @@
+// The state behind diagnostics.h, read by the stages through kernel_common.cuh.
+#include "cuda/kernel_common.cuh"
+
+namespace sfgs::splat::cuda_kernels {
+namespace {
+
+StageObserver* g_stage_observer = nullptr;
+Binning g_binning = Binning::kAuto;
+Binning g_last_binning = Binning::kAuto;
+TileOrder g_tile_order = TileOrder::kLongestFirst;
+
+}  // namespace
+
+void set_stage_observer(StageObserver* observer) { g_stage_observer = observer; }
+void set_binning(Binning binning) { g_binning = binning; }
+Binning last_binning() { return g_last_binning; }
+void set_tile_order(TileOrder order) { g_tile_order = order; }
+
+StageObserver* stage_observer() { return g_stage_observer; }
+Binning requested_binning() { return g_binning; }
+void record_binning(Binning taken) { g_last_binning = taken; }
+TileOrder tile_order() { return g_tile_order; }
+
+}  // namespace sfgs::splat::cuda_kernels

@@ -1,0 +1,34 @@
+#pragma once
+// Switches and hooks of the CUDA kernels for tests and benchmarks only: they force a binning path or a tile order,
+// report the path taken, and let a benchmark time each stage. The op never uses them. Global, not thread-safe.
+#include <cuda_runtime_api.h>
+
+namespace sfgs::splat::cuda_kernels {
+
+// Which binning path bin_intersections takes: the per-tile shared-memory sort when every tile fits it (kAuto), or
+// always the radix path (kRadix), for tests and benchmarks that compare the two.
+enum class Binning { kAuto, kRadix };
+void set_binning(Binning binning);
+// The path the latest bin_intersections call took (kAuto: the per-tile sort).
+Binning last_binning();
+
+// The order in which the blends take the tiles: longest runs first (the default), or row-major, for benchmarks that
+// measure what the ordering gains.
+enum class TileOrder { kLongestFirst, kRowMajor };
+void set_tile_order(TileOrder order);
+
+// Benchmarks time the pipeline's stages by recording their own events when these are called; the stages are named
+// "project", "emit", "tile sort", "blend", "blend backward" and "project backward", and on the radix path
+// "depth sort" and "tile ranges" too.
+class StageObserver {
+ public:
+  virtual void begin(const char* stage, cudaStream_t stream) = 0;
+  virtual void end(const char* stage, cudaStream_t stream) = 0;
+
+ protected:
+  ~StageObserver() = default;
+};
+// Installs the observer for all later calls on every thread (null removes it).
+void set_stage_observer(StageObserver* observer);
+
+}  // namespace sfgs::splat::cuda_kernels
