@@ -131,11 +131,7 @@ inline constexpr long kMaxPlaneChannels = 1024;
 inline constexpr long kMaxPlaneResolution = 4096;
 inline constexpr long kMaxHiddenWidth = 4096;
 
-// ---- images, export and plots -----------------------------------------------------------------------------------
-// 8-bit images hold value * 255: PNG frames, videos and masks are read and written at this scale.
-inline constexpr double kEightBitMax = 255.0;
-// Quaternions shorter than this are normalised against it instead (a zero rotation becomes zero, never NaN).
-inline constexpr double kMinQuaternionNorm = 1e-12;
+// ---- export and plots -----------------------------------------------------------------------------------
 // Covariance eigenvalues are clamped to this before their logarithm (the exported log scale of a flat Gaussian).
 inline constexpr double kMinExportedVariance = 1e-20;
 // Spans and durations below this (seconds, or axis units of a plot) are treated as this, so nothing divides by zero

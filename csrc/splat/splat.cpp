@@ -18,7 +18,7 @@ Camera Camera::from_tensor(const at::Tensor& world_to_camera, double fx, double 
                            int64_t width, int64_t height, double near_plane, double far_plane) {
   TORCH_CHECK(world_to_camera.defined() && world_to_camera.dim() == 2 && world_to_camera.size(0) == 4 &&
                   world_to_camera.size(1) == 4 && at::isFloatingType(world_to_camera.scalar_type()),
-              "sfgs::Camera: world_to_camera must be a floating (4, 4) tensor, got ", splat::describe(world_to_camera));
+              "sfgs::Camera: world_to_camera must be a floating (4, 4) tensor, got ", describe(world_to_camera));
   const at::Tensor host = world_to_camera.detach().to(at::kCPU, at::kDouble).contiguous();
   Camera c;
   std::copy(host.data_ptr<double>(), host.data_ptr<double>() + 16, c.world_to_camera.begin());

@@ -8,13 +8,6 @@
 
 namespace sfgs::splat {
 
-std::string describe(const at::Tensor& t) {
-  if (!t.defined()) return "an undefined tensor";
-  std::ostringstream s;
-  s << "a " << t.scalar_type() << " tensor of shape " << t.sizes() << " on " << t.device();
-  return s.str();
-}
-
 namespace {
 
 void check_matrix(const at::Tensor& t, const char* name, int64_t rows, int64_t cols, const at::Tensor& ref) {

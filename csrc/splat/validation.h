@@ -6,13 +6,11 @@
 
 #include <ATen/core/Tensor.h>
 
+#include "common/tensor_description.h"
 #include "splat/backend.h"
 #include "splat/splat.h"
 
 namespace sfgs::splat {
-
-// How messages name a tensor: "a Double tensor of shape [4, 2] on cpu".
-std::string describe(const at::Tensor& t);
 
 // Shapes, dtypes, devices and the parameterisation: everything a tensor's metadata tells. Returns the inputs
 // contiguous, with opacities as (N). on_backend_device: the tensors must also be on the CPU or a CUDA device this
