@@ -2,9 +2,10 @@
 # Checks the CUDA backend on a GPU machine: configures and builds against the machine's CUDA LibTorch, runs the CUDA
 # tests, compute-sanitizer memcheck and racecheck on the small CudaSanitizer.* scenes, and the benchmark.
 #
-#   bash scripts/device_check.sh [build] [test] [sanitize] [bench] [profile] [avatar] [train] [ablate]
+#   bash scripts/device_check.sh [build] [test] [python] [sanitize] [bench] [profile] [avatar] [train] [ablate]
 #   (no argument: the first five, in this order)
 #
+# python: the pytest suite against the module built with the machine's pip torch and pybind11 (CUDA included).
 # profile: GPU time of every kernel of three forward + backward steps at 167,390 and 1M Gaussians, 800 x 1200
 # (Nsight Compute, clocks left alone), as CSV.
 #
@@ -119,11 +120,14 @@ if wants build; then
   torch_prefix=$(python3 -c 'import torch; print(torch.utils.cmake_prefix_path)')
   full_ok=0
   if [ "${SFGS_DEVICE_SPLAT_ONLY:-0}" != 1 ]; then
+    # The Python module too (pip torch and pybind11): the python step runs the pytest suite on CUDA.
+    pybind11_dir=$(python3 -m pybind11 --cmakedir 2>/dev/null)
     run build 330 cmake -S "$root" -B "$build" -G Ninja -DCMAKE_BUILD_TYPE=Release \
-      -DCMAKE_PREFIX_PATH="$torch_prefix" -DSFGS_CUDA=ON -DSFGS_BUILD_PYTHON=OFF \
+      -DCMAKE_PREFIX_PATH="$torch_prefix" -DSFGS_CUDA=ON -DSFGS_BUILD_PYTHON=ON \
+      -DPython_EXECUTABLE="$(command -v python3)" -Dpybind11_DIR="$pybind11_dir" \
       -DSFGS_EXTRA_INCLUDE_DIRS="$root/.device/include" -DSFGS_GTEST_SOURCE_DIR="$root/.device/googletest" &&
       run build 400 cmake --build "$build" -j "$jobs" --target sfgs_cuda_tests bench_splat_cuda sfgs sfgs_tests \
-        bench_avatar -- -k 0 && full_ok=1
+        bench_avatar sfgs_python -- -k 0 && full_ok=1
     [ $full_ok -eq 1 ] || grep -E "error|Error|FAILED" "$out/build.log" | head -n 40
   fi
   if [ $full_ok -ne 1 ]; then
@@ -142,6 +146,14 @@ fi
 if wants test; then
   run test 150 env OMP_NUM_THREADS="$jobs" "$tests" --gtest_color=no
   grep -E "^\[parity\]|^\[  FAILED|^\[  PASSED|Failure|Expected|Which is|actual|ms total\)" "$out/test.log" | cut -c1-400
+fi
+
+if wants python; then
+  # The whole pytest suite with the pip stack; the op's opcheck and the avatar API also run on CUDA there.
+  run python 300 env PYTHONPATH="$build/python" SFGS_EXECUTABLE="$build/sfgs" SFGS_SHARED_DIR="$root/.device/shared" \
+    OMP_NUM_THREADS="$jobs" python3 -m pytest -q -rs -p no:cacheprovider -m "${SFGS_DEVICE_PYTEST_MARKS:-not cli}" \
+    "$root/tests/python"
+  tail -n 25 "$out/python.log"
 fi
 
 if wants sanitize; then
