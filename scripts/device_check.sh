@@ -151,7 +151,12 @@ fi
 
 if wants python; then
   # The whole pytest suite with the pip stack; the op's opcheck and the avatar API also run on CUDA there.
-  run python 300 env PYTHONPATH="$build/python" SFGS_EXECUTABLE="$build/sfgs" SFGS_SHARED_DIR="$root/.device/shared" \
+  # The carried libyaml-cpp (Debian's, GCC 12) is preloaded: loaded only as the module's dependency, inside a
+  # Python process whose libstdc++ and torch came first, its std:: instantiations mix with the module's and any
+  # C++ exception crashes the interpreter (issue 15 replaces this with a module that carries no such library).
+  preload=$root/.device/lib/libyaml-cpp.so.0.7
+  run python 300 env LD_PRELOAD="$preload" PYTHONPATH="$build/python" SFGS_EXECUTABLE="$build/sfgs" \
+    SFGS_SHARED_DIR="$root/.device/shared" \
     OMP_NUM_THREADS="$jobs" python3 -m pytest -q -rs -p no:cacheprovider -m "${SFGS_DEVICE_PYTEST_MARKS:-not cli}" \
     "$root/tests/python"
   tail -n 25 "$out/python.log"
