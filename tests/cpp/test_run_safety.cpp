@@ -16,9 +16,9 @@
 
 #include "common/atomic_file.h"
 #include "common/folder_lock.h"
-#include "data/synthetic.h"
 #include "test_avatar_utils.h"
 #include "test_files.h"
+#include "test_trainer_utils.h"
 #include "train/checkpoint.h"
 #include "train/loss_watch.h"
 #include "train/trainer.h"
@@ -29,32 +29,16 @@ namespace {
 
 namespace fs = std::filesystem;
 
+// The shared tiny config, warming up in one step and validating only at the end.
 train::TrainConfig tiny_config() {
-  train::TrainConfig c;
-  c.avatar = small_config();
-  c.loss.use_lpips = false;
-  c.schedule.iterations = 6;
+  train::TrainConfig c = tiny_train_config();
   c.schedule.warmup_iterations = 1;
-  c.log_every = 1;
   c.validate_every = 100;
-  c.checkpoint_every = 100;
-  c.validation_frames = 1;
   return c;
 }
 
 data::Dataset tiny_video(const TempFolder& folder, const std::string& name = "video", uint64_t seed = 1) {
-  data::SyntheticVideoOptions o;
-  o.frames = 6;
-  o.width = 24;
-  o.height = 24;
-  o.seed = seed;
-  return data::write_synthetic_video(folder / name, o);
-}
-
-train::TrainOptions quiet() {
-  train::TrainOptions o;
-  o.progress = false;
-  return o;
+  return testing::tiny_video(folder, 6, 24, name, seed);
 }
 
 std::string file_bytes(const std::string& path) {
@@ -64,13 +48,6 @@ std::string file_bytes(const std::string& path) {
 
 void write_bytes(const std::string& path, const std::string& bytes) {
   std::ofstream(path, std::ios::binary | std::ios::trunc) << bytes;
-}
-
-std::vector<nlohmann::json> log_entries(const train::RunFolder& run) {
-  std::vector<nlohmann::json> entries;
-  std::ifstream in(run.log_file());
-  for (std::string line; std::getline(in, line);) entries.push_back(nlohmann::json::parse(line));
-  return entries;
 }
 
 // A run paused at iteration 3 of 6.

@@ -15,9 +15,9 @@
 #include <nlohmann/json.hpp>
 #include <torch/serialize/input-archive.h>
 
-#include "data/synthetic.h"
 #include "test_avatar_utils.h"
 #include "test_files.h"
+#include "test_trainer_utils.h"
 #include "train/evaluate.h"
 #include "train/run_folder.h"
 #include "train/trainer.h"
@@ -29,26 +29,7 @@ namespace {
 constexpr double kMinimumPsnrGain = 0.3;   // dB on the training frames
 constexpr double kMaximumLossRatio = 0.7;  // mean loss of the last five steps over the first five
 
-train::TrainConfig tiny_config() {
-  train::TrainConfig c;
-  c.avatar = small_config();
-  c.loss.use_lpips = false;
-  c.schedule.iterations = 6;
-  c.schedule.warmup_iterations = 2;
-  c.log_every = 1;
-  c.validate_every = 2;
-  c.checkpoint_every = 100;  // only the pause and the end write one
-  c.validation_frames = 1;
-  return c;
-}
-
-data::Dataset tiny_video(const TempFolder& folder) {
-  data::SyntheticVideoOptions o;
-  o.frames = 10;
-  o.width = 32;
-  o.height = 32;
-  return data::write_synthetic_video(folder / "video", o);
-}
+data::Dataset tiny_video(const TempFolder& folder) { return testing::tiny_video(folder, 10, 32); }
 
 // Every parameter and buffer of a run's checkpoint, by name ("avatar.<module path>"), with its top-level tensors.
 // (LibTorch names the optimiser's state by parameter address, which differs between processes; a lost or wrong
@@ -97,12 +78,11 @@ double training_psnr(const data::Dataset& dataset, const train::RunFolder& run) 
 TEST(Trainer, TrainingLowersTheLossAndRaisesTheTrainingPsnr) {
   TempFolder folder;
   const data::Dataset dataset = tiny_video(folder);
-  train::TrainConfig config = tiny_config();
+  train::TrainConfig config = tiny_train_config();
   config.schedule.iterations = 40;
   config.schedule.learning_rate = config.schedule.colour_learning_rate = 3e-3;
   config.validate_every = 1000;
-  train::TrainOptions options;
-  options.progress = false;
+  train::TrainOptions options = quiet();
   const train::RunFolder run{folder / "run"};
   options.stop_at = 1;
   train::train_avatar(dataset, config, run, options);
@@ -114,9 +94,7 @@ TEST(Trainer, TrainingLowersTheLossAndRaisesTheTrainingPsnr) {
   EXPECT_GT(psnr_after, psnr_before + kMinimumPsnrGain) << "before " << psnr_before << " dB";
 
   std::vector<double> totals;
-  std::ifstream log(run.log_file());
-  for (std::string line; std::getline(log, line);) {
-    const auto e = nlohmann::json::parse(line);
+  for (const nlohmann::json& e : log_entries(run)) {
     if (e["event"] != "step") continue;
     double sum = 0;
     for (const auto& [name, value] : e["loss"].items()) {
@@ -135,7 +113,7 @@ TEST(Trainer, TrainingLowersTheLossAndRaisesTheTrainingPsnr) {
 TEST(Trainer, ResumedRunEqualsUninterruptedRun) {
   TempFolder folder;
   const data::Dataset dataset = tiny_video(folder);
-  const train::TrainConfig config = tiny_config();
+  const train::TrainConfig config = tiny_train_config();
   train::TrainOptions quiet;
   quiet.progress = false;
 
@@ -165,11 +143,8 @@ TEST(Trainer, ResumedRunEqualsUninterruptedRun) {
   // Every logged step after the pause has the loss of the uninterrupted run's step.
   const auto losses = [](const train::RunFolder& run) {
     std::map<int64_t, double> by_iteration;
-    std::ifstream log(run.log_file());
-    for (std::string line; std::getline(log, line);) {
-      const nlohmann::json e = nlohmann::json::parse(line);
+    for (const nlohmann::json& e : log_entries(run))
       if (e["event"] == "step") by_iteration[e["iteration"].get<int64_t>()] = e["loss"]["total"].get<double>();
-    }
     return by_iteration;
   };
   const auto straight_losses = losses(straight), paused_losses = losses(paused);
@@ -194,10 +169,10 @@ TEST(Trainer, ErrorCurveHoldsEveryValidation) {
   const train::RunFolder run{folder / "run"};
   train::TrainOptions pause = quiet;
   pause.stop_at = 4;
-  train::train_avatar(dataset, tiny_config(), run, pause);
+  train::train_avatar(dataset, tiny_train_config(), run, pause);
   train::TrainOptions resume = quiet;
   resume.resume = true;
-  train::train_avatar(dataset, tiny_config(), run, resume);
+  train::train_avatar(dataset, tiny_train_config(), run, resume);
 
   const auto points = train::write_error_curve_csv(run, folder / "curve.csv");
   ASSERT_EQ(points.size(), 3u);  // iterations 2, 4 and 6; the resume does not duplicate 4
@@ -222,7 +197,7 @@ TEST(Trainer, ErrorCurveHoldsEveryValidation) {
 TEST(Trainer, NeverOverwritesARunUnasked) {
   TempFolder folder;
   const data::Dataset dataset = tiny_video(folder);
-  train::TrainConfig config = tiny_config();
+  train::TrainConfig config = tiny_train_config();
   config.schedule.iterations = 1;
   train::TrainOptions quiet;
   quiet.progress = false;
