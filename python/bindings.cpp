@@ -83,7 +83,7 @@ py::dict render(const py::object& means, const py::object& opacities, const py::
 using sfgs::body::SmplxPose;
 struct FramePose {
   SmplxPose pose;
-  double time = 0.0;
+  sfgs::model::FrameTime time;  // none unless the dict gives one: a new motion (model/frame_time.h)
 };
 
 // Keys of earlier versions, accepted with a DeprecationWarning.
@@ -164,7 +164,8 @@ class TrainedAvatar {
     py::dict pose;
     for (const SmplxPose::Field& f : SmplxPose::fields())
       if ((p.*(f.member)).defined()) pose[f.name] = p.*(f.member);
-    pose["time"] = d.normalized_time(index);
+    const std::optional<double> time = d.replay_time(index);
+    pose["time"] = time ? py::object(py::float_(*time)) : py::object(py::none());
     py::dict out;
     out["pose"] = pose;
     out["camera"] = camera_dict(sfgs::train::render_camera(d.frames[size_t(index)]));
@@ -197,7 +198,7 @@ class TrainedAvatar {
         throw py::type_error("pose: keys must be str, got " + python_type(item.first));
       std::string key = item.first.cast<std::string>();
       if (key == "time") {
-        p.time = to_double(item.second, "pose['time']");
+        if (!item.second.is_none()) p.time = to_double(item.second, "pose['time']");
         continue;
       }
       for (const auto& [old_name, new_name] : kRenamedPoseKeys)
@@ -270,8 +271,8 @@ Differentiable w.r.t. means, scales, rotations, covariances, opacities, features
            py::arg("device") = "cpu", py::arg("data") = "")
       .def("gaussians", &TrainedAvatar::gaussians, py::arg("pose") = py::dict(),
            R"(Posed Gaussians for a pose dict (SMPL-X names: global_orient (3), body_pose (21,3), jaw_pose, leye_pose,
-reye_pose (3), left_hand_pose, right_hand_pose (15,3) axis-angle, expression (E), transl (3), time in [-1, 1];
-missing keys are at rest). Returns means (N,3), covariances (N,6), opacities (N), colours (N,3), canonical_means,
+reye_pose (3), left_hand_pose, right_hand_pose (15,3) axis-angle, expression (E), transl (3), time in [-1, 1] or None
+(a new motion: the time branch is left out; the default); missing keys are at rest). Returns means (N,3), covariances (N,6), opacities (N), colours (N,3), canonical_means,
 log_scales, posed_vertices. Differentiable w.r.t. the pose tensors unless torch.no_grad() is active.)")
       .def("render", &TrainedAvatar::render, py::arg("camera"), py::arg("pose") = py::dict(),
            py::arg("background") = py::none(),

@@ -2,7 +2,7 @@
 # Checks the CUDA backend on a GPU machine: configures and builds against the machine's CUDA LibTorch, runs the CUDA
 # tests, compute-sanitizer memcheck and racecheck on the small CudaSanitizer.* scenes, and the benchmark.
 #
-#   bash scripts/device_check.sh [build] [test] [python] [sanitize] [bench] [profile] [avatar] [train] [ablate]
+#   bash scripts/device_check.sh [build] [test] [python] [sanitize] [bench] [profile] [avatar] [train] [ablate] [novel]
 #   (no argument: the first five, in this order)
 #
 # python: the pytest suite against the module built with the machine's pip torch and pybind11 (CUDA included).
@@ -26,6 +26,16 @@
 # (SFGS_DEVICE_TRAIN_ITERATIONS overrides its iterations).
 # ablate: `sfgs ablate` on the Anny scene at SFGS_DEVICE_ABLATE_SIZE (default 400x600), 80 frames,
 # SFGS_DEVICE_ABLATE_ITERATIONS (default 1500) per variant.
+# novel: the novel-motion benchmark (docs/results.md): the Anny body filmed walking, waving and turning (train) and
+# raising its arms, bending, guarding and sitting (test), SFGS_DEVICE_NOVEL_FRAMES (default 40) frames per motion at
+# SFGS_DEVICE_NOVEL_SIZE (default 540x960), beside the interleaved Anny scene (sway, 80 frames; SFGS_DEVICE_NOVEL_SCENES
+# names the scenes, default "novel interleaved"). Every variant of
+# SFGS_DEVICE_NOVEL_VARIANTS ("name:key=value,..." separated by spaces, keys of the avatar section; default
+# "default:") is trained on both scenes at once with configs/device_anny.yaml for SFGS_DEVICE_NOVEL_ITERATIONS
+# (default 4000), then evaluated on test (new motions; interleaved test frames) and val (held-out frames of the
+# training motions). SFGS_DEVICE_BASELINE_SRC=DIR also builds the sfgs in DIR (an earlier version, for a before /
+# after) and trains it as variant "baseline" with that version's config.
+# SFGS_DEVICE_TARGETS replaces the build step's target list (e.g. "sfgs" for the novel step alone).
 # The whole project is configured and built (sfgs_core holds every module). Should that build fail (another module's
 # dependency missing or a module not compiling), a splat-only CMake project (the op, both backends, the CUDA tests
 # and benchmark) is built instead so that the CUDA checks still run; the build step is reported failed either way.
@@ -127,8 +137,9 @@ if wants build; then
       -DCMAKE_PREFIX_PATH="$torch_prefix" -DSFGS_CUDA=ON -DSFGS_BUILD_PYTHON=ON \
       -DPython_EXECUTABLE="$(command -v python3)" -Dpybind11_DIR="$pybind11_dir" \
       -DSFGS_EXTRA_INCLUDE_DIRS="$root/.device/include" -DSFGS_GTEST_SOURCE_DIR="$root/.device/googletest" &&
-      run build 400 cmake --build "$build" -j "$jobs" --target sfgs_cuda_tests bench_splat_cuda sfgs sfgs_tests \
-        bench_avatar sfgs_python -- -k 0 && full_ok=1
+      run build 400 cmake --build "$build" -j "$jobs" --target \
+        ${SFGS_DEVICE_TARGETS:-sfgs_cuda_tests bench_splat_cuda sfgs sfgs_tests bench_avatar sfgs_python} -- -k 0 &&
+      full_ok=1
     [ $full_ok -eq 1 ] || grep -E "error|Error|FAILED" "$out/build.log" | head -n 40
   fi
   if [ $full_ok -ne 1 ]; then
@@ -254,6 +265,67 @@ if wants ablate; then
     --iterations "${SFGS_DEVICE_ABLATE_ITERATIONS:-1500}" --force
   grep -E "^\||sfgs ablate" "$out/ablate.log"
   cp "$scene/ablation/ablation.json" "$scene/ablation/ablation.md" "$out/" 2>/dev/null
+fi
+
+if wants novel; then
+  export SFGS_SHARED_DIR=$shared
+  novel=/tmp/sfgs-novel
+  size=${SFGS_DEVICE_NOVEL_SIZE:-540x960}
+  iterations=${SFGS_DEVICE_NOVEL_ITERATIONS:-4000}
+  variants=${SFGS_DEVICE_NOVEL_VARIANTS:-default:}
+  baseline_build=/tmp/sfgs-baseline-build
+  if [ -n "${SFGS_DEVICE_BASELINE_SRC:-}" ]; then
+    variants="$variants baseline:"
+    (run baseline-build 400 cmake -S "$SFGS_DEVICE_BASELINE_SRC" -B "$baseline_build" -G Ninja -DCMAKE_BUILD_TYPE=Release \
+      -DCMAKE_PREFIX_PATH="$(python3 -c 'import torch; print(torch.utils.cmake_prefix_path)')" -DSFGS_CUDA=ON \
+      -DSFGS_BUILD_PYTHON=OFF -DSFGS_EXTRA_INCLUDE_DIRS="$root/.device/include" \
+      -DSFGS_GTEST_SOURCE_DIR="$root/.device/googletest" &&
+      run baseline-build 400 cmake --build "$baseline_build" -j "$jobs" --target sfgs) &
+  fi
+  scene_args=(--body "$shared/bodies/anny_smplx_layout.npz" --texture "$shared/bodies/anny_albedo.png"
+    --width "${size%x*}" --height "${size#*x}" --force)
+  scenes=${SFGS_DEVICE_NOVEL_SCENES:-novel interleaved}
+  run novel-synth 300 "$build/sfgs" synth --out "$novel/novel" "${scene_args[@]}" --motions walk,wave,turn \
+    --test-motions overhead,bend,guard,sit --frames "${SFGS_DEVICE_NOVEL_FRAMES:-40}" &
+  [[ " $scenes " == *" interleaved "* ]] &&
+    run novel-synth-interleaved 300 "$build/sfgs" synth --out "$novel/interleaved" "${scene_args[@]}" --frames 80 &
+  wait
+  tail -q -n 1 "$out"/novel-synth*.log
+  # One run at a time: the GPU is the bottleneck (three runs at once take as long as three in a row).
+  for variant in $variants; do
+    name=${variant%%:*}
+    binary=$build/sfgs
+    config_source=$root/configs/device_anny.yaml
+    [ "$name" = baseline ] && binary=$baseline_build/sfgs && config_source=$SFGS_DEVICE_BASELINE_SRC/configs/device_anny.yaml
+    sed "s|@SHARED@|$shared|g" "$config_source" >"$novel/$name.yaml"
+    IFS=, read -ra pairs <<<"${variant#*:}"
+    for pair in "${pairs[@]}"; do
+      [ -n "$pair" ] && sed -i "s|^avatar:|avatar:\n  ${pair%%=*}: ${pair#*=}|" "$novel/$name.yaml"
+    done
+    for scene in $scenes; do
+      (run "train-$name-$scene" 580 "$binary" train --data "$novel/$scene" --out "$novel/runs/$name-$scene" \
+        --config "$novel/$name.yaml" --iterations "$iterations" --quiet --force &&
+        for split in test val; do
+          run "eval-$name-$scene-$split" 200 "$binary" eval --run "$novel/runs/$name-$scene" --split "$split" \
+            --device cuda --save-images --force &&
+            cp "$novel/runs/$name-$scene/metrics.json" "$out/metrics-$name-$scene-$split.json"
+        done
+        mkdir -p "$out/renders-$name-$scene"
+        for frame in 000130 000190 000220 000270; do
+          cp "$novel/runs/$name-$scene/eval_images/$frame.png" "$out/renders-$name-$scene/" 2>/dev/null
+        done
+        if [ "$name" = default ] && [ "$scene" = novel ]; then
+          run "eval-$name-$scene-test-noprior" 200 "$binary" eval --run "$novel/runs/$name-$scene" --device cuda \
+            --no-observation-prior --force &&
+            cp "$novel/runs/$name-$scene/metrics.json" "$out/metrics-$name-$scene-test-noprior.json"
+        fi
+        cp "$novel/runs/$name-$scene/log.jsonl" "$out/log-$name-$scene.jsonl")
+    done
+  done
+  grep -h -E "^sfgs eval|^  " "$out"/eval-*.log
+  "$build/sfgs" render --run "$novel/runs/default-novel" --out "$novel/render" --motion bend --frames 24 \
+    --device cuda --force >"$out/novel-render.log" 2>&1
+  mkdir -p "$out/renders" && cp "$novel/render/frame_0006.png" "$novel/render/frame_0018.png" "$out/renders/" 2>/dev/null
 fi
 
 # The device tool returns only a few files: everything travels as one archive.

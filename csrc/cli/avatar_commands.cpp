@@ -19,7 +19,7 @@
 #include "common/atomic_file.h"
 #include "common/folder_lock.h"
 #include "data/image_io.h"
-#include "data/synthetic.h"
+#include "data/motions.h"
 #include "train/evaluate.h"
 #include "train/run_folder.h"
 
@@ -29,7 +29,7 @@ namespace fs = std::filesystem;
 namespace {
 
 constexpr double kTwoPi = 6.283185307179586;
-constexpr int64_t kNovelMotionOffset = 1000;  // synthetic-motion frames far past any training video: novel poses
+constexpr double kRenderFramesPerSecond = 24.0;  // of the video, and of library motions sampled for it
 
 // --device, or else the device the run was trained on where this build has it, else the CPU.
 at::Device pick_device(const std::string& name, const train::RunFolder& run) {
@@ -70,7 +70,41 @@ nlohmann::json evaluation_json(const train::AvatarEvaluation& e) {
     if (e.frames[i].lpips) f["lpips"] = *e.frames[i].lpips;
     j["per_frame"].push_back(f);
   }
+  const auto groups = [](const std::vector<train::GroupScore>& scores, bool regions) {
+    nlohmann::json list = nlohmann::json::array();
+    for (const train::GroupScore& g : scores) {
+      nlohmann::json entry{{"name", g.name}, {"frames", g.frames}, {"psnr", g.psnr}, {"ssim", g.ssim}};
+      if (regions) entry["pixels"] = g.pixels;
+      if (g.lpips) entry["lpips"] = *g.lpips;
+      list.push_back(entry);
+    }
+    return list;
+  };
+  j["motions"] = groups(e.motions, false);
+  j["regions"] = groups(e.regions, true);
   return j;
+}
+
+std::string group_lines(const train::AvatarEvaluation& e) {
+  std::string text;
+  char line[256];
+  for (const train::GroupScore& g : e.motions) {
+    std::snprintf(line, sizeof(line), "  motion %-10s frames %4lld  PSNR %.2f  SSIM %.4f", g.name.c_str(),
+                  (long long)g.frames, g.psnr, g.ssim);
+    text += line;
+    if (g.lpips) {
+      std::snprintf(line, sizeof(line), "  LPIPS %.4f", *g.lpips);
+      text += line;
+    }
+    text += "\n";
+  }
+  for (const train::GroupScore& g : e.regions) {
+    std::snprintf(line, sizeof(line), "  region %-10s frames %4lld  pixels %8.0f  PSNR %.2f  SSIM %.4f\n",
+                  g.name.c_str(), (long long)g.frames, g.pixels, g.psnr, g.ssim);
+    text += line;
+  }
+  if (e.regions.empty()) text += "  (no per-region metrics: the dataset has no ground-truth geometry)\n";
+  return text;
 }
 
 int run_eval(Arguments& args) {
@@ -81,19 +115,22 @@ int run_eval(Arguments& args) {
   options.eight_bit_round_trip = args.flag("eight-bit");
   const bool save = args.flag("save-images");
   const bool force = args.flag("force");
+  const bool without_prior = args.flag("no-observation-prior");
   const at::Device device = pick_device(args.text("device", ""), run);
   args.finish();
   const FolderLock lock(run.path, "eval");
   remove_stale_temporaries(run.path);
   train::TrainedAvatar t = train::load_trained_avatar(run, device);
+  if (without_prior) t.avatar->set_observation(at::Tensor());  // every Gaussian trusted (the ablation)
   const data::Dataset dataset = train::read_run_dataset(t, data_folder);
   t.avatar->eval();
   t.avatar->cache_static_features();
   const train::AvatarEvaluation e = train::evaluate_avatar(
       dataset, split, t.avatar, options, save ? (fs::path(run.path) / "eval_images").string() : "", force);
   write_text_atomically((fs::path(run.path) / "metrics.json").string(), evaluation_json(e).dump(1) + "\n");
-  std::printf("sfgs eval: %s\n  %s\n  render %.2f ms per frame (avatar + rasterisation); metrics.json in %s\n",
-              dataset.source.c_str(), metrics::to_string(e.summary).c_str(), e.render_milliseconds, run.path.c_str());
+  std::printf("sfgs eval: %s\n  %s\n  render %.2f ms per frame (avatar + rasterisation); metrics.json in %s\n%s",
+              dataset.source.c_str(), metrics::to_string(e.summary).c_str(), e.render_milliseconds, run.path.c_str(),
+              group_lines(e).c_str());
   return 0;
 }
 
@@ -153,24 +190,29 @@ double render_orbit(train::TrainedAvatar& t, const RenderRequest& request, at::D
                     bool& wrote_video) {
   const data::Dataset trained_on = train::read_run_dataset(t, request.data);
   std::optional<data::Dataset> motion;
-  if (request.motion != "synthetic") motion = data::read_dataset(request.motion);
+  if (!data::is_motion(request.motion)) motion = data::read_dataset(request.motion);
+  // A motion from another dataset is new to the avatar: no time (model/frame_time.h). Frames of the training
+  // dataset keep their replay times.
+  const bool replay = motion && motion->fingerprint() == trained_on.fingerprint();
   t.avatar->eval();
   t.avatar->cache_static_features();
   at::NoGradGuard no_grad;
   const Camera base = train::render_camera(trained_on.frames[0]);
   const at::Tensor c = train::pose_avatar(t.avatar, trained_on, 0).means.mean(0).cpu().to(at::kDouble);
   const std::array<double, 3> centre{c[0].item<double>(), c[1].item<double>(), c[2].item<double>()};
-  VideoWriter video((fs::path(request.out) / "render.mp4").string(), int(base.width), int(base.height), 24.0,
+  VideoWriter video((fs::path(request.out) / "render.mp4").string(), int(base.width), int(base.height),
+                    kRenderFramesPerSecond,
                     request.force);
   double seconds = 0;
   for (int64_t i = 0; i < request.frames; ++i) {
     const Camera cam = orbit_camera(base, centre, kTwoPi * double(i) / double(request.frames));
     const auto start = std::chrono::steady_clock::now();
     const model::AvatarOutput o =
-        motion ? train::pose_avatar(t.avatar, *motion, i % motion->size())
-               : t.avatar->forward(data::synthetic_pose(kNovelMotionOffset + i, 30.0,
-                                                        t.avatar->config().num_expression_coeffs),
-                                   0.0);
+        replay   ? train::pose_avatar(t.avatar, *motion, i % motion->size())
+        : motion ? t.avatar->forward(motion->frames[size_t(i % motion->size())].pose, std::nullopt)
+                 : t.avatar->forward(data::motion_pose(request.motion, double(i) / kRenderFramesPerSecond,
+                                                       t.avatar->config().num_expression_coeffs),
+                                     std::nullopt);
     const at::Tensor image = render(model::to_gaussians(o), at::ones({3}, o.means.options()), cam).image.cpu();
     seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     char name[32];
@@ -191,7 +233,7 @@ int run_render(Arguments& args) {
   RenderRequest request;
   request.out = args.required("out");
   request.frames = args.integer("frames", 48, 1, 100000);
-  request.motion = args.text("motion", "synthetic");
+  request.motion = args.text("motion", "overhead");
   request.data = args.text("data", "");
   request.force = args.flag("force");
   const at::Device device = pick_device(args.text("device", ""), run);

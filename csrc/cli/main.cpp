@@ -23,19 +23,23 @@ namespace {
 constexpr const char* kUsage = R"(usage: sfgs <command> [options]
 
 commands:
-  demo     synthesise the built-in scene, train an avatar on it, evaluate, render a novel-view/novel-pose video
+  demo     synthesise the built-in body walking, waving and turning, train an avatar on it, evaluate it on new
+           motions (overhead, bend, guard, sit) and on held-out frames, render a novel-view/novel-pose video
            --out DIR (sfgs_demo)  --config FILE  --iterations N  --device cpu|cuda  --force
   synth    write a synthetic monocular video with ground truth in sfgs's dataset format
-           --out DIR  --body SMPLX.npz (built-in body)  --texture PNG  --frames N (60)  --width W (256)
-           --height H (256)  --seed S (1)  --force
+           --out DIR  --body SMPLX.npz (built-in body)  --texture PNG  --width W (256)  --height H (256)
+           --motions M,M (sway)  --test-motions M,M (none: interleaved test frames)  --frames N (60 per motion)
+           --fps F (30)  --light key|head (key)  --seed S (1)  --force
   train    train an avatar: --data DATASET --out RUN  --config FILE  --iterations N  --device cpu|cuda
            --stop-at N (pause there, resumable)  --force  --quiet
            --resume: continue RUN with its own config and dataset (--data, --config optional; only schedule and
            logging keys may change)
   eval     evaluate a run on a split (ExAvatar/SFGS protocol): --run RUN  --data DATASET (the training one)
            --split test|val|train (test)  --device cpu|cuda (the run's)  --eight-bit  --save-images  --force
+           --no-observation-prior (trust every Gaussian's learned colour and offsets: the ablation)
   render   orbit views in novel poses to PNG frames and an MP4: --run RUN --out DIR  --frames N (48)
-           --motion synthetic|DATASET  --data DATASET (the training one)  --device cpu|cuda (the run's)  --force
+           --motion MOTION|DATASET (overhead; motions: sway walk wave overhead bend guard turn sit)
+           --data DATASET (the training one)  --device cpu|cuda (the run's)  --force
   export   the avatar as a standard 3DGS .ply: --run RUN --out FILE.ply  --frame K (canonical)
            --data DATASET (the training one, for --frame)  --force
   ablate   the paper's ablation table: --data DATASET --out DIR  --config FILE  --iterations N  --force
@@ -62,7 +66,7 @@ int main(int argc, char** argv) {
       {"demo", {sfgs::cli::run_demo, {"force"}}},
       {"synth", {sfgs::cli::run_synth, {"force"}}},
       {"train", {sfgs::cli::run_train, {"resume", "force", "quiet"}}},
-      {"eval", {sfgs::cli::run_eval, {"eight-bit", "save-images", "force"}}},
+      {"eval", {sfgs::cli::run_eval, {"eight-bit", "save-images", "no-observation-prior", "force"}}},
       {"render", {sfgs::cli::run_render, {"force"}}},
       {"export", {sfgs::cli::run_export, {"force"}}},
       {"ablate", {sfgs::cli::run_ablate, {"force"}}},

@@ -2,6 +2,7 @@
 #include <cstdio>
 
 #include "cli/commands.h"
+#include "data/motions.h"
 #include "data/synthetic.h"
 
 namespace sfgs::cli {
@@ -11,16 +12,25 @@ int run_synth(Arguments& args) {
   const std::string out = args.required("out");
   o.body_model = args.text("body", "");
   o.texture = args.text("texture", "");
+  o.motions = data::parse_motion_list(args.text("motions", "sway"), "--motions");
+  const std::string test_motions = args.text("test-motions", "");
+  if (!test_motions.empty()) o.test_motions = data::parse_motion_list(test_motions, "--test-motions");
   o.frames = args.integer("frames", o.frames, 1, 100000);
+  o.frames_per_second = args.real("fps", o.frames_per_second, 1e-3, 1e4);
+  const std::string light = args.text("light", "key");
+  TORCH_CHECK(light == "key" || light == "head", "--light: expected 'key' (fixed in the world, with shadows) or "
+              "'head' (at the camera), got '", light, "'");
+  o.key_light = light == "key";
   o.width = args.integer("width", o.width, 16, kMaxImageSide);
   o.height = args.integer("height", o.height, 16, kMaxImageSide);
   o.seed = uint64_t(args.integer("seed", int64_t(o.seed), 0, INT64_MAX));
   o.overwrite = args.flag("force");
   args.finish();
   const data::Dataset d = data::write_synthetic_video(out, o);
-  std::printf("sfgs synth: wrote %lld frames (%lld train, %lld val, %lld test) of %lld x %lld to %s\n",
+  std::printf("sfgs synth: wrote %lld frames (%lld train, %lld val, %lld test%s) of %lld x %lld to %s\n",
               (long long)d.size(), (long long)d.split(data::Split::kTrain).size(),
               (long long)d.split(data::Split::kVal).size(), (long long)d.split(data::Split::kTest).size(),
+              o.test_motions.empty() ? ", interleaved" : (": new motions " + test_motions).c_str(),
               (long long)o.width, (long long)o.height, out.c_str());
   return 0;
 }

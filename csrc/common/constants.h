@@ -120,6 +120,21 @@ inline constexpr double kHandFitWarningRms = 0.01;
 // Summed face normals shorter than this (a vertex on degenerate faces only) give a zero vertex normal.
 inline constexpr double kMinNormalLength = 1e-12;
 
+// Observation prior (docs/avatar.md, "Surface the video never showed"). A Gaussian counts as observed in a training
+// step when it faces the camera, projects into the image and lies no deeper than this (metres) behind the rendered
+// depth at its pixel: thinner than a torso, wrist or head, thicker than the rendered depth's blur at an edge.
+inline constexpr double kObservationDepthTolerance = 0.03;
+// A Gaussian (or, in evaluation, a ground-truth vertex) is well observed when it was seen, front-facing, in at least
+// this fraction of the training steps (frames); below it, its learned colour and offsets are trusted in proportion.
+inline constexpr double kWellObservedFraction = 0.05;
+// Per-region evaluation (docs/metrics.md): a region counts in a frame from this many pixels on; a region rendered
+// exactly scores PSNR 10 log10(1 / this MSE) instead of infinity.
+inline constexpr long kMinRegionPixels = 16;
+inline constexpr double kMinRegionMse = 1e-10;
+// Smoothing passes of the colours propagated into poorly observed surface, after the front from the observed
+// surface has reached every point: enough to blend the propagated colours over a few mesh rings.
+inline constexpr long kObservationSmoothingPasses = 16;
+
 // ---- training configuration (docs/training.md) ----------------------------------------------------------------
 // Ranges a config's values must lie in. They refuse values that can only diverge or exhaust memory (a learning rate
 // of 1e30, a loss weight whose product overflows float32, planes of a million texels a side), not unusual choices:
@@ -130,6 +145,14 @@ inline constexpr long kMaxIterations = 100000000;
 inline constexpr long kMaxPlaneChannels = 1024;
 inline constexpr long kMaxPlaneResolution = 4096;
 inline constexpr long kMaxHiddenWidth = 4096;
+
+// ---- synthetic videos (docs/dataset_format.md, "Synthetic videos") ----------------------------------------------
+// The key light's self-shadowing: the shadow map's side (pixels), the light's distance from the subject (in radii of
+// its bounding sphere: far enough to be nearly parallel) and the depth bias (in radii) that keeps lit surfaces from
+// shadowing themselves.
+inline constexpr long kShadowMapSide = 1024;
+inline constexpr double kShadowLightDistanceRadii = 40.0;
+inline constexpr double kShadowBiasRadii = 0.01;
 
 // ---- export and plots -----------------------------------------------------------------------------------
 // Covariance eigenvalues are clamped to this before their logarithm (the exported log scale of a flat Gaussian).

@@ -1,6 +1,8 @@
 #include "data/dataset.h"
 
 #include <algorithm>
+#include <cmath>
+#include <numeric>
 #include <cstdio>
 #include <filesystem>
 #include <sstream>
@@ -113,13 +115,26 @@ Frame Dataset::load(int64_t index) const {
   return f;
 }
 
-double Dataset::normalized_time(int64_t index) const {
-  TORCH_CHECK(index >= 0 && index < size(), "Dataset::normalized_time: frame ", index, " out of range");
-  const auto [lo, hi] = std::minmax_element(frames.begin(), frames.end(),
-                                            [](const FrameRecord& a, const FrameRecord& b) { return a.time < b.time; });
-  const double span = hi->time - lo->time;
-  if (span <= 0) return 0.0;
-  return 2.0 * (frames[size_t(index)].time - lo->time) / span - 1.0;
+std::optional<double> Dataset::replay_time(int64_t index) const {
+  TORCH_CHECK(index >= 0 && index < size(), "Dataset::replay_time: frame ", index, " out of range [0, ", size(), ")");
+  std::vector<int64_t> training = split(Split::kTrain);
+  if (training.empty()) {
+    training.resize(frames.size());
+    std::iota(training.begin(), training.end(), int64_t(0));
+  }
+  const FrameRecord& frame = frames[size_t(index)];
+  double lo = INFINITY, hi = -INFINITY, sequence_lo = INFINITY, sequence_hi = -INFINITY;
+  for (int64_t t : training) {
+    const FrameRecord& r = frames[size_t(t)];
+    lo = std::min(lo, r.time);
+    hi = std::max(hi, r.time);
+    if (r.sequence != frame.sequence) continue;
+    sequence_lo = std::min(sequence_lo, r.time);
+    sequence_hi = std::max(sequence_hi, r.time);
+  }
+  if (!(frame.time >= sequence_lo && frame.time <= sequence_hi)) return std::nullopt;
+  if (hi - lo <= 0) return 0.0;
+  return 2.0 * (frame.time - lo) / (hi - lo) - 1.0;
 }
 
 void Dataset::validate() const {

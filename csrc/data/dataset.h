@@ -3,6 +3,7 @@
 // and evaluator see only this. docs/dataset_format.md describes sfgs's own on-disk format; the NeuMan and X-Humans
 // readers (neuman.h, xhumans.h) produce the same structure.
 #include <map>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -56,8 +57,11 @@ class Dataset {
   const std::vector<int64_t>& split(Split s) const;
   // Reads the frame's image and masks; errors name the file.
   Frame load(int64_t index) const;
-  // Frame time mapped once, over the whole dataset, to [-1, 1] (the hexplane's time axis).
-  double normalized_time(int64_t index) const;
+  // The frame's time on the avatar's time axis (model/frame_time.h) when the frame replays what training saw: its
+  // seconds mapped to [-1, 1] over the span of the training frames, for a frame within the span of its own
+  // sequence's training frames. None for any other frame (a sequence of new motions, a moment beyond those training
+  // saw): the avatar then leaves its time branch out. A dataset without a training split counts every frame as one.
+  std::optional<double> replay_time(int64_t index) const;
   // Checks indices, sizes, shapes, finiteness and cameras; called by every reader and by the writer. Errors name the
   // frame and the field.
   void validate() const;

@@ -247,6 +247,86 @@ struct SurfaceView {
   int64_t texture_height, texture_width;
 };
 
+// The key light as shading sees it: its direction and a shadow map of the mesh rendered from far along it.
+struct KeyLight {
+  double direction[3];           // unit, towards the light, camera space
+  double light_from_camera[12];  // 3 x 4 row-major: camera space to the light camera's space
+  double focal, centre;          // of the square shadow map
+  const float* depth;            // (kShadowMapSide)^2 nearest depth seen from the light, 0 where uncovered
+  double bias;                   // metres
+};
+
+// A 4 x 4 row-major rigid transform as a tensor.
+at::Tensor matrix_of(const std::array<double, 16>& m) {
+  return at::tensor(std::vector<double>(m.begin(), m.end()), at::kDouble).view({4, 4});
+}
+
+// The shadow map's camera: far along the light direction, looking at the mesh's bounding-sphere centre, framing
+// the sphere.
+Camera light_camera(const at::Tensor& world_vertices, const std::array<double, 3>& towards_light, double& radius) {
+  const at::Tensor v = world_vertices.detach().cpu().to(at::kDouble);
+  const at::Tensor centre = (std::get<0>(v.min(0)) + std::get<0>(v.max(0))) / 2;
+  radius = std::max((v - centre).norm(2, 1).max().item<double>(), kMinSpan);
+  const double distance = kShadowLightDistanceRadii * radius;
+  const double side = double(kShadowMapSide);
+  Camera camera = Camera::looking_forward(side / 2 * (kShadowLightDistanceRadii - 1), kShadowMapSide, kShadowMapSide);
+  const at::Tensor z = -at::tensor(std::vector<double>(towards_light.begin(), towards_light.end()), at::kDouble);
+  const at::Tensor forward = z / z.norm();
+  const at::Tensor up = forward[1].abs().item<double>() > 0.99 ? at::tensor({1.0, 0.0, 0.0}, at::kDouble)
+                                                                 : at::tensor({0.0, 1.0, 0.0}, at::kDouble);
+  at::Tensor x = at::linalg_cross(forward, up);
+  x = x / x.norm();
+  const at::Tensor y = at::linalg_cross(forward, x);
+  const at::Tensor eye = centre - forward * distance;
+  const at::Tensor rows = at::stack({x, y, forward});
+  const at::Tensor t = -rows.matmul(eye);
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) camera.world_to_camera[size_t(4 * r + c)] = rows[r][c].item<double>();
+    camera.world_to_camera[size_t(4 * r + 3)] = t[r].item<double>();
+  }
+  camera.near_plane = distance - 2 * radius;  // the whole sphere lies beyond it
+  return camera;
+}
+
+// Shadow map and direction of a key light for `camera`'s view of `mesh`; shading reads `depth` through raw pointers.
+KeyLight key_light_for(const TexturedMesh& mesh, const Camera& camera, const std::array<double, 3>& towards_light,
+                       at::Tensor& depth) {
+  double radius = 0;
+  const Camera light = light_camera(mesh.vertices, towards_light, radius);
+  depth = rasterise(project_triangles(to_camera(mesh, light), light), kShadowMapSide, kShadowMapSide).depth.contiguous();
+  const at::Tensor camera_to_world = at::linalg_inv(matrix_of(camera.world_to_camera));
+  const at::Tensor light_from_camera = matrix_of(light.world_to_camera).matmul(camera_to_world).contiguous();
+  const at::Tensor l = at::tensor(std::vector<double>(towards_light.begin(), towards_light.end()), at::kDouble);
+  const at::Tensor in_camera = matrix_of(camera.world_to_camera).slice(0, 0, 3).slice(1, 0, 3).matmul(l / l.norm());
+  KeyLight k{};
+  for (int c = 0; c < 3; ++c) k.direction[c] = in_camera[c].item<double>();
+  for (int i = 0; i < 12; ++i) k.light_from_camera[i] = light_from_camera.data_ptr<double>()[i];
+  k.focal = light.fx;
+  k.centre = light.cx;
+  k.depth = depth.data_ptr<float>();
+  k.bias = kShadowBiasRadii * radius;
+  return k;
+}
+
+// The share of the key light reaching camera-space point q: 3 x 3 percentage-closer filtering of the shadow map.
+double lit_fraction(const KeyLight& k, const double* q) {
+  double p[3];
+  for (int r = 0; r < 3; ++r)
+    p[r] = k.light_from_camera[4 * r] * q[0] + k.light_from_camera[4 * r + 1] * q[1] +
+           k.light_from_camera[4 * r + 2] * q[2] + k.light_from_camera[4 * r + 3];
+  const int64_t u = int64_t(std::floor(k.focal * p[0] / p[2] + k.centre));
+  const int64_t v = int64_t(std::floor(k.focal * p[1] / p[2] + k.centre));
+  int lit = 0;
+  for (int64_t dv = -1; dv <= 1; ++dv)
+    for (int64_t du = -1; du <= 1; ++du) {
+      const int64_t x = std::clamp<int64_t>(u + du, 0, kShadowMapSide - 1);
+      const int64_t y = std::clamp<int64_t>(v + dv, 0, kShadowMapSide - 1);
+      const float d = k.depth[y * kShadowMapSide + x];
+      lit += (d == 0.0f || p[2] <= double(d) + k.bias) ? 1 : 0;
+    }
+  return lit / 9.0;
+}
+
 SurfaceView view_of(const CameraSpaceMesh& mesh, const Albedo& albedo) {
   return {mesh.points.data_ptr<double>(),
           mesh.faces.data_ptr<int64_t>(),
@@ -260,9 +340,11 @@ SurfaceView view_of(const CameraSpaceMesh& mesh, const Albedo& albedo) {
           albedo.textured ? albedo.texture.size(1) : 0};
 }
 
-// The colour of a pixel showing face f at barycentric coordinates b: albedo times ambient light plus a head light,
-// Lambertian in the angle between the interpolated normal and the view ray (either side of the surface).
-void shade_pixel(const SurfaceView& s, const MeshShading& shading, int64_t f, const double* b, float* rgb) {
+// The colour of a pixel showing face f at barycentric coordinates b: albedo times ambient light plus the directional
+// light, Lambertian: a head light in the angle between the interpolated normal and the view ray (either side of the
+// surface), or the key light (when given) on the outward normal, shadowed.
+void shade_pixel(const SurfaceView& s, const MeshShading& shading, const KeyLight* key, int64_t f, const double* b,
+                 float* rgb) {
   double n[3] = {0, 0, 0}, q[3] = {0, 0, 0};
   float albedo[3] = {0, 0, 0};
   for (int k = 0; k < 3; ++k) {
@@ -282,16 +364,21 @@ void shade_pixel(const SurfaceView& s, const MeshShading& shading, int64_t f, co
     sample_bilinear(s.texture, s.texture_height, s.texture_width, u, v, albedo);
   }
   const double n_len = std::sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
-  const double q_len = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2]);
-  const double cosine =
-      n_len > 0 && q_len > 0 ? std::abs(n[0] * q[0] + n[1] * q[1] + n[2] * q[2]) / (n_len * q_len) : 1.0;
+  double cosine = 1.0;
+  if (key != nullptr) {
+    const double facing = n[0] * key->direction[0] + n[1] * key->direction[1] + n[2] * key->direction[2];
+    cosine = n_len > 0 && facing > 0 ? facing / n_len * lit_fraction(*key, q) : 0.0;
+  } else {
+    const double q_len = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2]);
+    if (n_len > 0 && q_len > 0) cosine = std::abs(n[0] * q[0] + n[1] * q[1] + n[2] * q[2]) / (n_len * q_len);
+  }
   const double light = shading.ambient + shading.diffuse * cosine;
   for (int c = 0; c < 3; ++c) rgb[c] = float(std::min(1.0, albedo[c] * light));
 }
 
 // The shaded image: background where no face is visible.
 at::Tensor shade(const CameraSpaceMesh& mesh, const Albedo& albedo, const Fragments& fragments,
-                 const at::Tensor& background, const MeshShading& shading) {
+                 const at::Tensor& background, const MeshShading& shading, const KeyLight* key) {
   const int64_t h = fragments.face.size(0), w = fragments.face.size(1);
   at::Tensor image = background.to(at::kFloat).cpu().view({1, 1, 3}).repeat({h, w, 1}).contiguous();
   float* img = image.data_ptr<float>();
@@ -303,7 +390,7 @@ at::Tensor shade(const CameraSpaceMesh& mesh, const Albedo& albedo, const Fragme
       for (int64_t x = 0; x < w; ++x) {
         const int64_t pix = y * w + x;
         if (fid[pix] < 0) continue;
-        shade_pixel(surface, shading, fid[pix], bar + pix * 3, img + pix * 3);
+        shade_pixel(surface, shading, key, fid[pix], bar + pix * 3, img + pix * 3);
       }
   });
   return image;
@@ -319,8 +406,16 @@ MeshImage render_mesh(const TexturedMesh& mesh, const Camera& camera, const at::
               h);
   const CameraSpaceMesh in_camera = to_camera(mesh, camera);
   const Fragments fragments = rasterise(project_triangles(in_camera, camera), h, w);
+  const bool has_key_light = shading.key_light != std::array<double, 3>{0, 0, 0};
+  TORCH_CHECK(std::isfinite(shading.key_light[0]) && std::isfinite(shading.key_light[1]) &&
+                  std::isfinite(shading.key_light[2]),
+              "render_mesh: the key light direction must be finite");
+  at::Tensor shadow_depth;
+  KeyLight key{};
+  if (has_key_light) key = key_light_for(mesh, camera, shading.key_light, shadow_depth);
   MeshImage out;
-  out.image = shade(in_camera, albedo_of(mesh, in_camera.points.size(0)), fragments, background, shading);
+  out.image = shade(in_camera, albedo_of(mesh, in_camera.points.size(0)), fragments, background, shading,
+                    has_key_light ? &key : nullptr);
   out.mask = (fragments.face >= 0).to(at::kFloat);
   out.depth = fragments.depth;
   out.face = fragments.face;

@@ -2,6 +2,8 @@
 // A CPU triangle rasteriser for ground-truth synthetic videos: z-buffer, perspective-correct UV texturing and
 // Lambertian shading. It is deliberately independent of the Gaussian splatting op, so an avatar is never judged by
 // the renderer it was trained with.
+#include <array>
+
 #include <ATen/core/Tensor.h>
 
 #include "splat/splat.h"
@@ -19,7 +21,12 @@ struct TexturedMesh {
 
 struct MeshShading {
   double ambient = 0.35;           // share of light that reaches every surface
-  double diffuse = 0.65;           // share of the head light, scaled by |cos| of the normal to the view ray
+  double diffuse = 0.65;           // share of the directional light, scaled by the cosine below
+  // Where the directional light comes from. Zero: a head light at the camera, scaled by |cos| of the normal to the
+  // view ray (either side of the surface). Otherwise a key light fixed in the world (this direction towards the
+  // light, world coordinates, any length): scaled by the cosine to the outward normal (0 facing away) and shadowed
+  // by the mesh itself through a shadow map, so the shading changes with the pose and is not part of the albedo.
+  std::array<double, 3> key_light{0, 0, 0};
 };
 
 struct MeshImage {

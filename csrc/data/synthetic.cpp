@@ -1,6 +1,7 @@
 #include "data/synthetic.h"
 #include "common/constants.h"
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstdio>
@@ -12,7 +13,9 @@
 
 #include "body/procedural_body.h"
 #include "body/smplx.h"
+#include "body/parts.h"
 #include "data/mesh_renderer.h"
+#include "data/motions.h"
 #include "io/npz.h"
 
 namespace sfgs::data {
@@ -21,19 +24,15 @@ namespace fs = std::filesystem;
 namespace {
 
 constexpr double kTwoPi = 6.283185307179586;
-constexpr double kMotionHz = 0.5;            // base frequency of the motion
 constexpr int64_t kSynthBetas = 10;          // shape coefficients drawn for the subject
 constexpr int64_t kSynthExpressions = 10;    // expression coefficients animated
 constexpr double kSubjectFill = 0.8;         // share of the image height the subject spans
 constexpr double kFocalPerPixel = 1.2;       // focal length in units of the larger image side
-constexpr double kOrbitRadians = 0.6;        // the camera drifts +-this far around the subject
+constexpr double kOrbitRadians = 0.35;       // the camera drifts +-this far around the subject: mostly frontal
+// The key light: from the front, above and the subject's left (world y up, the camera on +z), fixed in the world.
+constexpr std::array<double, 3> kKeyLight{0.45, 0.8, 0.6};
 constexpr double kHandShakeMetres = 0.02;    // amplitude of the camera's hand-held wobble
 constexpr int64_t kPatternSize = 256;        // side of the generated texture
-
-// Axis-angle components of the motion, in radians. Joint numbers follow SMPL-X (body_pose holds joints 1..21).
-void set_body(at::Tensor& body_pose, int64_t joint, int axis, double value) {
-  body_pose[joint - 1][axis] = float(value);
-}
 
 // A hand-held camera: a smooth, seeded wobble from a few incommensurate sinusoids.
 struct HandShake {
@@ -91,48 +90,15 @@ at::Tensor generated_texture() {
 
 }  // namespace
 
-SmplxPose synthetic_pose(int64_t index, double frames_per_second, int64_t expression_count) {
-  const double t = double(index) / frames_per_second;
-  const double w = kTwoPi * kMotionHz;
-  SmplxPose p = SmplxPose::zeros(expression_count);
-  const double swing = std::sin(w * t);
-  // Arms lowered from the T-pose and swinging, elbows bending.
-  set_body(p.body_pose, 16, 2, -1.1 + 0.25 * swing);
-  set_body(p.body_pose, 16, 0, 0.3 * swing);
-  set_body(p.body_pose, 17, 2, 1.1 + 0.25 * swing);
-  set_body(p.body_pose, 17, 0, -0.3 * swing);
-  set_body(p.body_pose, 18, 1, -0.5 - 0.4 * std::sin(w * t + 1.0));
-  set_body(p.body_pose, 19, 1, 0.5 + 0.4 * std::sin(w * t + 2.0));
-  // Legs stepping, torso twisting, head nodding and turning.
-  set_body(p.body_pose, 1, 0, -0.35 * swing);
-  set_body(p.body_pose, 2, 0, 0.35 * swing);
-  set_body(p.body_pose, 4, 0, 0.4 + 0.35 * std::sin(w * t + kTwoPi / 4));
-  set_body(p.body_pose, 5, 0, 0.4 - 0.35 * std::sin(w * t + kTwoPi / 4));
-  for (int64_t spine : {3, 6, 9}) set_body(p.body_pose, spine, 1, 0.12 * std::sin(0.5 * w * t));
-  set_body(p.body_pose, 12, 0, 0.12 * std::sin(w * t + 0.5));
-  set_body(p.body_pose, 15, 1, 0.3 * std::sin(0.7 * w * t));
-  p.global_orient[1] = float(0.35 * std::sin(0.25 * w * t));
-  p.transl[0] = float(0.05 * std::sin(0.5 * w * t));
-  p.transl[1] = float(0.02 * std::sin(2 * w * t));
-  // Jaw opening, eyes looking around, fingers curling finger by finger, expressions changing.
-  p.jaw_pose[0] = float(0.12 + 0.12 * std::sin(1.3 * w * t));
-  p.leye_pose[1] = p.reye_pose[1] = float(0.2 * std::sin(0.9 * w * t));
-  for (int64_t k = 0; k < 15; ++k) {
-    const double curl = 0.45 + 0.45 * std::sin(1.5 * w * t + 0.6 * double(k / 3));
-    p.left_hand_pose[k][2] = float(-curl);
-    p.right_hand_pose[k][2] = float(curl);
-  }
-  for (int64_t k = 0; k < expression_count; ++k)
-    p.expression[k] = float(0.8 * std::sin(w * t * (0.7 + 0.13 * double(k)) + double(k)));
-  return p;
-}
-
 namespace {
 
-// The body layer the video is posed with (axis-angle hands: the motion gives the hands' rotations).
-body::Smplx synthetic_body_layer(const SyntheticVideoOptions& options) {
-  const body::SmplxModelData model = options.body_model.empty() ? body::make_procedural_body().smplx
-                                                                : body::SmplxModelData::load(options.body_model);
+// The body model the video is posed with.
+body::SmplxModelData synthetic_body_model(const SyntheticVideoOptions& options) {
+  return options.body_model.empty() ? body::make_procedural_body().smplx : body::SmplxModelData::load(options.body_model);
+}
+
+// Its layer (axis-angle hands: the motion gives the hands' rotations).
+body::Smplx synthetic_body_layer(const body::SmplxModelData& model) {
   body::SmplxOptions layer_options;
   layer_options.num_betas = std::min<int64_t>(kSynthBetas, model.shapedirs.size(2));
   layer_options.num_expression_coeffs = std::min<int64_t>(kSynthExpressions, model.exprdirs.size(2));
@@ -155,15 +121,15 @@ TexturedMesh subject_mesh(const body::Smplx& smplx, const SyntheticVideoOptions&
   return mesh;
 }
 
-// The hand-held camera: it frames the subject of the first frame and keeps that distance while it drifts around
-// it and shakes.
+// The hand-held camera: it frames the subject over the whole video and keeps that distance while it drifts in front
+// of it and shakes.
 class SyntheticCamera {
  public:
-  SyntheticCamera(const at::Tensor& first_vertices, const SyntheticVideoOptions& options)
-      : options_(options), shake_(options.seed),
-        duration_(double(options.frames) / options.frames_per_second),
+  SyntheticCamera(const at::Tensor& all_vertices, const SyntheticVideoOptions& options, int64_t frames)
+      : options_(options), shake_(options.seed), duration_(double(frames) / options.frames_per_second),
         focal_(kFocalPerPixel * double(std::max(options.width, options.height))) {
-    const at::Tensor lo = std::get<0>(first_vertices.min(0)), hi = std::get<0>(first_vertices.max(0));
+    const at::Tensor points = all_vertices.reshape({-1, 3});
+    const at::Tensor lo = std::get<0>(points.min(0)), hi = std::get<0>(points.max(0));
     const at::Tensor centre = (lo + hi) / 2;
     const double extent_y = (hi[1] - lo[1]).item<double>(), extent_x = (hi[0] - lo[0]).item<double>();
     distance_ = focal_ * std::max(extent_y / (kSubjectFill * double(options.height)),
@@ -193,54 +159,109 @@ class SyntheticCamera {
 
 }  // namespace
 
-Dataset write_synthetic_video(const std::string& folder, const SyntheticVideoOptions& options) {
+namespace {
+
+// Per model vertex: the number of frames among `frames` in which a face holding it covers a pixel centre.
+void count_visible_vertices(const at::Tensor& face_ids, const at::Tensor& faces, at::Tensor& counts) {
+  const at::Tensor visible_faces = std::get<0>(at::_unique(face_ids.flatten().masked_select(face_ids.flatten() >= 0)));
+  at::Tensor seen = at::zeros({counts.size(0)}, at::kFloat);
+  seen.index_fill_(0, faces.index_select(0, visible_faces).flatten(), 1.0f);
+  counts += seen;
+}
+
+// The region of every model vertex (body::BodyPart codes): the model's own labels, or those its weights imply.
+at::Tensor vertex_regions(const body::SmplxModelData& model) {
+  return (model.part_labels.defined() ? model.part_labels : body::part_labels_from_weights(model.weights)).to(at::kLong);
+}
+
+// Test blocks are all test; training blocks hold out every 10th frame (offset 4) for validation and, in the
+// interleaved split, every 10th (offset 9) for test.
+Split split_of(bool test_block, int64_t index_in_block, bool interleaved) {
+  if (test_block) return Split::kTest;
+  if (index_in_block % 10 == 4) return Split::kVal;
+  if (interleaved && index_in_block % 10 == 9) return Split::kTest;
+  return Split::kTrain;
+}
+
+void check_options(const SyntheticVideoOptions& options) {
   TORCH_CHECK(options.frames >= 1, "sfgs synth: --frames must be at least 1, got ", options.frames);
   TORCH_CHECK(options.width >= 16 && options.height >= 16 && options.width <= kMaxImageSide &&
                   options.height <= kMaxImageSide,
               "sfgs synth: image sides must be in [16, ", kMaxImageSide, "], got ", options.width, " x ", options.height);
   TORCH_CHECK(options.frames_per_second > 0, "sfgs synth: frames per second must be positive");
+  TORCH_CHECK(!options.motions.empty(), "sfgs synth: at least one training motion is needed");
+  for (const auto* list : {&options.motions, &options.test_motions})
+    for (const std::string& m : *list) TORCH_CHECK(is_motion(m), "sfgs synth: unknown motion '", m, "'");
+  for (const std::string& m : options.test_motions)
+    TORCH_CHECK(std::find(options.motions.begin(), options.motions.end(), m) == options.motions.end(),
+                "sfgs synth: motion '", m, "' is both a training and a test motion");
+}
+
+}  // namespace
+
+Dataset write_synthetic_video(const std::string& folder, const SyntheticVideoOptions& options) {
+  check_options(options);
   for (const char* sub : {"images", "masks", "meshes"}) fs::create_directories(fs::path(folder) / sub);
 
-  const body::Smplx smplx = synthetic_body_layer(options);
+  const body::SmplxModelData model = synthetic_body_model(options);
+  const body::Smplx smplx = synthetic_body_layer(model);
   at::Generator gen = at::make_generator<at::CPUGeneratorImpl>(options.seed);
   const at::Tensor betas = at::empty({smplx->options().num_betas}).normal_(0.0, 0.6, gen);
+  std::vector<std::string> blocks = options.motions;
+  blocks.insert(blocks.end(), options.test_motions.begin(), options.test_motions.end());
+  const int64_t total = int64_t(blocks.size()) * options.frames;
   std::vector<SmplxPose> poses;
-  for (int64_t i = 0; i < options.frames; ++i)
-    poses.push_back(synthetic_pose(i, options.frames_per_second, smplx->options().num_expression_coeffs));
+  for (const std::string& motion : blocks)
+    for (int64_t i = 0; i < options.frames; ++i)
+      poses.push_back(motion_pose(motion, double(i) / options.frames_per_second,
+                                  smplx->options().num_expression_coeffs));
   body::SmplxInput input;
-  input.betas = betas.unsqueeze(0).expand({options.frames, -1}).contiguous();
+  input.betas = betas.unsqueeze(0).expand({total, -1}).contiguous();
   input.pose = SmplxPose::stack(poses);
   const at::Tensor vertices = smplx->forward(input).vertices.detach().to(at::kFloat);
   TexturedMesh mesh = subject_mesh(smplx, options);
-  const SyntheticCamera camera(vertices[0], options);
+  const SyntheticCamera camera(vertices, options, total);
+  MeshShading shading;
+  if (options.key_light) shading.key_light = kKeyLight;
 
   Dataset d;
   d.source = folder;
   d.format = "sfgs";
-  d.sequences = {"synthetic"};
+  d.sequences = blocks;
   d.betas = betas;
   const at::Tensor white = at::ones({3});
+  at::Tensor seen_counts = at::zeros({vertices.size(1)}, at::kFloat);
+  int64_t training_frames = 0;
   io::write_npy((fs::path(folder) / "meshes" / "faces.npy").string(), mesh.faces, options.overwrite);
-  for (int64_t i = 0; i < options.frames; ++i) {
+  for (int64_t i = 0; i < total; ++i) {
     FrameRecord r;
     char name[16];
     std::snprintf(name, sizeof(name), "%06lld", static_cast<long long>(i));
     r.name = name;
     r.time = double(i) / options.frames_per_second;
+    r.sequence = i / options.frames;
     r.camera = camera.at(r.time);
     r.pose = poses[size_t(i)];
     r.image_path = (fs::path(folder) / "images" / (r.name + ".png")).string();
     r.mask_path = (fs::path(folder) / "masks" / (r.name + ".png")).string();
     r.mesh_path = (fs::path(folder) / "meshes" / (r.name + ".npy")).string();
     mesh.vertices = vertices[i];
-    const MeshImage frame = render_mesh(mesh, r.camera, white);
+    const MeshImage frame = render_mesh(mesh, r.camera, white, shading);
     write_png(r.image_path, frame.image, options.overwrite);
     write_png(r.mask_path, frame.mask, options.overwrite);
     io::write_npy(r.mesh_path, vertices[i], options.overwrite);
-    const Split split = i % 10 == 4 ? Split::kVal : (i % 10 == 9 ? Split::kTest : Split::kTrain);
+    const Split split = split_of(r.sequence >= int64_t(options.motions.size()), i % options.frames,
+                                 options.test_motions.empty());
+    if (split == Split::kTrain) {
+      count_visible_vertices(frame.face, mesh.faces, seen_counts);
+      ++training_frames;
+    }
     d.splits[split].push_back(i);
     d.frames.push_back(std::move(r));
   }
+  io::write_npy((fs::path(folder) / "meshes" / "regions.npy").string(), vertex_regions(model), options.overwrite);
+  io::write_npy((fs::path(folder) / "meshes" / "observation.npy").string(),
+                seen_counts / double(std::max<int64_t>(training_frames, 1)), options.overwrite);
   write_sfgs_dataset(d, folder, options.overwrite);
   return d;
 }

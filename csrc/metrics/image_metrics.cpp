@@ -94,6 +94,11 @@ at::Tensor psnr(const at::Tensor& prediction, const at::Tensor& target) {
 }
 
 at::Tensor ssim(const at::Tensor& prediction, const at::Tensor& target, SsimBorder border) {
+  const at::Tensor map = ssim_map(prediction, target, border);
+  return map.mean({-2, -1});
+}
+
+at::Tensor ssim_map(const at::Tensor& prediction, const at::Tensor& target, SsimBorder border) {
   detail::check_image_pair("ssim", prediction, target);
   const int64_t height = prediction.size(-3), width = prediction.size(-2);
   const int radius = kSsimWindowSize / 2;
@@ -135,7 +140,8 @@ at::Tensor ssim(const at::Tensor& prediction, const at::Tensor& target, SsimBord
   }
   const double c1 = std::pow(kSsimK1 * kImageDataRange, 2), c2 = std::pow(kSsimK2 * kImageDataRange, 2);
   const at::Tensor map = (2.0 * mu_xy + c1) * (2.0 * cov_xy + c2) / ((mu_x2 + mu_y2 + c1) * (var_x + var_y + c2));
-  return detail::match_batch_layout(map.mean({1, 2, 3}), prediction);
+  const at::Tensor per_pixel = map.mean(1);  // (B, H', W')
+  return prediction.dim() == 3 ? per_pixel.squeeze(0) : per_pixel;
 }
 
 at::Tensor mask_iou(const at::Tensor& mask_a, const at::Tensor& mask_b) {

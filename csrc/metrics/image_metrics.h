@@ -26,6 +26,10 @@ enum class SsimBorder {
 // Mean SSIM per image: computed per channel (no luminance conversion) and averaged over channels and pixels.
 at::Tensor ssim(const at::Tensor& prediction, const at::Tensor& target, SsimBorder border);
 
+// The per-pixel SSIM map that `ssim` averages, itself averaged over channels: (H, W) for one image, (B, H, W) for a
+// batch, where the valid border leaves (H - 10) x (W - 10) pixels (each the centre of a window that fits).
+at::Tensor ssim_map(const at::Tensor& prediction, const at::Tensor& target, SsimBorder border);
+
 // |A and B| / |A or B| of two (H, W) or batched (B, H, W) masks; bool masks as they are, floating masks
 // thresholded at 0.5. Two empty masks agree perfectly: IoU 1. Not differentiable.
 at::Tensor mask_iou(const at::Tensor& mask_a, const at::Tensor& mask_b);

@@ -15,6 +15,7 @@
 #include "body/tensor_checks.h"
 #include "common/constants.h"
 #include "model/inference_cache.h"
+#include "model/observation_prior.h"
 #include "model/skinning.h"
 
 namespace sfgs::model {
@@ -51,6 +52,8 @@ void check_config(const AvatarConfig& c) {
               c.hidden_width);
   TORCH_CHECK(c.joint_embedding_size > 0, "Avatar: joint_embedding_size must be positive, got ",
               c.joint_embedding_size);
+  TORCH_CHECK(c.time_dropout >= 0 && c.time_dropout <= 1, "Avatar: time_dropout must be in [0, 1], got ",
+              c.time_dropout);
   TORCH_CHECK(c.num_betas >= 0 && c.num_expression_coeffs >= 0,
               "Avatar: num_betas and num_expression_coeffs must be >= 0, got ", c.num_betas, " and ",
               c.num_expression_coeffs);
@@ -134,6 +137,7 @@ AvatarImpl::AvatarImpl(const AvatarBody& b, const at::Tensor& betas, AvatarConfi
                                                             body_->joints(), body_->dominant_joints()));
   if (config_.use_colour_offset)
     colour_offset_ = register_module("colour_offset", ColourOffset(width, config_.hidden_width));
+  if (config_.use_shading) shading_ = register_module("shading", Shading());
   if (config_.use_hand_residual && b.has_mano) {
     body::ManoModelData left = b.mano_left;
     body::repair_left_mano_shapedirs(left, b.mano_right);
@@ -145,9 +149,11 @@ AvatarImpl::AvatarImpl(const AvatarBody& b, const at::Tensor& betas, AvatarConfi
 
 AvatarImpl::~AvatarImpl() = default;
 
-AvatarOutput AvatarImpl::forward(const body::SmplxPose& pose, double time) {
-  TORCH_CHECK(std::isfinite(time) && time >= -1.0 && time <= 1.0,
-              "Avatar: time must be normalised to [-1, 1] (once per sequence), got ", time);
+AvatarOutput AvatarImpl::forward(const body::SmplxPose& pose, FrameTime time) {
+  TORCH_CHECK(!time || (std::isfinite(*time) && *time >= -1.0 && *time <= 1.0),
+              "Avatar: time must be normalised to [-1, 1] (once per sequence), got ", *time);
+  if (confidence_.defined() && confidence_.device() != body_->vertices().device())
+    confidence_ = confidence_.to(body_->vertices().device());
   const std::string non_finite = pose.non_finite();
   TORCH_CHECK(non_finite.empty(), "Avatar: pose.", non_finite);
   const FramePose frame = frame_pose(pose);
@@ -207,7 +213,7 @@ AvatarImpl::FramePose AvatarImpl::frame_pose(const body::SmplxPose& pose) const 
   return frame;
 }
 
-CanonicalAttributes AvatarImpl::compute_attributes(const StaticFeatures& features, double time) const {
+CanonicalAttributes AvatarImpl::compute_attributes(const StaticFeatures& features, FrameTime time) const {
   const at::Tensor fused = feature_field_->fuse(features, time);
   const CanonicalHeadOutput heads = heads_->forward(fused);
   CanonicalAttributes a;
@@ -216,10 +222,40 @@ CanonicalAttributes AvatarImpl::compute_attributes(const StaticFeatures& feature
   a.colour_logits = heads.colour_logits;
   if (structure_offset_) a.structure_projection = structure_offset_->project_features(fused);
   if (colour_offset_) a.colour_projection = colour_offset_->project_features(fused);
+  return trusts_observation() ? with_observation_prior(std::move(a)) : a;
+}
+
+CanonicalAttributes AvatarImpl::with_observation_prior(CanonicalAttributes a) const {
+  const at::Tensor initial = body_->initial_log_scales();
+  a.colour_logits = propagate_from_observed(a.colour_logits, confidence_.squeeze(1), neighbours_);
+  a.mean_offset = trusted(a.mean_offset);
+  a.log_scales = initial + trusted((a.log_scales - initial).unsqueeze(1)).squeeze(1);
   return a;
 }
 
-CanonicalAttributes AvatarImpl::attributes_at(double time) {
+at::Tensor AvatarImpl::trusted(const at::Tensor& learned) const {
+  return trusts_observation() && learned.defined() ? learned * confidence_ : learned;
+}
+
+void AvatarImpl::set_observation(const at::Tensor& observed_fraction) {
+  clear_cache();
+  if (!observed_fraction.defined()) {
+    observed_fraction_ = confidence_ = at::Tensor();
+    return;
+  }
+  const int64_t n = gaussian_count();
+  TORCH_CHECK(observed_fraction.dim() == 1 && observed_fraction.size(0) == n &&
+                  at::isFloatingType(observed_fraction.scalar_type()),
+              "Avatar: the observation record must be a floating (", n, ") tensor, got ", describe(observed_fraction));
+  const auto options = body_->vertices().options();
+  observed_fraction_ = observed_fraction.detach().to(options);
+  TORCH_CHECK(observed_fraction_.isfinite().all().item<bool>() && observed_fraction_.min().item<double>() >= 0,
+              "Avatar: the observation record must be finite and non-negative");
+  confidence_ = observation_confidence(observed_fraction_).unsqueeze(1);
+  if (!neighbours_.indices.defined()) neighbours_ = body::vertex_neighbours(body_->faces().cpu(), n);
+}
+
+CanonicalAttributes AvatarImpl::attributes_at(FrameTime time) {
   if (!cache_) return compute_attributes(feature_field_->static_features(), time);
   TORCH_CHECK(!is_training(),
               "Avatar: the static-feature cache is for inference; call clear_cache() before training (or eval())");
@@ -239,10 +275,10 @@ CanonicalGaussians AvatarImpl::canonical_gaussians(const FramePose& frame, const
   if (structure_offset_) {
     const StructureOffsetOutput structure =
         structure_offset_->forward(attributes.structure_projection, frame.rotations_6d);
-    g.structure_offset = structure.mean_offset;
-    g.scale_offset = structure.log_scale_offset;
-    g.means = g.means + structure.mean_offset;
-    g.log_scales = g.log_scales + structure.log_scale_offset;
+    g.structure_offset = trusted(structure.mean_offset);
+    g.scale_offset = trusted(structure.log_scale_offset.unsqueeze(1)).squeeze(1);
+    g.means = g.means + g.structure_offset;
+    g.log_scales = g.log_scales + g.scale_offset;
   }
   if (body.point_offsets.defined()) g.means = g.means + body.point_offsets;  // the hand residual
   return g;
@@ -250,22 +286,28 @@ CanonicalGaussians AvatarImpl::canonical_gaussians(const FramePose& frame, const
 
 at::Tensor AvatarImpl::appearance(const FramePose& frame, const FrameBody& body,
                                   const CanonicalAttributes& attributes, AvatarOutput& out) const {
-  if (!colour_offset_) return at::sigmoid(attributes.colour_logits);
+  if (!colour_offset_ && !shading_) return at::sigmoid(attributes.colour_logits);
   at::Tensor normals;
   {
     // The body-model surface's orientation: smooth, free of the learned offsets' noise, and no gradient.
     at::NoGradGuard no_grad;
     normals = body::vertex_normals(body.posed.detach(), body_->faces());
   }
-  const at::Tensor pose_embedding = body_->weights().matmul(frame.rotations_6d);  // sum_j w_ij r_j
-  out.colour_offset = colour_offset_->forward(attributes.colour_projection, pose_embedding, normals);
-  return at::sigmoid(attributes.colour_logits + out.colour_offset);
+  at::Tensor logits = attributes.colour_logits;
+  if (colour_offset_) {
+    const at::Tensor pose_embedding = body_->weights().matmul(frame.rotations_6d);  // sum_j w_ij r_j
+    out.colour_offset = trusted(colour_offset_->forward(attributes.colour_projection, pose_embedding, normals));
+    logits = logits + out.colour_offset;
+  }
+  if (!shading_) return at::sigmoid(logits);
+  out.shading = shading_->forward(normals);
+  return at::sigmoid(logits) * out.shading;
 }
 
 void AvatarImpl::cache_static_features() {
   at::NoGradGuard no_grad;
   cache_ = std::make_unique<InferenceCache>(feature_field_->static_features(), config_.use_hexplane);
-  if (!config_.use_hexplane) cache_->keep(compute_attributes(cache_->features(), 0.0), 0.0);
+  cache_->keep(compute_attributes(cache_->features(), std::nullopt), std::nullopt);
 }
 
 void AvatarImpl::clear_cache() { cache_.reset(); }
@@ -294,6 +336,7 @@ int64_t parameter_count(const AvatarConfig& c, bool has_mano) {
     count += body::kSmplxJointCount * c.joint_embedding_size +
              MlpImpl::parameter_count(StructureOffsetImpl::shape(width, h, c.joint_embedding_size));
   if (c.use_colour_offset) count += MlpImpl::parameter_count(ColourOffsetImpl::shape(width, h));
+  if (c.use_shading) count += ShadingImpl::kBasisSize * 3;
   if (c.use_hand_residual && has_mano) count += 2 * MlpImpl::parameter_count(HandResidualImpl::shape());
   return count;
 }

@@ -17,14 +17,17 @@
 #include <torch/nn/pimpl.h>
 
 #include "body/mano.h"
+#include "body/mesh.h"
 #include "body/parts.h"
 #include "body/smplx.h"
 #include "body/smplx_pose.h"
 #include "model/canonical_body.h"
 #include "model/colour_offset.h"
 #include "model/feature_field.h"
+#include "model/frame_time.h"
 #include "model/hand_residual.h"
 #include "model/heads.h"
+#include "model/shading.h"
 #include "model/structure_offset.h"
 #include "splat/splat.h"
 
@@ -53,6 +56,12 @@ struct AvatarConfig {
   bool use_colour_offset = true;
   bool use_hand_residual = true;  // also needs MANO in the AvatarBody
   bool use_face_planes = true;
+  // Not in the paper: colours are albedo times one shared function of the posed world normal (shading.h), so light
+  // fixed in the world is not baked into the colours of the training poses. docs/avatar.md, "Shading".
+  bool use_shading = true;
+  // The share of training steps that leave the time branch out (FrameTime without a value), so the avatar is as
+  // good without a time (new motions) as with one (replay); 0 trains it only with times. docs/avatar.md, "Time".
+  double time_dropout = 0.5;
 };
 
 // Everything an avatar needs from a body model: SMPL-X layout, optionally MANO hands with their correspondence.
@@ -78,7 +87,7 @@ struct AvatarOutput {
   at::Tensor means;        // (N, 3) world
   at::Tensor covariances;  // (N, 6) world, packed (xx, xy, xz, yy, yz, zz)
   at::Tensor opacities;    // (N) constant ones (not learned)
-  at::Tensor colours;      // (N, 3) in [0, 1]
+  at::Tensor colours;      // (N, 3) non-negative: in [0, 1] without shading; shading may light them beyond 1
   // Canonical quantities (before skinning) for regularisers and export.
   at::Tensor canonical_means;   // (N, 3): this frame's rest mesh plus every offset below
   at::Tensor log_scales;        // (N) isotropic log standard deviation (after the structure offset)
@@ -86,6 +95,7 @@ struct AvatarOutput {
   at::Tensor structure_offset;  // (N, 3) structure offset
   at::Tensor scale_offset;      // (N) structure offset
   at::Tensor colour_offset;     // (N, 3) colour offset
+  at::Tensor shading;           // (N, 3) the light factor colours were multiplied by (shading.h)
   at::Tensor hand_residual;     // (N, 3) hand residual; zero off the hands
   at::Tensor posed_vertices;    // (N, 3) the skinned mesh points without learned offsets (for geometry metrics)
 };
@@ -101,8 +111,16 @@ class AvatarImpl : public torch::nn::Module {
 
   // One frame: an SMPL-X pose (one frame; any floating dtype and device, moved to the avatar's; every value must be
   // finite: give it on the CPU to keep that check free of a device synchronisation; undefined fields are at rest,
-  // undefined hand poses also skip that hand's residual) and the normalised time in [-1, 1].
-  AvatarOutput forward(const body::SmplxPose& pose, double time);
+  // undefined hand poses also skip that hand's residual) and the frame's time: normalised to [-1, 1] for a frame
+  // the training video covered, none for a new motion (frame_time.h).
+  AvatarOutput forward(const body::SmplxPose& pose, FrameTime time);
+
+  // The observation record of training (observation_prior.h): per Gaussian, the share of training steps that saw it
+  // front-facing, (N) on any device; undefined clears it. In eval mode an avatar with a record trusts each
+  // Gaussian's learned colour and offsets in proportion to how well it was observed: the colours of surface the
+  // video never or rarely showed come from the observed surface around it. Training mode ignores it.
+  void set_observation(const at::Tensor& observed_fraction);
+  const at::Tensor& observation() const { return observed_fraction_; }
 
   // Keeps the pose- and time-independent features and canonical attributes (and, with the hexplane, the
   // time-dependent ones of the last time it saw) for inference. forward refuses the cache in training mode. Call
@@ -118,8 +136,11 @@ class AvatarImpl : public torch::nn::Module {
  private:
   struct FramePose;
   FramePose frame_pose(const body::SmplxPose& pose) const;
-  CanonicalAttributes attributes_at(double time);
-  CanonicalAttributes compute_attributes(const StaticFeatures& features, double time) const;
+  CanonicalAttributes attributes_at(FrameTime time);
+  CanonicalAttributes compute_attributes(const StaticFeatures& features, FrameTime time) const;
+  bool trusts_observation() const { return confidence_.defined() && !is_training(); }
+  CanonicalAttributes with_observation_prior(CanonicalAttributes attributes) const;
+  at::Tensor trusted(const at::Tensor& learned) const;  // scaled by the confidence when trusts_observation()
   CanonicalGaussians canonical_gaussians(const FramePose& frame, const FrameBody& body,
                                          const CanonicalAttributes& attributes) const;
   at::Tensor appearance(const FramePose& frame, const FrameBody& body, const CanonicalAttributes& attributes,
@@ -131,8 +152,11 @@ class AvatarImpl : public torch::nn::Module {
   CanonicalHeads heads_{nullptr};
   StructureOffset structure_offset_{nullptr};  // each of these null when switched off
   ColourOffset colour_offset_{nullptr};
+  Shading shading_{nullptr};
   HandResidual hand_residual_{nullptr};
   at::Tensor opacities_;
+  at::Tensor observed_fraction_, confidence_;  // (N) and (N, 1) on the module's device, or undefined
+  body::VertexNeighbours neighbours_;          // of the mesh points, for the observation prior
   std::unique_ptr<InferenceCache> cache_;
 };
 TORCH_MODULE(Avatar);

@@ -95,14 +95,18 @@ StaticFeatures FeatureFieldImpl::static_features() const {
   return features;
 }
 
-at::Tensor FeatureFieldImpl::fuse(const StaticFeatures& features, double time) const {
+at::Tensor FeatureFieldImpl::fuse(const StaticFeatures& features, FrameTime time) const {
   if (!options_.use_hexplane) return features.triplane;
-  TORCH_CHECK(std::isfinite(time) && time >= -1.0 && time <= 1.0,
-              "FeatureField: time must be normalised to [-1, 1] (once per sequence), got ", time);
-  const at::Tensor time_features = split_face_ ? merge(hexplane_time_->sample(coordinates_, time),
-                                                       face_hexplane_time_->sample(face_coordinates_, time))
-                                               : hexplane_time_->sample(coordinates_, time);
-  const at::Tensor aligned = features.hexplane_space + hexplane_to_triplane_->project(1, time_features);
+  at::Tensor aligned = features.hexplane_space;
+  if (time) {
+    const double t = *time;
+    TORCH_CHECK(std::isfinite(t) && t >= -1.0 && t <= 1.0,
+                "FeatureField: time must be normalised to [-1, 1] (once per sequence), got ", t);
+    const at::Tensor time_features = split_face_ ? merge(hexplane_time_->sample(coordinates_, t),
+                                                         face_hexplane_time_->sample(face_coordinates_, t))
+                                                 : hexplane_time_->sample(coordinates_, t);
+    aligned = aligned + hexplane_to_triplane_->project(1, time_features);
+  }
   const at::Tensor alpha = at::sigmoid(gate_->finish(features.gate_triplane + gate_->project(1, aligned)));
   return (1 - alpha) * features.triplane + alpha * aligned;
 }

@@ -1,12 +1,14 @@
 #pragma once
 // What an avatar keeps between frames at inference: the features that depend on neither pose nor time, and the
-// canonical attributes the fused feature determines, for the last time they were computed at (without the
-// hexplane they hold for every time). Training never uses it: its tensors are detached.
+// canonical attributes the fused feature determines: those without a time (new motions) and those of the last time
+// they were computed at (without the hexplane one set holds for every time). Training never uses it: its tensors
+// are detached.
 #include <optional>
 
 #include <ATen/core/Tensor.h>
 
 #include "model/feature_field.h"
+#include "model/frame_time.h"
 
 namespace sfgs::model {
 
@@ -28,15 +30,17 @@ class InferenceCache {
   const StaticFeatures& features() const { return features_; }
   at::Device device() const { return features_.triplane.device(); }
   // The attributes kept for `time`, if any.
-  const CanonicalAttributes* attributes(double time) const;
+  const CanonicalAttributes* attributes(FrameTime time) const;
   // Keeps `attributes` (detached) as those of `time`.
-  void keep(const CanonicalAttributes& attributes, double time);
+  void keep(const CanonicalAttributes& attributes, FrameTime time);
 
  private:
+  bool timeless(FrameTime time) const { return !time || !time_dependent_; }
+
   StaticFeatures features_;
   bool time_dependent_;
-  std::optional<CanonicalAttributes> attributes_;
-  double time_ = 0.0;
+  std::optional<CanonicalAttributes> timeless_, timed_;
+  double time_ = 0.0;  // of timed_
 };
 
 }  // namespace sfgs::model

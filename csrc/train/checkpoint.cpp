@@ -75,6 +75,12 @@ void save_checkpoint(const std::string& path, const CheckpointInfo& info, const 
   const std::string optimizer_bytes = serialised(optimizer);
   checksums["optimizer"] = crc32_of(optimizer_bytes.data(), optimizer_bytes.size());
   checksums["betas"] = crc32_of(info.betas);
+  if (info.observation_sum.defined()) {
+    const at::Tensor observation = info.observation_sum.detach().to(at::kCPU, at::kFloat).contiguous();
+    checksums["observation"] = crc32_of(observation);
+    archive.write("observation", observation);
+    archive.write("observation_steps", at::tensor({info.observation_steps}, at::kLong));
+  }
   archive.write("format", string_tensor(kFormatName));
   archive.write("version", at::tensor({kFormatVersion}, at::kLong));
   archive.write("avatar", avatar_archive);
@@ -124,6 +130,14 @@ CheckpointReader::CheckpointReader(const std::string& path) : path_(path) {
   info_.rng_state = tensor_string(read("rng"));
   info_.dataset = tensor_string(read("dataset"));
   info_.betas = read("betas");
+  at::Tensor steps;
+  if (archive_.try_read("observation_steps", steps) && archive_.try_read("observation", info_.observation_sum)) {
+    info_.observation_steps = steps.item<int64_t>();
+    TORCH_CHECK(checksums_.value("observation", uint32_t(0)) == crc32_of(info_.observation_sum), "checkpoint '", path,
+                "' is damaged: its observation record does not match the checksum written with it");
+    TORCH_CHECK(info_.observation_steps > 0, "checkpoint '", path, "' has an observation record over ",
+                info_.observation_steps, " steps");
+  }
   if (info_.version >= 2)
     TORCH_CHECK(checksums_.value("betas", uint32_t(0)) == crc32_of(info_.betas), "checkpoint '", path,
                 "' is damaged: its betas do not match the checksum written with them");
@@ -150,6 +164,9 @@ void CheckpointReader::load_avatar(model::Avatar& avatar) {
   const std::string bad = first_non_finite_tensor(*avatar);
   TORCH_CHECK(bad.empty(), "checkpoint '", path_, "' holds non-finite values in ", bad,
               ": the run diverged before it was written, or the file is damaged; it cannot be used");
+  // The observation record (checkpoints of runs trained before it existed have none: every Gaussian is trusted).
+  if (info_.observation_sum.defined())
+    avatar->set_observation(info_.observation_sum / double(info_.observation_steps));
 }
 
 void CheckpointReader::load_optimizer(torch::optim::Optimizer& optimizer) {

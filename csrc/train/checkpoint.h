@@ -24,6 +24,10 @@ struct CheckpointInfo {
   std::string dataset;            // the dataset folder (absolute from version 2 on)
   std::string dataset_fingerprint;  // Dataset::fingerprint() of it; empty in version 1
   at::Tensor betas;               // the subject's shape, float32 (B)
+  // The avatar's observation record as training keeps it: per Gaussian, the sum over `observation_steps` training
+  // steps of how squarely each saw it (float32 (N); undefined: no record, as in runs trained before it existed).
+  at::Tensor observation_sum;
+  int64_t observation_steps = 0;
 };
 
 // Writes the checkpoint atomically. Refuses (std::runtime_error naming the tensor) when a parameter is not finite:

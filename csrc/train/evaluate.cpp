@@ -5,10 +5,12 @@
 #include <cmath>
 #include <cstring>
 #include <filesystem>
+#include <map>
 
 #include <ATen/ATen.h>
 
 #include "common/atomic_file.h"
+#include "io/npz.h"
 #include "data/image_io.h"
 #include "train/run_folder.h"
 
@@ -45,6 +47,9 @@ AvatarEvaluation evaluate_avatar(const data::Dataset& dataset, data::Split split
   at::NoGradGuard no_grad;
   metrics::ImageEvaluator evaluator(options);
   AvatarEvaluation result;
+  const std::optional<RegionTruth> truth = read_region_truth(dataset);
+  RegionAccumulator regions(options.ssim_border);
+  std::map<int64_t, std::vector<size_t>> frames_of_sequence;
   int64_t previous_sequence = -1, previous_frame = -2;
   double render_ms = 0;
   for (int64_t f : frames) {
@@ -58,8 +63,15 @@ AvatarEvaluation evaluate_avatar(const data::Dataset& dataset, data::Split split
     const RenderResult r = render(to_gaussians(out), at::ones({3}, out.means.options()), render_camera(record));
     const at::Tensor image = r.image.to(at::kCPU);
     render_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+    frames_of_sequence[record.sequence].push_back(result.frames.size());
     result.frames.push_back(evaluator.add_frame(image, frame.image, frame.eval_mask));
     result.frame_names.push_back(record.name);
+    if (truth && !record.mesh_path.empty()) {
+      const at::Tensor rendered = options.eight_bit_round_trip ? metrics::eight_bit_round_trip(image) : image;
+      regions.add(metrics::composite_on_white(rendered, frame.eval_mask),
+                  metrics::composite_on_white(frame.image, frame.eval_mask),
+                  region_masks(*truth, io::read_npy(record.mesh_path), render_camera(record), frame.eval_mask));
+    }
     if (!save_folder.empty()) {
       std::string name = record.name;
       std::replace(name.begin(), name.end(), '/', '_');
@@ -67,6 +79,19 @@ AvatarEvaluation evaluate_avatar(const data::Dataset& dataset, data::Split split
     }
   }
   result.summary = evaluator.summary();
+  result.regions = regions.summary();
+  for (const auto& [sequence, indices] : frames_of_sequence) {
+    GroupScore motion;
+    motion.name = dataset.sequences[size_t(sequence)];
+    for (size_t i : indices) {
+      const metrics::FrameMetrics& m = result.frames[i];
+      motion.psnr += m.psnr / double(indices.size());
+      motion.ssim += m.ssim / double(indices.size());
+      if (m.lpips) motion.lpips = motion.lpips.value_or(0.0) + *m.lpips / double(indices.size());
+    }
+    motion.frames = int64_t(indices.size());
+    result.motions.push_back(motion);
+  }
   result.render_milliseconds = render_ms / double(frames.size());
   return result;
 }
@@ -77,7 +102,7 @@ void export_ply(model::Avatar& avatar, const data::Dataset* dataset, int64_t fra
   TORCH_CHECK(frame < 0 || (dataset != nullptr && frame < dataset->size()), "export: frame ", frame,
               " is not in the dataset");
   const model::AvatarOutput out = frame >= 0 ? pose_avatar(avatar, *dataset, frame)
-                                             : avatar->forward(body::SmplxPose::zeros(0), 0.0);
+                                             : avatar->forward(body::SmplxPose::zeros(0), std::nullopt);
   at::Tensor means, cov6;
   if (frame >= 0) {
     means = out.means;

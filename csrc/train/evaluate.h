@@ -7,6 +7,7 @@
 #include "data/dataset.h"
 #include "metrics/evaluation.h"
 #include "model/avatar.h"
+#include "train/region_metrics.h"
 
 namespace sfgs::train {
 
@@ -15,11 +16,14 @@ struct AvatarEvaluation {
   std::vector<std::string> frame_names;
   std::vector<metrics::FrameMetrics> frames;
   double render_milliseconds = 0;  // mean time of avatar forward + rasterisation per frame
+  std::vector<GroupScore> motions;  // per sequence (a motion of a synthetic video), in order of appearance
+  std::vector<GroupScore> regions;  // body, face, hands, seen, unseen; empty without ground-truth geometry
 };
 
 // Renders every frame of the split on white and scores it against the ground truth composited on white outside the
-// evaluation mask (per-frame metrics averaged; tc-LPIPS within each sequence). `save_folder` (may be empty) receives
-// the rendered PNGs.
+// evaluation mask (per-frame metrics averaged; tc-LPIPS within each sequence), also per sequence and, where the
+// dataset has ground-truth geometry, per region (region_metrics.h). `save_folder` (may be empty) receives the
+// rendered PNGs.
 AvatarEvaluation evaluate_avatar(const data::Dataset& dataset, data::Split split, model::Avatar& avatar,
                                  const metrics::EvaluationOptions& options, const std::string& save_folder,
                                  bool overwrite);

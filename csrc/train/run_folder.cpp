@@ -26,7 +26,7 @@ model::Avatar make_avatar(const TrainConfig& config, const at::Tensor& betas, at
 model::AvatarOutput pose_avatar(model::Avatar& avatar, const data::Dataset& dataset, int64_t frame) {
   TORCH_CHECK(frame >= 0 && frame < dataset.size(), "frame ", frame, " is not in dataset '", dataset.source, "' (",
               dataset.size(), " frames)");
-  return avatar->forward(dataset.frames[size_t(frame)].pose, dataset.normalized_time(frame));
+  return avatar->forward(dataset.frames[size_t(frame)].pose, dataset.replay_time(frame));
 }
 
 Camera render_camera(const data::FrameRecord& frame) {

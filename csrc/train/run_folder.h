@@ -20,7 +20,7 @@ struct RunFolder {
 // The avatar the config describes, for a subject with these betas, on `device`.
 model::Avatar make_avatar(const TrainConfig& config, const at::Tensor& betas, at::Device device);
 
-// The avatar in dataset frame `frame`: its SMPL-X pose at its time (normalised over the dataset).
+// The avatar in dataset frame `frame`: its SMPL-X pose at its replay time (none for a new motion, dataset.h).
 model::AvatarOutput pose_avatar(model::Avatar& avatar, const data::Dataset& dataset, int64_t frame);
 // The camera to render that frame with (identity extrinsics for poses given in camera coordinates).
 Camera render_camera(const data::FrameRecord& frame);

@@ -73,7 +73,8 @@ std::vector<std::pair<std::string, Section>> sections(TrainConfig& c) {
                   {"joint_embedding_size", field(a.joint_embedding_size)}, {"num_betas", field(a.num_betas)},
                   {"num_expression_coeffs", field(a.num_expression_coeffs)}, {"use_hexplane", field(a.use_hexplane)},
                   {"use_structure_offset", field(a.use_structure_offset)}, {"use_colour_offset", field(a.use_colour_offset)},
-                  {"use_hand_residual", field(a.use_hand_residual)}, {"use_face_planes", field(a.use_face_planes)}}},
+                  {"use_hand_residual", field(a.use_hand_residual)}, {"use_face_planes", field(a.use_face_planes)},
+                  {"use_shading", field(a.use_shading)}, {"time_dropout", field(a.time_dropout)}}},
       {"loss", {{"image", field(l.image)}, {"lab", field(l.lab)}, {"gradient", field(l.gradient)},
                 {"use_lpips", field(l.use_lpips)}, {"lpips_weights", field(l.lpips_weights)},
                 {"mean_offset", field(l.mean_offset)}, {"mean_offset_parts", parts_field(l.mean_offset_parts)},
@@ -227,6 +228,7 @@ void TrainConfig::validate() const {
   check_count(avatar.joint_embedding_size, 1, kMaxHiddenWidth, "avatar.joint_embedding_size");
   check_count(avatar.num_betas, 0, kMaxHiddenWidth, "avatar.num_betas");
   check_count(avatar.num_expression_coeffs, 0, kMaxHiddenWidth, "avatar.num_expression_coeffs");
+  check_range(avatar.time_dropout, 0, 1, "avatar.time_dropout");
 }
 
 std::vector<ConfigChange> config_changes(const TrainConfig& before, const TrainConfig& after) {

@@ -8,7 +8,9 @@
 #include <ATen/ATen.h>
 #include <nlohmann/json.hpp>
 
+#include "body/mesh.h"
 #include "metrics/image_metrics.h"
+#include "model/observation_prior.h"
 
 namespace sfgs::train {
 
@@ -75,6 +77,7 @@ TrainingSession::TrainingSession(const data::Dataset& dataset, const TrainConfig
   image_loss_ = std::make_unique<ImageLoss>(config.loss, device_);
   regularisers_ = std::make_unique<Regularisers>(config.loss, avatar_->part_labels(), avatar_->faces(), device_);
   frames_ = std::make_unique<FrameCache>(dataset);
+  observation_sum_ = at::zeros({avatar_->gaussian_count()}, at::TensorOptions().dtype(at::kFloat).device(device_));
   summary_.validation_psnr = std::nan("");
   summary_.has_validation_frames = !dataset.split(data::Split::kVal).empty();
 }
@@ -84,6 +87,9 @@ TrainingSession::~TrainingSession() = default;
 void TrainingSession::restore(CheckpointReader& checkpoint) {
   checkpoint.load_avatar(avatar_);
   checkpoint.load_optimizer(*optimizer_);
+  observation_steps_ = checkpoint.info().observation_steps;
+  if (checkpoint.info().observation_sum.defined())
+    observation_sum_ = checkpoint.info().observation_sum.to(observation_sum_.options());
   // The schedule may have changed on resume: the groups take the config's rates, not the checkpoint's.
   for (size_t g = 0; g < base_rates_.size(); ++g) adam_options(*optimizer_, g).eps(config_.schedule.adam_epsilon);
   std::istringstream(checkpoint.info().rng_state) >> rng_;
@@ -111,13 +117,27 @@ void TrainingSession::step(int64_t it) {
   const at::Tensor m = mask.unsqueeze(2);
   const at::Tensor target = image * m + background * (1 - m);
 
-  const model::AvatarOutput out = pose_avatar(avatar_, dataset_, f);
-  const RenderResult r = render(to_gaussians(out), background, render_camera(dataset_.frames[size_t(f)]));
+  // The time branch is a residual that new motions go without: some steps train without it (docs/avatar.md).
+  std::optional<double> time = dataset_.replay_time(f);
+  if (std::uniform_real_distribution<double>(0.0, 1.0)(rng_) < config_.avatar.time_dropout) time.reset();
+  const data::FrameRecord& record = dataset_.frames[size_t(f)];
+  const model::AvatarOutput out = avatar_->forward(record.pose, time);
+  const Camera camera = render_camera(record);
+  const RenderResult r = render(to_gaussians(out), background, camera);
+  {
+    at::NoGradGuard no_grad;
+    const at::Tensor normals = body::vertex_normals(out.posed_vertices.detach(), avatar_->faces());
+    observation_sum_ += model::frame_observation(out.means, normals, r.depth, camera);
+    ++observation_steps_;
+  }
   LossTerms terms;
   image_loss_->add_terms(r.image, target, terms);
   regularisers_->add_terms(out, terms);
   const at::Tensor loss = total_loss(terms);
-  optimizer_->zero_grad();
+  // Gradients are dropped, not zeroed: a parameter a step does not reach (the time planes in a step without time)
+  // then has none and Adam leaves it alone, in a resumed run (whose parameters start without gradients) exactly as
+  // in an uninterrupted one; LibTorch versions differ in what zero_grad() does.
+  for (at::Tensor& p : avatar_->parameters()) p.mutable_grad().reset();
   loss.backward();
   optimizer_->step();
   watch_.record(it + 1, terms, {{"psnr", metrics::psnr(r.image.detach(), target)}});
@@ -216,6 +236,8 @@ void TrainingSession::checkpoint(int64_t done) {
   info.dataset = absolute_dataset_path(dataset_);
   info.dataset_fingerprint = dataset_.fingerprint();
   info.betas = dataset_.betas.to(at::kFloat).cpu();
+  info.observation_sum = observation_sum_;
+  info.observation_steps = observation_steps_;
   try {
     save_checkpoint(run_.checkpoint_file(), info, avatar_, *optimizer_);
   } catch (const std::runtime_error& e) {

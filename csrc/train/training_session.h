@@ -55,6 +55,10 @@ class TrainingSession {
   LossWatch watch_;
   std::mt19937_64 rng_;
   double training_seconds_ = 0;
+  // The observation record (model/observation_prior.h): per Gaussian, the sum over training steps of how squarely
+  // the step's frame saw it, and the number of steps.
+  at::Tensor observation_sum_;
+  int64_t observation_steps_ = 0;
   int64_t last_checkpoint_ = -1;  // iteration of the newest good checkpoint, -1 for none
   TrainSummary summary_;
 };

@@ -265,13 +265,14 @@ TEST(Avatar, SaveAndLoadRoundTrips) {
 }
 
 TEST(Avatar, ParameterCountFollowsTheFormulaForEverySwitchCombination) {
-  for (int mask = 0; mask < 32; ++mask) {
+  for (int mask = 0; mask < 64; ++mask) {
     AvatarConfig config = small_config();
     config.use_hexplane = mask & 1;
     config.use_structure_offset = mask & 2;
     config.use_colour_offset = mask & 4;
     config.use_hand_residual = mask & 8;
     config.use_face_planes = mask & 16;
+    config.use_shading = mask & 32;
     Avatar avatar(procedural_avatar_body(), subject_betas(), config);
     int64_t count = 0;
     for (const at::Tensor& p : avatar->parameters()) count += p.numel();

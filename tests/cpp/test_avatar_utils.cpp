@@ -65,7 +65,12 @@ body::SmplxPose test_pose(int64_t seed, double angle, bool hands) {
 void randomise_parameters(model::AvatarImpl& avatar, double std, int64_t seed) {
   at::Generator generator = at::detail::createCPUGenerator(static_cast<uint64_t>(seed));
   at::NoGradGuard no_grad;
-  for (auto& p : avatar.parameters()) p.normal_(0.0, std, generator);
+  for (auto& p : avatar.named_parameters()) {
+    p.value().normal_(0.0, std, generator);
+    // The shared light (model/shading.h) gets a constant share of 1, as it starts: random coefficients around 0
+    // would darken most colours to nothing and hide what the other modules do to them.
+    if (p.key() == "shading.coefficients") p.value()[0] += 1.0;
+  }
 }
 
 void copy_parameters(const model::AvatarImpl& from, model::AvatarImpl& to) {

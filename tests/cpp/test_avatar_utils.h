@@ -26,7 +26,8 @@ inline constexpr double kTestTime = 0.25;
 // only when `hands`.
 body::SmplxPose test_pose(int64_t seed, double angle, bool hands);
 
-// Every parameter replaced by N(0, std^2) noise from a generator seeded with `seed`.
+// Every parameter replaced by N(0, std^2) noise from a generator seeded with `seed` (the shared light plus 1 in its
+// constant term).
 void randomise_parameters(model::AvatarImpl& avatar, double std, int64_t seed);
 // Every parameter of `to` set to the parameter of the same name in `from` (which must have it).
 void copy_parameters(const model::AvatarImpl& from, model::AvatarImpl& to);

@@ -70,9 +70,10 @@ TEST(SfgsDataset, WriteThenReadGivesTheSameDataset) {
     EXPECT_EQ(f.image.sizes(), at::IntArrayRef({6, 8, 3}));
     EXPECT_TRUE(at::equal(f.mask, read_mask(a.mask_path, MaskEncoding::kWhitePerson)));
   }
-  EXPECT_DOUBLE_EQ(back.normalized_time(0), -1.0);
-  EXPECT_DOUBLE_EQ(back.normalized_time(1), 0.0);
-  EXPECT_DOUBLE_EQ(back.normalized_time(2), 1.0);
+  // Times normalised over the training frames (0 and 1); the test frame after them replays nothing: no time.
+  EXPECT_DOUBLE_EQ(*back.replay_time(0), -1.0);
+  EXPECT_DOUBLE_EQ(*back.replay_time(1), 1.0);
+  EXPECT_FALSE(back.replay_time(2).has_value());
   expect_error_mentioning([&] { write_sfgs_dataset(d, dir.str(), false); }, "refusing to overwrite");
 }
 

@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include "data/dataset.h"
+#include "data/motions.h"
 #include "data/synthetic.h"
 #include "io/npz.h"
 #include "test_files.h"
@@ -45,12 +46,12 @@ TEST(SyntheticVideo, WritesAConsistentDatasetWithGroundTruthMeshes) {
 }
 
 TEST(SyntheticVideo, MotionArticulatesBodyFingersJawAndExpression) {
-  const SmplxPose a = synthetic_pose(0, 30.0, 10), b = synthetic_pose(7, 30.0, 10);
+  const SmplxPose a = motion_pose("sway", 0.0, 10), b = motion_pose("sway", 7 / 30.0, 10);
   EXPECT_GT((a.body_pose - b.body_pose).abs().max().item<float>(), 0.05f);
   EXPECT_GT((a.left_hand_pose - b.left_hand_pose).abs().max().item<float>(), 0.05f);
   EXPECT_GT((a.jaw_pose - b.jaw_pose).abs().max().item<float>(), 0.01f);
   EXPECT_GT((a.expression - b.expression).abs().max().item<float>(), 0.05f);
-  EXPECT_TRUE(at::equal(synthetic_pose(7, 30.0, 10).body_pose, b.body_pose)) << "deterministic";
+  EXPECT_TRUE(at::equal(motion_pose("sway", 7 / 30.0, 10).body_pose, b.body_pose)) << "deterministic";
 }
 
 TEST(SyntheticVideo, BadOptionsAreClearErrors) {

@@ -1,0 +1,86 @@
+#include "model/observation_prior.h"
+
+#include <vector>
+
+#include <ATen/ATen.h>
+#include <torch/csrc/autograd/grad_mode.h>
+
+#include "body/tensor_checks.h"
+#include "common/constants.h"
+
+namespace sfgs::model {
+
+at::Tensor frame_observation(const at::Tensor& means, const at::Tensor& normals, const at::Tensor& depth,
+                             const Camera& camera) {
+  TORCH_CHECK(means.dim() == 2 && means.size(1) == 3 && normals.sizes() == means.sizes(),
+              "frame_observation: means and normals must be (N, 3) alike, got ", describe(means), " and ",
+              describe(normals));
+  TORCH_CHECK(depth.dim() == 2 && depth.size(0) == camera.height && depth.size(1) == camera.width,
+              "frame_observation: depth must be (", camera.height, ", ", camera.width, "), got ", describe(depth));
+  at::NoGradGuard no_grad;
+  const auto options = means.options();
+  const auto& m = camera.world_to_camera;
+  const at::Tensor view = at::tensor(std::vector<double>(m.begin(), m.end()), at::kDouble).view({4, 4}).to(options);
+  const at::Tensor rotation = view.slice(0, 0, 3).slice(1, 0, 3);
+  const at::Tensor p = means.detach().matmul(rotation.t()) + view.slice(0, 0, 3).select(1, 3);
+  const at::Tensor n = normals.detach().matmul(rotation.t());
+  const at::Tensor z = p.select(1, 2);
+  // The cosine between the normal and the direction to the camera (at the origin).
+  const at::Tensor facing = -(n * p).sum(1) / p.norm(2, 1).clamp_min(kMinNormalLength);
+  const at::Tensor safe_z = z.clamp_min(camera.near_plane);
+  const at::Tensor u = camera.fx * p.select(1, 0) / safe_z + camera.cx;
+  const at::Tensor v = camera.fy * p.select(1, 1) / safe_z + camera.cy;
+  const at::Tensor inside = (z > camera.near_plane) & (u >= 0) & (u < double(camera.width)) & (v >= 0) &
+                            (v < double(camera.height));
+  // Non-finite positions (a diverging run) are not inside; their pixel index must still be valid.
+  const at::Tensor column = at::nan_to_num(u.floor(), 0, 0, 0).clamp(0, double(camera.width - 1)).to(at::kLong);
+  const at::Tensor row = at::nan_to_num(v.floor(), 0, 0, 0).clamp(0, double(camera.height - 1)).to(at::kLong);
+  const at::Tensor surface = depth.detach().reshape({-1}).index_select(0, row * camera.width + column).to(z.dtype());
+  const at::Tensor seen = inside & (surface > 0) & (z <= surface + kObservationDepthTolerance) & (facing > 0);
+  return at::where(seen, facing, at::zeros_like(facing));
+}
+
+at::Tensor observation_confidence(const at::Tensor& observed_fraction) {
+  return (observed_fraction / kWellObservedFraction).clamp(0.0, 1.0);
+}
+
+at::Tensor propagate_from_observed(const at::Tensor& values, const at::Tensor& confidence,
+                                   const body::VertexNeighbours& neighbours) {
+  const int64_t n = values.size(0);
+  TORCH_CHECK(values.dim() == 2 && confidence.dim() == 1 && confidence.size(0) == n && neighbours.counts.size(0) == n,
+              "propagate_from_observed: values (N, C), confidence (N) and neighbours of N points expected, got ",
+              describe(values), " and ", describe(confidence), " for ", neighbours.counts.size(0), " points");
+  at::NoGradGuard no_grad;
+  const at::Tensor known = confidence >= 1.0;
+  if (!known.any().item<bool>()) return values;
+  const at::Tensor indices = neighbours.indices.to(values.device()).reshape({-1});
+  const int64_t k = neighbours.indices.size(1), c = values.size(1);
+  const at::Tensor counts = neighbours.counts.to(values.device());
+  const at::Tensor slot_valid =
+      (at::arange(k, counts.options()).unsqueeze(0) < counts.unsqueeze(1)).to(values.scalar_type());  // (N, K)
+  const auto neighbour_values = [&](const at::Tensor& x) { return x.index_select(0, indices).view({n, k, c}); };
+
+  // The front: each ring of unfilled points next to filled ones takes the mean of its filled neighbours.
+  at::Tensor filled = known.to(values.scalar_type());
+  at::Tensor x = values * filled.unsqueeze(1);
+  while (true) {
+    const at::Tensor filled_neighbours = filled.index_select(0, indices).view({n, k}) * slot_valid;
+    const at::Tensor filled_count = filled_neighbours.sum(1);
+    const at::Tensor reached = (filled == 0) & (filled_count > 0);
+    if (!reached.any().item<bool>()) break;
+    const at::Tensor mean = (neighbour_values(x) * filled_neighbours.unsqueeze(2)).sum(1) /
+                            filled_count.clamp_min(1).unsqueeze(1);
+    x = at::where(reached.unsqueeze(1), mean, x);
+    filled = filled + reached.to(filled.scalar_type());
+  }
+  x = at::where((filled > 0).unsqueeze(1), x, values);  // mesh parts without an observed point keep theirs
+  // Smoothing: the propagated values relax towards the mean of their neighbours; the observed ones stay.
+  const at::Tensor slot_weight = slot_valid.unsqueeze(2);
+  const at::Tensor divisor = counts.clamp_min(1).to(values.scalar_type()).unsqueeze(1);
+  for (int64_t pass = 0; pass < kObservationSmoothingPasses; ++pass)
+    x = at::where(known.unsqueeze(1), x, (neighbour_values(x) * slot_weight).sum(1) / divisor);
+  const at::Tensor trust = confidence.to(values.scalar_type()).unsqueeze(1);
+  return trust * values + (1 - trust) * x;
+}
+
+}  // namespace sfgs::model

@@ -1,0 +1,59 @@
+#pragma once
+// Where the error is: image metrics per body region (body, face, hands) and per observation class (surface the
+// training frames showed, "seen", and surface they never or rarely showed, "unseen"), from the ground-truth
+// geometry a synthetic dataset carries (meshes/faces.npy, regions.npy, observation.npy; docs/dataset_format.md).
+// docs/metrics.md defines them.
+#include <optional>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include <ATen/core/Tensor.h>
+
+#include "data/dataset.h"
+#include "metrics/image_metrics.h"
+
+namespace sfgs::train {
+
+struct RegionTruth {
+  at::Tensor faces;        // (F, 3) int64
+  at::Tensor face_region;  // (F) int64: 0 body, 1 face, 2 hands (the majority of its corners; ties: the first's)
+  at::Tensor face_seen;    // (F) bool: every corner seen in at least kWellObservedFraction of the training frames
+};
+
+// The dataset's region ground truth: from the folder of its first frame's ground-truth mesh, when faces.npy,
+// regions.npy and observation.npy are all there (nullopt otherwise). Files of the wrong shape or type are errors
+// naming the file.
+std::optional<RegionTruth> read_region_truth(const data::Dataset& dataset);
+
+// Region masks (H, W) bool of one frame: the ground-truth mesh `vertices` (V, 3) rasterised with `camera`, each
+// pixel labelled by its visible face, restricted to the evaluation mask (> 0.5). Names: body, face, hands, seen,
+// unseen.
+std::vector<std::pair<std::string, at::Tensor>> region_masks(const RegionTruth& truth, const at::Tensor& vertices,
+                                                             const Camera& camera, const at::Tensor& eval_mask);
+
+// Metrics of one group of frames (a motion) or of one region over the frames that show it.
+struct GroupScore {
+  std::string name;
+  int64_t frames = 0;
+  double pixels = 0;  // mean region pixels per counted frame (regions only)
+  double psnr = 0, ssim = 0;
+  std::optional<double> lpips;  // motions only
+};
+
+// Averages PSNR (over the region's pixels) and SSIM (the SSIM map averaged over them) per region over the frames in
+// which the region has at least kMinRegionPixels pixels.
+class RegionAccumulator {
+ public:
+  explicit RegionAccumulator(metrics::SsimBorder border) : border_(border) {}
+  // prediction and target (H, W, 3) as the evaluation compares them (composited on white).
+  void add(const at::Tensor& prediction, const at::Tensor& target,
+           const std::vector<std::pair<std::string, at::Tensor>>& masks);
+  std::vector<GroupScore> summary() const;
+
+ private:
+  metrics::SsimBorder border_;
+  std::vector<GroupScore> sums_;  // running sums, in the order regions first appear
+};
+
+}  // namespace sfgs::train
