@@ -272,7 +272,7 @@ if wants novel; then
   novel=/tmp/sfgs-novel
   size=${SFGS_DEVICE_NOVEL_SIZE:-540x960}
   iterations=${SFGS_DEVICE_NOVEL_ITERATIONS:-4000}
-  variants=${SFGS_DEVICE_NOVEL_VARIANTS:-default:}
+  variants=${SFGS_DEVICE_NOVEL_VARIANTS-default:}
   baseline_build=/tmp/sfgs-baseline-build
   if [ -n "${SFGS_DEVICE_BASELINE_SRC:-}" ]; then
     variants="$variants baseline:"

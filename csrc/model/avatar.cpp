@@ -176,7 +176,7 @@ AvatarOutput AvatarImpl::forward(const body::SmplxPose& pose, FrameTime time) {
   out.scale_offset = canonical.scale_offset;
   out.hand_residual = body.point_offsets;
   out.posed_vertices = body.posed;
-  out.colours = appearance(frame, body, attributes, out);
+  out.colours = appearance(frame, body, attributes, time.has_value(), out);
   return out;
 }
 
@@ -285,8 +285,9 @@ CanonicalGaussians AvatarImpl::canonical_gaussians(const FramePose& frame, const
 }
 
 at::Tensor AvatarImpl::appearance(const FramePose& frame, const FrameBody& body,
-                                  const CanonicalAttributes& attributes, AvatarOutput& out) const {
-  if (!colour_offset_ && !shading_) return at::sigmoid(attributes.colour_logits);
+                                  const CanonicalAttributes& attributes, bool replay, AvatarOutput& out) const {
+  const bool offset = colour_offset_ && (replay || config_.colour_offset_on_new_motions);
+  if (!offset && !shading_) return at::sigmoid(attributes.colour_logits);
   at::Tensor normals;
   {
     // The body-model surface's orientation: smooth, free of the learned offsets' noise, and no gradient.
@@ -294,7 +295,7 @@ at::Tensor AvatarImpl::appearance(const FramePose& frame, const FrameBody& body,
     normals = body::vertex_normals(body.posed.detach(), body_->faces());
   }
   at::Tensor logits = attributes.colour_logits;
-  if (colour_offset_) {
+  if (offset) {
     const at::Tensor pose_embedding = body_->weights().matmul(frame.rotations_6d);  // sum_j w_ij r_j
     out.colour_offset = trusted(colour_offset_->forward(attributes.colour_projection, pose_embedding, normals));
     logits = logits + out.colour_offset;

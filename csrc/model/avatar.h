@@ -56,6 +56,11 @@ struct AvatarConfig {
   bool use_colour_offset = true;
   bool use_hand_residual = true;  // also needs MANO in the AvatarBody
   bool use_face_planes = true;
+  // Whether frames without a time (new motions) get the colour offset. false: it is a residual of replay, like the
+  // time branch: trained only in the steps that keep the frame's time, left out for a new motion, whose poses it
+  // would extrapolate from the training poses' colours (it costs 0.4 dB on the novel-motion benchmark).
+  // docs/avatar.md, "Time".
+  bool colour_offset_on_new_motions = false;
   // Not in the paper: colours are albedo times one shared function of the posed world normal (shading.h), so light
   // fixed in the world is not baked into the colours of the training poses. docs/avatar.md, "Shading".
   bool use_shading = true;
@@ -94,7 +99,7 @@ struct AvatarOutput {
   at::Tensor mean_offset;       // (N, 3) from the feature head
   at::Tensor structure_offset;  // (N, 3) structure offset
   at::Tensor scale_offset;      // (N) structure offset
-  at::Tensor colour_offset;     // (N, 3) colour offset
+  at::Tensor colour_offset;     // (N, 3) colour offset (undefined for a new motion, AvatarConfig)
   at::Tensor shading;           // (N, 3) the light factor colours were multiplied by (shading.h)
   at::Tensor hand_residual;     // (N, 3) hand residual; zero off the hands
   at::Tensor posed_vertices;    // (N, 3) the skinned mesh points without learned offsets (for geometry metrics)
@@ -144,7 +149,7 @@ class AvatarImpl : public torch::nn::Module {
   CanonicalGaussians canonical_gaussians(const FramePose& frame, const FrameBody& body,
                                          const CanonicalAttributes& attributes) const;
   at::Tensor appearance(const FramePose& frame, const FrameBody& body, const CanonicalAttributes& attributes,
-                        AvatarOutput& out) const;
+                        bool replay, AvatarOutput& out) const;
 
   AvatarConfig config_;
   CanonicalBody body_{nullptr};

@@ -1,5 +1,5 @@
-// What makes an avatar hold up on motions it never saw: the time branch can be left out (and then truly is), the
-// observation record of training reaches the avatar, and the observation prior replaces the learned colour and
+// What makes an avatar hold up on motions it never saw: the time branch and the colour offset can be left out (and
+// then truly are), the observation record of training reaches the avatar, and the observation prior replaces the learned colour and
 // offsets of poorly observed Gaussians only, with colours propagated over the mesh from the observed surface.
 #include <cmath>
 
@@ -91,6 +91,33 @@ TEST(Avatar, WithoutATimeTheTimeBranchIsLeftOut) {
     EXPECT_EQ(max_abs_difference(avatar->forward(pose, kTestTime).colours, uncached_timed.colours), 0.0);
     EXPECT_EQ(max_abs_difference(avatar->forward(pose, std::nullopt).colours, uncached.colours), 0.0);
   }
+}
+
+TEST(Avatar, TheColourOffsetIsAResidualOfReplay) {
+  Avatar avatar(procedural_avatar_body(), subject_betas(), small_config());
+  randomise_parameters(*avatar, 0.1, 8);
+  model::AvatarConfig without_offset = small_config();
+  without_offset.use_colour_offset = false;
+  Avatar plain(procedural_avatar_body(), subject_betas(), without_offset);
+  copy_parameters(*avatar, *plain);
+  at::NoGradGuard no_grad;
+  const body::SmplxPose pose = test_pose(8, 0.4, true);
+  // A new motion (no time): exactly the avatar without the module.
+  const AvatarOutput novel = avatar->forward(pose, std::nullopt);
+  EXPECT_FALSE(novel.colour_offset.defined());
+  EXPECT_EQ(max_abs_difference(novel.colours, plain->forward(pose, std::nullopt).colours), 0.0);
+  // Replay (a time): the offset is there and changes the colours.
+  const AvatarOutput replay = avatar->forward(pose, kTestTime);
+  ASSERT_TRUE(replay.colour_offset.defined());
+  EXPECT_GT(max_abs_difference(replay.colours, plain->forward(pose, kTestTime).colours), 1e-4);
+  // The paper's behaviour on request: every frame gets it.
+  model::AvatarConfig everywhere = small_config();
+  everywhere.colour_offset_on_new_motions = true;
+  Avatar paper(procedural_avatar_body(), subject_betas(), everywhere);
+  copy_parameters(*avatar, *paper);
+  const AvatarOutput paper_novel = paper->forward(pose, std::nullopt);
+  ASSERT_TRUE(paper_novel.colour_offset.defined());
+  EXPECT_GT(max_abs_difference(paper_novel.colours, novel.colours), 1e-4);
 }
 
 TEST(Avatar, ObservationPriorChangesOnlyPoorlyObservedGaussiansAndOnlyInEvalMode) {
