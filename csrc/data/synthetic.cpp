@@ -235,7 +235,7 @@ Dataset write_synthetic_video(const std::string& folder, const SyntheticVideoOpt
   io::write_npy((fs::path(folder) / "meshes" / "faces.npy").string(), mesh.faces, options.overwrite);
   for (int64_t i = 0; i < total; ++i) {
     FrameRecord r;
-    char name[16];
+    char name[24];  // room for any int64 (the warning counts 19 digits and a sign)
     std::snprintf(name, sizeof(name), "%06lld", static_cast<long long>(i));
     r.name = name;
     r.time = double(i) / options.frames_per_second;
