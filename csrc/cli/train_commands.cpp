@@ -195,9 +195,15 @@ int run_demo(Arguments& args) {
   video.height = 96;
   video.overwrite = true;
   const std::string data_folder = (fs::path(out) / "data").string();
-  std::printf("sfgs demo 1/4: synthesising %lld frames of %lld x %lld into %s: walk, wave, turn to train on; "
-              "overhead, bend, guard, sit to test on\n",
-              (long long)(video.frames * 7), (long long)video.width, (long long)video.height, data_folder.c_str());
+  const auto listed = [](const std::vector<std::string>& motions) {
+    std::string text;
+    for (const std::string& m : motions) text += (text.empty() ? "" : ", ") + m;
+    return text;
+  };
+  std::printf("sfgs demo 1/4: synthesising %lld frames of %lld x %lld into %s: %s to train on; %s to test on\n",
+              (long long)(video.frames * int64_t(video.motions.size() + video.test_motions.size())),
+              (long long)video.width, (long long)video.height, data_folder.c_str(), listed(video.motions).c_str(),
+              listed(video.test_motions).c_str());
   const data::Dataset dataset = data::write_synthetic_video(data_folder, video);
   const train::RunFolder run{(fs::path(out) / "run").string()};
   std::printf("sfgs demo 2/4: training %lld iterations on %s\n", (long long)config.schedule.iterations, config.device.c_str());

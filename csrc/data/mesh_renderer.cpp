@@ -75,10 +75,13 @@ void check_mesh(const TexturedMesh& m, const at::Tensor& background) {
   TORCH_CHECK(background.defined() && background.numel() == 3, "render_mesh: background must have 3 values");
 }
 
+// A 4 x 4 row-major rigid transform as a tensor.
+at::Tensor matrix_of(const std::array<double, 16>& m) {
+  return at::tensor(std::vector<double>(m.begin(), m.end()), at::kDouble).view({4, 4});
+}
+
 CameraSpaceMesh to_camera(const TexturedMesh& mesh, const Camera& camera) {
-  const auto f64 = at::TensorOptions().dtype(at::kDouble);
-  const at::Tensor view =
-      at::tensor(std::vector<double>(camera.world_to_camera.begin(), camera.world_to_camera.end()), f64).view({4, 4});
+  const at::Tensor view = matrix_of(camera.world_to_camera);
   const at::Tensor rotation = view.slice(0, 0, 3).slice(1, 0, 3);
   const at::Tensor translation = view.slice(0, 0, 3).select(1, 3);
   CameraSpaceMesh out;
@@ -255,11 +258,6 @@ struct KeyLight {
   const float* depth;            // (kShadowMapSide)^2 nearest depth seen from the light, 0 where uncovered
   double bias;                   // metres
 };
-
-// A 4 x 4 row-major rigid transform as a tensor.
-at::Tensor matrix_of(const std::array<double, 16>& m) {
-  return at::tensor(std::vector<double>(m.begin(), m.end()), at::kDouble).view({4, 4});
-}
 
 // The shadow map's camera: far along the light direction, looking at the mesh's bounding-sphere centre, framing
 // the sphere.

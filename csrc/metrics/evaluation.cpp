@@ -79,10 +79,9 @@ void ImageEvaluator::begin_sequence() {
   previous_target_.reset();
 }
 
-FrameMetrics ImageEvaluator::add_frame(const at::Tensor& prediction, const at::Tensor& target, const at::Tensor& mask) {
-  detail::check_image_pair("ImageEvaluator::add_frame", prediction, target, 3);
-  TORCH_CHECK(prediction.dim() == 3, "ImageEvaluator::add_frame: one frame (H, W, 3) at a time, got ",
-              describe(prediction));
+std::pair<at::Tensor, at::Tensor> ImageEvaluator::compared_images(const at::Tensor& prediction,
+                                                                   const at::Tensor& target,
+                                                                   const at::Tensor& mask) const {
   TORCH_CHECK(!options_.composite_on_white || mask.defined(),
               "ImageEvaluator::add_frame: a ground-truth mask is required when composite_on_white is set");
   at::Tensor p = prediction.detach(), t = target.detach();
@@ -91,6 +90,14 @@ FrameMetrics ImageEvaluator::add_frame(const at::Tensor& prediction, const at::T
     p = composite_on_white(p, mask.detach());
     t = composite_on_white(t, mask.detach());
   }
+  return {p, t};
+}
+
+FrameMetrics ImageEvaluator::add_frame(const at::Tensor& prediction, const at::Tensor& target, const at::Tensor& mask) {
+  detail::check_image_pair("ImageEvaluator::add_frame", prediction, target, 3);
+  TORCH_CHECK(prediction.dim() == 3, "ImageEvaluator::add_frame: one frame (H, W, 3) at a time, got ",
+              describe(prediction));
+  const auto [p, t] = compared_images(prediction, target, mask);
 
   FrameMetrics frame;
   // SSIM in float64: in float32 the cancellation in E[x^2] - mu^2 plus the reflect mode's variance clamp pull

@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <optional>
 #include <string>
+#include <utility>
 
 #include <ATen/core/Tensor.h>
 
@@ -70,6 +71,10 @@ class ImageEvaluator {
 
   // prediction and target (H, W, 3) in [0, 1]; mask as composite_on_white's, required when compositing.
   FrameMetrics add_frame(const at::Tensor& prediction, const at::Tensor& target, const at::Tensor& mask = {});
+  // The pair as add_frame compares it (detached): the prediction round-tripped through 8 bits and both composited
+  // on white, as the options say. For measures of parts of a frame (train/region_metrics.h).
+  std::pair<at::Tensor, at::Tensor> compared_images(const at::Tensor& prediction, const at::Tensor& target,
+                                                    const at::Tensor& mask = {}) const;
   // The next frame starts a new sequence (another video or take): tc-LPIPS never pairs frames across sequences.
   void begin_sequence();
   EvaluationSummary summary() const;

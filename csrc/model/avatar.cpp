@@ -176,7 +176,12 @@ AvatarOutput AvatarImpl::forward(const body::SmplxPose& pose, FrameTime time) {
   out.scale_offset = canonical.scale_offset;
   out.hand_residual = body.point_offsets;
   out.posed_vertices = body.posed;
-  out.colours = appearance(frame, body, attributes, time.has_value(), out);
+  {
+    // The body-model surface's orientation: smooth, free of the learned offsets' noise, and no gradient.
+    at::NoGradGuard no_grad;
+    out.posed_normals = body::vertex_normals(body.posed.detach(), body_->faces());
+  }
+  out.colours = appearance(frame, attributes, time.has_value(), out);
   return out;
 }
 
@@ -284,24 +289,17 @@ CanonicalGaussians AvatarImpl::canonical_gaussians(const FramePose& frame, const
   return g;
 }
 
-at::Tensor AvatarImpl::appearance(const FramePose& frame, const FrameBody& body,
-                                  const CanonicalAttributes& attributes, bool replay, AvatarOutput& out) const {
-  const bool offset = colour_offset_ && (replay || config_.colour_offset_on_new_motions);
-  if (!offset && !shading_) return at::sigmoid(attributes.colour_logits);
-  at::Tensor normals;
-  {
-    // The body-model surface's orientation: smooth, free of the learned offsets' noise, and no gradient.
-    at::NoGradGuard no_grad;
-    normals = body::vertex_normals(body.posed.detach(), body_->faces());
-  }
+at::Tensor AvatarImpl::appearance(const FramePose& frame, const CanonicalAttributes& attributes, bool replay,
+                                  AvatarOutput& out) const {
   at::Tensor logits = attributes.colour_logits;
-  if (offset) {
+  if (colour_offset_ && (replay || config_.colour_offset_on_new_motions)) {
     const at::Tensor pose_embedding = body_->weights().matmul(frame.rotations_6d);  // sum_j w_ij r_j
-    out.colour_offset = trusted(colour_offset_->forward(attributes.colour_projection, pose_embedding, normals));
+    out.colour_offset =
+        trusted(colour_offset_->forward(attributes.colour_projection, pose_embedding, out.posed_normals));
     logits = logits + out.colour_offset;
   }
   if (!shading_) return at::sigmoid(logits);
-  out.shading = shading_->forward(normals);
+  out.shading = shading_->forward(out.posed_normals);
   return at::sigmoid(logits) * out.shading;
 }
 

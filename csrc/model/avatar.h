@@ -103,6 +103,7 @@ struct AvatarOutput {
   at::Tensor shading;           // (N, 3) the light factor colours were multiplied by (shading.h)
   at::Tensor hand_residual;     // (N, 3) hand residual; zero off the hands
   at::Tensor posed_vertices;    // (N, 3) the skinned mesh points without learned offsets (for geometry metrics)
+  at::Tensor posed_normals;     // (N, 3) their unit vertex normals, world, no gradient (shading, observation)
 };
 
 // The posed Gaussians as the splatting op takes them.
@@ -148,8 +149,9 @@ class AvatarImpl : public torch::nn::Module {
   at::Tensor trusted(const at::Tensor& learned) const;  // scaled by the confidence when trusts_observation()
   CanonicalGaussians canonical_gaussians(const FramePose& frame, const FrameBody& body,
                                          const CanonicalAttributes& attributes) const;
-  at::Tensor appearance(const FramePose& frame, const FrameBody& body, const CanonicalAttributes& attributes,
-                        bool replay, AvatarOutput& out) const;
+  // Colours from the canonical attributes and the posed normals in `out` (and sets its colour offset and shading).
+  at::Tensor appearance(const FramePose& frame, const CanonicalAttributes& attributes, bool replay,
+                        AvatarOutput& out) const;
 
   AvatarConfig config_;
   CanonicalBody body_{nullptr};

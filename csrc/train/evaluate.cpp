@@ -67,9 +67,9 @@ AvatarEvaluation evaluate_avatar(const data::Dataset& dataset, data::Split split
     result.frames.push_back(evaluator.add_frame(image, frame.image, frame.eval_mask));
     result.frame_names.push_back(record.name);
     if (truth && !record.mesh_path.empty()) {
-      const at::Tensor rendered = options.eight_bit_round_trip ? metrics::eight_bit_round_trip(image) : image;
-      regions.add(metrics::composite_on_white(rendered, frame.eval_mask),
-                  metrics::composite_on_white(frame.image, frame.eval_mask),
+      const auto [compared_prediction, compared_target] =
+          evaluator.compared_images(image, frame.image, frame.eval_mask);
+      regions.add(compared_prediction, compared_target,
                   region_masks(*truth, io::read_npy(record.mesh_path), render_camera(record), frame.eval_mask));
     }
     if (!save_folder.empty()) {

@@ -8,7 +8,6 @@
 #include <ATen/ATen.h>
 #include <nlohmann/json.hpp>
 
-#include "body/mesh.h"
 #include "metrics/image_metrics.h"
 #include "model/observation_prior.h"
 
@@ -124,12 +123,8 @@ void TrainingSession::step(int64_t it) {
   const model::AvatarOutput out = avatar_->forward(record.pose, time);
   const Camera camera = render_camera(record);
   const RenderResult r = render(to_gaussians(out), background, camera);
-  {
-    at::NoGradGuard no_grad;
-    const at::Tensor normals = body::vertex_normals(out.posed_vertices.detach(), avatar_->faces());
-    observation_sum_ += model::frame_observation(out.means, normals, r.depth, camera);
-    ++observation_steps_;
-  }
+  observation_sum_ += model::frame_observation(out.means, out.posed_normals, r.depth, camera);
+  ++observation_steps_;
   LossTerms terms;
   image_loss_->add_terms(r.image, target, terms);
   regularisers_->add_terms(out, terms);
