@@ -34,7 +34,9 @@
 # "default:") is trained on both scenes at once with configs/device_anny.yaml for SFGS_DEVICE_NOVEL_ITERATIONS
 # (default 4000), then evaluated on test (new motions; interleaved test frames) and val (held-out frames of the
 # training motions). SFGS_DEVICE_BASELINE_SRC=DIR also builds the sfgs in DIR (an earlier version, for a before /
-# after) and trains it as variant "baseline" with that version's config.
+# after) and trains it as variant "baseline" with that version's config. Every other variant's run is also
+# evaluated on test with each eval ablation flag of SFGS_DEVICE_NOVEL_ABLATIONS (default "no-observation-prior";
+# "" for none).
 # SFGS_DEVICE_TARGETS replaces the build step's target list (e.g. "sfgs" for the novel step alone).
 # The whole project is configured and built (sfgs_core holds every module). Should that build fail (another module's
 # dependency missing or a module not compiling), a splat-only CMake project (the op, both backends, the CUDA tests
@@ -285,8 +287,9 @@ if wants novel; then
   scene_args=(--body "$shared/bodies/anny_smplx_layout.npz" --texture "$shared/bodies/anny_albedo.png"
     --width "${size%x*}" --height "${size#*x}" --force)
   scenes=${SFGS_DEVICE_NOVEL_SCENES:-novel interleaved}
-  run novel-synth 300 "$build/sfgs" synth --out "$novel/novel" "${scene_args[@]}" --motions walk,wave,turn \
-    --test-motions overhead,bend,guard,sit --frames "${SFGS_DEVICE_NOVEL_FRAMES:-40}" &
+  [[ " $scenes " == *" novel "* ]] &&
+    run novel-synth 300 "$build/sfgs" synth --out "$novel/novel" "${scene_args[@]}" --motions walk,wave,turn \
+      --test-motions overhead,bend,guard,sit --frames "${SFGS_DEVICE_NOVEL_FRAMES:-40}" &
   [[ " $scenes " == *" interleaved "* ]] &&
     run novel-synth-interleaved 300 "$build/sfgs" synth --out "$novel/interleaved" "${scene_args[@]}" --frames 80 &
   wait
@@ -311,13 +314,15 @@ if wants novel; then
             cp "$novel/runs/$name-$scene/metrics.json" "$out/metrics-$name-$scene-$split.json"
         done
         mkdir -p "$out/renders-$name-$scene"
-        for frame in 000130 000190 000220 000270; do
+        for frame in 000009 000079 000130 000190 000220 000270; do
           cp "$novel/runs/$name-$scene/eval_images/$frame.png" "$out/renders-$name-$scene/" 2>/dev/null
         done
-        if [ "$name" = default ] && [ "$scene" = novel ]; then
-          run "eval-$name-$scene-test-noprior" 200 "$binary" eval --run "$novel/runs/$name-$scene" --device cuda \
-            --no-observation-prior --force &&
-            cp "$novel/runs/$name-$scene/metrics.json" "$out/metrics-$name-$scene-test-noprior.json"
+        if [ "$name" != baseline ]; then
+          for ablation in ${SFGS_DEVICE_NOVEL_ABLATIONS-no-observation-prior}; do
+            run "eval-$name-$scene-test-$ablation" 200 "$binary" eval --run "$novel/runs/$name-$scene" \
+              --device cuda "--$ablation" --force &&
+              cp "$novel/runs/$name-$scene/metrics.json" "$out/metrics-$name-$scene-test-$ablation.json"
+          done
         fi
         cp "$novel/runs/$name-$scene/log.jsonl" "$out/log-$name-$scene.jsonl")
     done

@@ -134,6 +134,10 @@ inline constexpr double kMinRegionMse = 1e-10;
 // Smoothing passes of the colours propagated into poorly observed surface, after the front from the observed
 // surface has reached every point: enough to blend the propagated colours over a few mesh rings.
 inline constexpr long kObservationSmoothingPasses = 16;
+// Replay time (Dataset::replay_time): a frame replays its sequence when it lies within half the largest gap between
+// the sequence's training times of one of them; this relative slack keeps frame times written in decimal seconds
+// (7.9 s against a reach of 0.1 s) on the right side of the comparison.
+inline constexpr double kReplayReachSlack = 1e-6;
 
 // ---- training configuration (docs/training.md) ----------------------------------------------------------------
 // Ranges a config's values must lie in. They refuse values that can only diverge or exhaust memory (a learning rate

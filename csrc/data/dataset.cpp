@@ -11,6 +11,7 @@
 #include <nlohmann/json.hpp>
 
 #include "common/atomic_file.h"
+#include "common/constants.h"
 #include "common/checksum.h"
 #include "data/json_values.h"
 #include "data/neuman.h"
@@ -123,18 +124,26 @@ std::optional<double> Dataset::replay_time(int64_t index) const {
     std::iota(training.begin(), training.end(), int64_t(0));
   }
   const FrameRecord& frame = frames[size_t(index)];
-  double lo = INFINITY, hi = -INFINITY, sequence_lo = INFINITY, sequence_hi = -INFINITY;
+  double lo = INFINITY, hi = -INFINITY;
+  std::vector<double> sequence_times;
   for (int64_t t : training) {
     const FrameRecord& r = frames[size_t(t)];
     lo = std::min(lo, r.time);
     hi = std::max(hi, r.time);
-    if (r.sequence != frame.sequence) continue;
-    sequence_lo = std::min(sequence_lo, r.time);
-    sequence_hi = std::max(sequence_hi, r.time);
+    if (r.sequence == frame.sequence) sequence_times.push_back(r.time);
   }
-  if (!(frame.time >= sequence_lo && frame.time <= sequence_hi)) return std::nullopt;
+  if (sequence_times.empty()) return std::nullopt;
+  std::sort(sequence_times.begin(), sequence_times.end());
+  // A held-out frame inside the span lies at most half the largest gap from a trained time; a frame just past
+  // either end (the interleaved split's last test frame) is granted the same reach, with the end's time.
+  double largest_gap = 0;
+  for (size_t i = 1; i < sequence_times.size(); ++i)
+    largest_gap = std::max(largest_gap, sequence_times[i] - sequence_times[i - 1]);
+  const double reach = largest_gap / 2 * (1 + kReplayReachSlack);
+  if (!(frame.time >= sequence_times.front() - reach && frame.time <= sequence_times.back() + reach))
+    return std::nullopt;
   if (hi - lo <= 0) return 0.0;
-  return 2.0 * (frame.time - lo) / (hi - lo) - 1.0;
+  return std::clamp(2.0 * (frame.time - lo) / (hi - lo) - 1.0, -1.0, 1.0);
 }
 
 void Dataset::validate() const {

@@ -58,9 +58,11 @@ class Dataset {
   // Reads the frame's image and masks; errors name the file.
   Frame load(int64_t index) const;
   // The frame's time on the avatar's time axis (model/frame_time.h) when the frame replays what training saw: its
-  // seconds mapped to [-1, 1] over the span of the training frames, for a frame within the span of its own
-  // sequence's training frames. None for any other frame (a sequence of new motions, a moment beyond those training
-  // saw): the avatar then leaves its time branch out. A dataset without a training split counts every frame as one.
+  // seconds mapped to [-1, 1] over the span of the training frames (clamped at the ends), for a frame within the span
+  // of its own sequence's training frames or past an end by no more than half their largest gap (as near a trained
+  // time as a held-out frame between them). None for any other frame (a sequence of new motions, a moment beyond
+  // those training saw): the avatar then leaves its time branch out. A dataset without a training split counts
+  // every frame as one.
   std::optional<double> replay_time(int64_t index) const;
   // Checks indices, sizes, shapes, finiteness and cameras; called by every reader and by the writer. Errors name the
   // frame and the field.

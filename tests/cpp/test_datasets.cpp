@@ -77,6 +77,23 @@ TEST(SfgsDataset, WriteThenReadGivesTheSameDataset) {
   expect_error_mentioning([&] { write_sfgs_dataset(d, dir.str(), false); }, "refusing to overwrite");
 }
 
+TEST(Dataset, ReplayTimeReachesPastTheTrainingSpanAsFarAsAHeldOutFrameInsideIt) {
+  // Ten frames 0.1 s apart, frames 4 and 9 held out (the interleaved split's pattern), then 1.2 s: far past the end.
+  Dataset d;
+  d.sequences = {"sway"};
+  for (int i = 0; i < 11; ++i) {
+    FrameRecord r;
+    r.time = i < 10 ? 0.1 * i : 1.2;
+    d.frames.push_back(r);
+  }
+  d.splits[Split::kTrain] = {0, 1, 2, 3, 5, 6, 7, 8};
+  d.splits[Split::kTest] = {4, 9, 10};
+  EXPECT_NEAR(*d.replay_time(4), 2 * 0.4 / 0.8 - 1, 1e-12) << "between training frames";
+  ASSERT_TRUE(d.replay_time(9).has_value()) << "one frame past the last training frame: as near as frame 4";
+  EXPECT_DOUBLE_EQ(*d.replay_time(9), 1.0) << "clamped to the end of the trained axis";
+  EXPECT_FALSE(d.replay_time(10).has_value()) << "beyond what training saw";
+}
+
 TEST(SfgsDataset, PngRoundTripIsExactAt8Bits) {
   TempFolder dir;
   const at::Tensor image = at::randint(0, 256, {5, 7, 3}).to(at::kFloat) / 255;
