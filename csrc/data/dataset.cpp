@@ -11,8 +11,8 @@
 #include <nlohmann/json.hpp>
 
 #include "common/atomic_file.h"
-#include "common/constants.h"
 #include "common/checksum.h"
+#include "common/constants.h"
 #include "data/json_values.h"
 #include "data/neuman.h"
 #include "data/xhumans.h"
@@ -118,32 +118,41 @@ Frame Dataset::load(int64_t index) const {
 
 std::optional<double> Dataset::replay_time(int64_t index) const {
   TORCH_CHECK(index >= 0 && index < size(), "Dataset::replay_time: frame ", index, " out of range [0, ", size(), ")");
-  std::vector<int64_t> training = split(Split::kTrain);
+  return ReplayClock(*this).time_of(frames[size_t(index)]);
+}
+
+ReplayClock::ReplayClock(const Dataset& dataset) {
+  std::vector<int64_t> training = dataset.split(Split::kTrain);
   if (training.empty()) {
-    training.resize(frames.size());
+    training.resize(dataset.frames.size());
     std::iota(training.begin(), training.end(), int64_t(0));
   }
-  const FrameRecord& frame = frames[size_t(index)];
-  double lo = INFINITY, hi = -INFINITY;
-  std::vector<double> sequence_times;
+  std::map<int64_t, std::vector<double>> sequence_times;
   for (int64_t t : training) {
-    const FrameRecord& r = frames[size_t(t)];
-    lo = std::min(lo, r.time);
-    hi = std::max(hi, r.time);
-    if (r.sequence == frame.sequence) sequence_times.push_back(r.time);
+    const FrameRecord& r = dataset.frames[size_t(t)];
+    sequence_times[r.sequence].push_back(r.time);
   }
-  if (sequence_times.empty()) return std::nullopt;
-  std::sort(sequence_times.begin(), sequence_times.end());
-  // A held-out frame inside the span lies at most half the largest gap from a trained time; a frame just past
-  // either end (the interleaved split's last test frame) is granted the same reach, with the end's time.
-  double largest_gap = 0;
-  for (size_t i = 1; i < sequence_times.size(); ++i)
-    largest_gap = std::max(largest_gap, sequence_times[i] - sequence_times[i - 1]);
-  const double reach = largest_gap / 2 * (1 + kReplayReachSlack);
-  if (!(frame.time >= sequence_times.front() - reach && frame.time <= sequence_times.back() + reach))
-    return std::nullopt;
-  if (hi - lo <= 0) return 0.0;
-  return std::clamp(2.0 * (frame.time - lo) / (hi - lo) - 1.0, -1.0, 1.0);
+  lo_ = INFINITY;
+  hi_ = -INFINITY;
+  for (auto& [sequence, times] : sequence_times) {
+    std::sort(times.begin(), times.end());
+    // A held-out frame inside the span lies at most half the largest gap from a trained time; a frame just past
+    // either end (the interleaved split's last test frame) is granted the same reach, with the end's time.
+    double largest_gap = 0;
+    for (size_t i = 1; i < times.size(); ++i) largest_gap = std::max(largest_gap, times[i] - times[i - 1]);
+    spans_[sequence] = {times.front(), times.back(), largest_gap / 2 * (1 + kReplayReachSlack)};
+    lo_ = std::min(lo_, times.front());
+    hi_ = std::max(hi_, times.back());
+  }
+}
+
+std::optional<double> ReplayClock::time_of(const FrameRecord& frame) const {
+  const auto span = spans_.find(frame.sequence);
+  if (span == spans_.end()) return std::nullopt;
+  const Span& s = span->second;
+  if (!(frame.time >= s.first - s.reach && frame.time <= s.last + s.reach)) return std::nullopt;
+  if (hi_ - lo_ <= 0) return 0.0;
+  return std::clamp(2.0 * (frame.time - lo_) / (hi_ - lo_) - 1.0, -1.0, 1.0);
 }
 
 void Dataset::validate() const {

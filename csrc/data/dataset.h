@@ -72,6 +72,22 @@ class Dataset {
   std::string fingerprint() const;
 };
 
+// Dataset::replay_time's answer for every frame from one pass over the training split: a caller that asks per step
+// (the trainer) builds it once. It copies what it needs: later changes to the dataset do not reach it.
+class ReplayClock {
+ public:
+  explicit ReplayClock(const Dataset& dataset);
+  std::optional<double> time_of(const FrameRecord& frame) const;
+
+ private:
+  struct Span {
+    double first, last;  // its sequence's earliest and latest training times
+    double reach;        // how far past either end a frame still replays: half the largest gap between them
+  };
+  double lo_ = 0, hi_ = 0;        // the span of every training frame: the time axis
+  std::map<int64_t, Span> spans_;  // per sequence with training frames
+};
+
 // sfgs's own format (docs/dataset_format.md).
 Dataset read_sfgs_dataset(const std::string& folder);
 // Writes dataset.json into `folder` atomically; images, masks and meshes must already be there (their paths are

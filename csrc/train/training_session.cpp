@@ -68,7 +68,7 @@ torch::optim::AdamOptions& adam_options(torch::optim::Adam& optimizer, size_t gr
 TrainingSession::TrainingSession(const data::Dataset& dataset, const TrainConfig& config, const RunFolder& run,
                                  const TrainOptions& options)
     : dataset_(dataset), config_(config), run_(run), options_(options),
-      device_(config.device == "cuda" ? at::kCUDA : at::kCPU), rng_(config.seed) {
+      device_(config.device == "cuda" ? at::kCUDA : at::kCPU), replay_clock_(dataset), rng_(config.seed) {
   torch::manual_seed(config.seed);
   avatar_ = make_avatar(config, dataset.betas, device_);
   optimizer_ = make_optimizer(avatar_, config.schedule);
@@ -116,10 +116,10 @@ void TrainingSession::step(int64_t it) {
   const at::Tensor m = mask.unsqueeze(2);
   const at::Tensor target = image * m + background * (1 - m);
 
-  // The time branch is a residual that new motions go without: some steps train without it (docs/avatar.md).
-  std::optional<double> time = dataset_.replay_time(f);
-  if (std::uniform_real_distribution<double>(0.0, 1.0)(rng_) < config_.avatar.time_dropout) time.reset();
   const data::FrameRecord& record = dataset_.frames[size_t(f)];
+  // The time branch is a residual that new motions go without: some steps train without it (docs/avatar.md).
+  std::optional<double> time = replay_clock_.time_of(record);
+  if (std::uniform_real_distribution<double>(0.0, 1.0)(rng_) < config_.avatar.time_dropout) time.reset();
   const model::AvatarOutput out = avatar_->forward(record.pose, time);
   const Camera camera = render_camera(record);
   const RenderResult r = render(to_gaussians(out), background, camera);

@@ -44,6 +44,7 @@ class TrainingSession {
   const RunFolder& run_;
   const TrainOptions& options_;
   at::Device device_;
+  data::ReplayClock replay_clock_;  // each training frame's time, asked every step
   model::Avatar avatar_{nullptr};
   std::unique_ptr<torch::optim::Adam> optimizer_;
   std::vector<double> base_rates_;

@@ -92,6 +92,9 @@ TEST(Dataset, ReplayTimeReachesPastTheTrainingSpanAsFarAsAHeldOutFrameInsideIt) 
   ASSERT_TRUE(d.replay_time(9).has_value()) << "one frame past the last training frame: as near as frame 4";
   EXPECT_DOUBLE_EQ(*d.replay_time(9), 1.0) << "clamped to the end of the trained axis";
   EXPECT_FALSE(d.replay_time(10).has_value()) << "beyond what training saw";
+  // The trainer's clock, built once, answers the same.
+  const ReplayClock clock(d);
+  for (int64_t i = 0; i < d.size(); ++i) EXPECT_EQ(clock.time_of(d.frames[size_t(i)]), d.replay_time(i)) << i;
 }
 
 TEST(SfgsDataset, PngRoundTripIsExactAt8Bits) {
