@@ -2,7 +2,8 @@
 # Checks the CUDA backend on a GPU machine: configures and builds against the machine's CUDA LibTorch, runs the CUDA
 # tests, compute-sanitizer memcheck and racecheck on the small CudaSanitizer.* scenes, and the benchmark.
 #
-#   bash scripts/device_check.sh [build] [test] [python] [sanitize] [bench] [profile] [avatar] [train] [ablate] [novel]
+#   bash scripts/device_check.sh [build] [test] [python] [sanitize] [bench] [profile] [avatar] [animate] [train-step]
+#                                [train] [ablate] [novel]
 #   (no argument: the first five, in this order)
 #
 # python: the pytest suite against the module built with the machine's pip torch and pybind11 (CUDA included).
@@ -21,6 +22,9 @@
 #   .device/shared      ../shared/bodies and ../shared/lpips (avatar and train steps)
 #
 # avatar: the avatar benchmark on the GPU and the avatar and trainer tests (CPU, with the GPU build).
+# animate: the animation path's CUDA tests (skinning kernel, binning budget, Animator graph frames; the small ones
+# under compute-sanitizer memcheck) and bench_animate on the Anny body (800x1200 and 540x960) and the procedural one.
+# train-step: bench_train_step on the Anny scene at SFGS_DEVICE_STEP_SIZE (default 800x1200), 40 frames.
 # train: synthesise the Anny scene (SFGS_DEVICE_TRAIN_SIZE, default 800x1200; SFGS_DEVICE_TRAIN_FRAMES, default
 # 100) and train, evaluate (with LPIPS) and render it on CUDA with configs/device_anny.yaml
 # (SFGS_DEVICE_TRAIN_ITERATIONS overrides its iterations).
@@ -224,6 +228,20 @@ if wants avatar; then
   fi
 fi
 
+if wants animate; then
+  run animate-tests 250 env OMP_NUM_THREADS="$jobs" "$tests" --gtest_color=no \
+    --gtest_filter='SkinCuda*:BinningBudget.*:AnimatorCuda.*'
+  grep -E "^\[  FAILED|^\[  PASSED|^\[       OK|Failure|Expected|Which is|actual" "$out/animate-tests.log" | cut -c1-300
+  run animate-sanitize 250 compute-sanitizer --tool memcheck --error-exitcode 99 "$tests" --gtest_color=no \
+    --gtest_filter='SkinCudaSanitizer.*:BinningBudget.*:AnimatorCuda.GraphFramesEqual*'
+  grep -E "ERROR SUMMARY|^\[  PASSED|^\[  FAILED|Invalid" "$out/animate-sanitize.log" | head -n 10
+  run animate-bench 250 "$build/bench/bench_animate" --device cuda --shared "$root/.device/shared" \
+    --frames "${SFGS_DEVICE_ANIMATE_FRAMES:-300}"
+  run animate-bench 150 "$build/bench/bench_animate" --device cuda --sizes 800x1200 \
+    --frames "${SFGS_DEVICE_ANIMATE_FRAMES:-300}"
+  cat "$out/animate-bench.log"
+fi
+
 # anny_scene STEP FOLDER WIDTHxHEIGHT FRAMES: the Anny scene synthesised into FOLDER/data and its training config
 # (configs/device_anny.yaml pointed at the carried bodies) in FOLDER/config.yaml.
 shared=$root/.device/shared
@@ -234,6 +252,15 @@ anny_scene() {
   tail -n 1 "$out/$1.log"
   sed "s|@SHARED@|$shared|g" "$root/configs/device_anny.yaml" >"$2/config.yaml"
 }
+
+if wants train-step; then
+  export SFGS_SHARED_DIR=$shared
+  scene=/tmp/sfgs-anny-step
+  anny_scene step-synth "$scene" "${SFGS_DEVICE_STEP_SIZE:-800x1200}" 40
+  run train-step 300 "$build/bench/bench_train_step" --data "$scene/data" --config "$scene/config.yaml" \
+    --warmup 20 --steps "${SFGS_DEVICE_STEP_COUNT:-60}"
+  cat "$out/train-step.log"
+fi
 
 if wants train; then
   export SFGS_SHARED_DIR=$shared  # LPIPS weights for the loss and the evaluation

@@ -148,15 +148,6 @@ at::Tensor linear_blend_skinning(const at::Tensor& rest_vertices, const at::Tens
   return posed.transpose(0, 1).contiguous();
 }
 
-at::Tensor blend_transforms(const at::Tensor& weights, const at::Tensor& transforms) {
-  TORCH_CHECK(weights.defined() && weights.dim() == 2, "blend_transforms: weights must have shape (V, J), got ",
-              describe(weights));
-  const int64_t v = weights.size(0), j = weights.size(1);
-  TORCH_CHECK(transforms.defined() && transforms.sizes() == at::IntArrayRef({j, 4, 4}),
-              "blend_transforms: transforms must have shape (", j, ", 4, 4), got ", describe(transforms));
-  return weights.matmul(transforms.narrow(1, 0, 3).reshape({j, 12})).view({v, 3, 4});
-}
-
 at::Tensor sparse_skinning_weights(const at::Tensor& weights) {
   TORCH_CHECK(weights.dim() == 2 && at::isFloatingType(weights.scalar_type()) && !weights.is_sparse(),
               "sparse_skinning_weights: weights must be a dense floating (V, J) tensor, got ", describe(weights));

@@ -51,11 +51,6 @@ TORCH_MODULE(KinematicTree);
 at::Tensor linear_blend_skinning(const at::Tensor& rest_vertices, const at::Tensor& weights,
                                  const at::Tensor& skinning_transforms);
 
-// The skinning-weighted blend of the joints' transforms per point, for weights (V, J) and transforms (J, 4, 4):
-// (V, 3, 4), the top three rows. A point p then moves to A p + t: how skinning carries points that are not mesh
-// vertices (the avatar's Gaussians) and their covariances (A is the deformation's Jacobian).
-at::Tensor blend_transforms(const at::Tensor& weights, const at::Tensor& transforms);
-
 // Dense (V, J) skinning weights as the sparse COO matrix linear_blend_skinning multiplies fastest with.
 at::Tensor sparse_skinning_weights(const at::Tensor& weights);
 

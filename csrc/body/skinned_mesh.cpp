@@ -83,7 +83,8 @@ at::Tensor SkinnedMeshImpl::subdivide(const at::Tensor& coarse) const {
 
 BodyOutput SkinnedMeshImpl::forward(const at::Tensor& coefficients, const at::Tensor& rotations,
                                     const at::Tensor& translation, const at::Tensor& vertex_offsets,
-                                    const at::Tensor& joint_offsets, const at::Tensor& point_offsets) const {
+                                    const at::Tensor& joint_offsets, const at::Tensor& point_offsets,
+                                    bool skin_vertices) const {
   const int64_t j = joint_count(), v = coarse_vertex_count_;
   TORCH_CHECK(rotations.defined() && rotations.dim() == 4, "SkinnedMesh: rotations must have shape (B, ", j,
               ", 3, 3), got ", describe(rotations));
@@ -128,7 +129,7 @@ BodyOutput SkinnedMeshImpl::forward(const at::Tensor& coefficients, const at::Te
 
   const PosedSkeleton skeleton = tree_->pose(rotations, rest_joints, translation);
   BodyOutput out;
-  out.vertices = linear_blend_skinning(rest, sparse_weights(), skeleton.skinning_transforms);
+  if (skin_vertices) out.vertices = linear_blend_skinning(rest, sparse_weights(), skeleton.skinning_transforms);
   out.joints = skeleton.joints;
   out.joint_transforms = skeleton.joint_transforms;
   out.skinning_transforms = skeleton.skinning_transforms;

@@ -25,7 +25,7 @@ struct SkinnedMeshData {
 // Everything one evaluation produces. Vertices are at the output resolution (after subdivision); the transforms
 // include the translation, so vertices == sum_j weights_ij * skinning_transforms_j * [rest_vertices_i; 1].
 struct BodyOutput {
-  at::Tensor vertices;             // (B, V', 3) posed
+  at::Tensor vertices;             // (B, V', 3) posed (undefined when the forward was asked not to skin them)
   at::Tensor joints;               // (B, J, 3) posed
   at::Tensor joint_transforms;     // (B, J, 4, 4) world frame of each joint
   at::Tensor skinning_transforms;  // (B, J, 4, 4) rest pose -> posed, per joint
@@ -49,9 +49,11 @@ class SkinnedMeshImpl : public BodyModule {
   // joints) may be undefined. point_offsets ((V, 3) or (B, V, 3) on the coarse mesh, may be undefined) are not part
   // of the mesh: they are subdivided with it, in the same pass, and returned as BodyOutput::point_offsets (offsets
   // of points that ride on the mesh, e.g. the avatar's hand residual). All in the module's dtype and on its device.
+  // skin_vertices false leaves BodyOutput::vertices undefined, for a caller that skins the rest vertices itself
+  // (the avatar's fused skinning op).
   BodyOutput forward(const at::Tensor& coefficients, const at::Tensor& rotations, const at::Tensor& translation,
                      const at::Tensor& vertex_offsets, const at::Tensor& joint_offsets,
-                     const at::Tensor& point_offsets = {}) const;
+                     const at::Tensor& point_offsets = {}, bool skin_vertices = true) const;
 
   // Per-vertex values of the coarse mesh, (V, C) or (B, V, C), at the output vertices.
   at::Tensor subdivide(const at::Tensor& coarse) const;

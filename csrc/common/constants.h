@@ -51,6 +51,12 @@ inline constexpr long kMaxImageSide = 16384;
 // run time at minutes, not hours. The avatar workloads stay under a tenth of it (1M Gaussians at 1080 x 1920: 2.7M).
 inline constexpr long kCpuMaxTilePairs = 1L << 25;
 
+// ---- animation (csrc/animate, docs/performance.md) ---------------------------------------------------------
+// A graph frame's splatting buffers are sized from a budget: the first guess per Gaussian, and the slack over the
+// counts of a pass that fitted (a new pose may touch more tiles than the one the budget was taken from).
+inline constexpr long kAnimatorInitialIntersectionsPerGaussian = 4;
+inline constexpr double kAnimatorBudgetSlack = 1.5;
+
 // ---- metrics (docs/metrics.md) -----------------------------------------------------------------------------
 // Images are compared on values in [0, 1]: PSNR, SSIM's C1/C2 and LPIPS's 2v - 1 mapping assume this range.
 inline constexpr double kImageDataRange = 1.0;

@@ -300,6 +300,11 @@ __global__ void emit_rank_keys_kernel(const ForwardBuffers<T> b, const int64_t* 
   for (; slot < end; ++slot) keys[slot] = past_last_tile;
 }
 
+template <typename Key> __global__ void fill_keys_kernel(Key* keys, int64_t count, Key value) {
+  const int64_t k = int64_t(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (k < count) keys[k] = value;
+}
+
 template <typename Key>
 __global__ void tile_ranges_kernel(const Key* keys, int64_t count, int rank_bits, int64_t tiles,
                                    const int32_t* depth_order, int32_t* isect_gaussian, int64_t* tile_offsets) {
@@ -387,6 +392,11 @@ void bin_radix(const SplatScene<T>& s, const ForwardBuffers<T>& b, int64_t inter
   cub::DoubleBuffer<Key> keys(allocate<Key>(scratch, intersections), allocate<Key>(scratch, intersections));
   {
     const Stage stage("emit", stream);
+    // Slots no Gaussian fills (a budgeted pass's buffers are larger than its intersections) keep the tile id one
+    // past the last: they sort after every real key and tile_ranges_kernel gives them to no tile.
+    fill_keys_kernel<Key><<<blocks_for(intersections, kLinearThreads), kLinearThreads, 0, stream>>>(
+        keys.Current(), intersections, Key(tile_count(grid)) << rank_bits);
+    check_cuda(cudaGetLastError(), "fill_keys_kernel launch");
     int64_t* gaussian_offsets = allocate<int64_t>(scratch, s.count + 1);
     check_cuda(cudaMemsetAsync(gaussian_offsets, 0, sizeof(int64_t), stream), "offset reset");
     std::size_t temp_bytes = 0;
@@ -418,7 +428,35 @@ void bin_radix(const SplatScene<T>& s, const ForwardBuffers<T>& b, int64_t inter
   }
 }
 
+// Copies the pass's BinStats for the caller and, when the pass exceeds the budget or has invalid opacities, zeroes
+// every bucket and tile offset and every Gaussian's tile count: emission then writes nothing (on either path), the
+// tile sorts and the blends see empty tiles.
+__global__ void apply_bin_budget_kernel(const BinStats* stats, BinBudget budget, int64_t* bucket_offsets,
+                                        int64_t bucket_entries, int64_t* tile_offsets, int64_t tile_entries,
+                                        int64_t* gaussian_tile_counts, int64_t gaussians) {
+  const BinStats s = *stats;
+  const int64_t first = int64_t(blockIdx.x) * blockDim.x + threadIdx.x, stride = int64_t(gridDim.x) * blockDim.x;
+  if (first == 0) *budget.reported = s;
+  if (s.intersections <= budget.intersections && s.max_tile_length <= budget.max_tile_length &&
+      s.invalid_opacities == 0)
+    return;
+  for (int64_t k = first; k < bucket_entries; k += stride) bucket_offsets[k] = 0;
+  for (int64_t k = first; k < tile_entries; k += stride) tile_offsets[k] = 0;
+  for (int64_t k = first; k < gaussians; k += stride) gaussian_tile_counts[k] = 0;
+}
+
 }  // namespace
+
+template <typename T>
+BinStats apply_bin_budget(const SplatScene<T>& s, const ForwardBuffers<T>& b, const BinBudget& budget,
+                          cudaStream_t stream) {
+  const int64_t tiles = tile_count(grid_of(s));
+  const int64_t buckets = tiles * kTileBuckets + 1;
+  apply_bin_budget_kernel<<<blocks_for(std::max(buckets, s.count), kLinearThreads), kLinearThreads, 0, stream>>>(
+      b.bin_stats, budget, b.bucket_offsets, buckets, b.tile_offsets, tiles + 1, b.gaussian_tile_counts, s.count);
+  check_cuda(cudaGetLastError(), "apply_bin_budget_kernel launch");
+  return BinStats{budget.intersections, budget.max_tile_length, 0};
+}
 
 template <typename T>
 void bin_intersections(const SplatScene<T>& s, const ForwardBuffers<T>& b, const BinStats& stats,
@@ -441,6 +479,10 @@ void bin_intersections(const SplatScene<T>& s, const ForwardBuffers<T>& b, const
     bin_radix<T, uint64_t>(s, b, intersections, rank_bits, key_bits, scratch, stream);
 }
 
+template BinStats apply_bin_budget<float>(const SplatScene<float>&, const ForwardBuffers<float>&, const BinBudget&,
+                                         cudaStream_t);
+template BinStats apply_bin_budget<double>(const SplatScene<double>&, const ForwardBuffers<double>&,
+                                          const BinBudget&, cudaStream_t);
 template void bin_intersections<float>(const SplatScene<float>&, const ForwardBuffers<float>&, const BinStats&,
                                        const ScratchAllocator&, cudaStream_t);
 template void bin_intersections<double>(const SplatScene<double>&, const ForwardBuffers<double>&, const BinStats&,

@@ -2,6 +2,7 @@
 // reports a clear error, so these entry points are only reached by a caller that bypasses it.
 #include <c10/util/Exception.h>
 
+#include "skin/backend.h"
 #include "splat/backend.h"
 
 namespace sfgs::splat::cuda {
@@ -18,3 +19,11 @@ InputGradients backward(const SplatInputs&, const CameraSpec&, const BackendSett
 }
 
 }  // namespace sfgs::splat::cuda
+
+namespace sfgs::skin::cuda {
+
+bool available() { return false; }
+void forward(const ForwardTensors&) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
+void backward(const BackwardTensors&) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
+
+}  // namespace sfgs::skin::cuda

@@ -60,6 +60,17 @@ struct BinStats {
   int64_t invalid_opacities;  // opacities outside [0, 1] or not finite (an error the caller reports)
 };
 
+// Stands in for the host read of BinStats where the pass must not synchronise (a render captured in a CUDA graph):
+// the per-intersection buffers are sized from the budget, and a pass beyond it (or with invalid opacities) is
+// emptied on the device, so that it blends only the background and never writes past its buffers. The pass's true
+// BinStats are copied to `reported` (device memory) for the caller to check once the work is done. A budget whose
+// longest tile fits the per-tile sort takes that path; a larger one the radix path, over the budget's slots.
+struct BinBudget {
+  int64_t intersections;
+  int64_t max_tile_length;
+  BinStats* reported;
+};
+
 template <typename T> struct ForwardBuffers {
   // Per Gaussian.
   T* projected;               // (N, kProjectedWidth); rows of culled Gaussians are not written
@@ -108,7 +119,12 @@ template <typename T> struct BackwardInputs {
 template <typename T>
 void project_gaussians(const SplatScene<T>& scene, ForwardBuffers<T>& buffers, const ScratchAllocator& scratch,
                        cudaStream_t stream);
-// stats: the values project_gaussians wrote to buffers.bin_stats.
+// Instead of reading buffers.bin_stats: applies `budget` on the device (see BinBudget) and returns the stats
+// bin_intersections is to size its work by.
+template <typename T>
+BinStats apply_bin_budget(const SplatScene<T>& scene, const ForwardBuffers<T>& buffers, const BinBudget& budget,
+                          cudaStream_t stream);
+// stats: the values project_gaussians wrote to buffers.bin_stats, or those apply_bin_budget returned.
 template <typename T>
 void bin_intersections(const SplatScene<T>& scene, const ForwardBuffers<T>& buffers, const BinStats& stats,
                        const ScratchAllocator& scratch, cudaStream_t stream);

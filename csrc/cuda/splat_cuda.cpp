@@ -149,7 +149,19 @@ Forward forward_typed(const SplatInputs& in, const CameraSpec& camera, const Bac
   buffers.final_transmittance = c.final_transmittance.data_ptr<T>();
   buffers.contributors = c.contributors.data_ptr<int32_t>();
 
-  const kernels::BinStats stats = n > 0 ? read_bin_stats(bin_stats, in.opacities, stream) : kernels::BinStats{0, 0, 0};
+  const BinningBudget* budget = active_binning_budget();
+  kernels::BinStats stats{0, 0, 0};
+  if (n > 0 && budget != nullptr) {
+    TORCH_CHECK(budget->counts.device() == in.means.device(), "sfgs::render: the binning budget's counts are on ",
+                budget->counts.device(), ", the Gaussians on ", in.means.device());
+    const kernels::BinBudget device_budget{budget->intersections, budget->longest_tile,
+                                           reinterpret_cast<kernels::BinStats*>(budget->counts.data_ptr<int64_t>())};
+    stats = kernels::apply_bin_budget(scene, buffers, device_budget, stream);
+  } else if (n > 0) {
+    stats = read_bin_stats(bin_stats, in.opacities, stream);
+  } else if (budget != nullptr) {
+    budget->counts.zero_();
+  }
   c.isect_gaussian = at::empty({stats.intersections}, i32);
   buffers.isect_gaussian = c.isect_gaussian.data_ptr<int32_t>();
   kernels::bin_intersections(scene, buffers, stats, scratch.allocator(), stream);

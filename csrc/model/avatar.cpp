@@ -8,15 +8,15 @@
 #include <ATen/TensorOperators.h>
 #include <torch/csrc/autograd/grad_mode.h>
 
-#include "body/kinematics.h"
 #include "body/mesh.h"
 #include "body/rotations.h"
 #include "body/skeleton.h"
 #include "body/tensor_checks.h"
 #include "common/constants.h"
+#include "common/stage_timer.h"
 #include "model/inference_cache.h"
 #include "model/observation_prior.h"
-#include "model/skinning.h"
+#include "skin/skin.h"
 
 namespace sfgs::model {
 
@@ -150,24 +150,50 @@ AvatarImpl::AvatarImpl(const AvatarBody& b, const at::Tensor& betas, AvatarConfi
 AvatarImpl::~AvatarImpl() = default;
 
 AvatarOutput AvatarImpl::forward(const body::SmplxPose& pose, FrameTime time) {
+  const std::string non_finite = pose.non_finite();
+  TORCH_CHECK(non_finite.empty(), "Avatar: pose.", non_finite);
+  return forward_trusted_pose(pose, time);
+}
+
+AvatarOutput AvatarImpl::forward_trusted_pose(const body::SmplxPose& pose, FrameTime time) {
   TORCH_CHECK(!time || (std::isfinite(*time) && *time >= -1.0 && *time <= 1.0),
               "Avatar: time must be normalised to [-1, 1] (once per sequence), got ", *time);
   if (confidence_.defined() && confidence_.device() != body_->vertices().device())
     confidence_ = confidence_.to(body_->vertices().device());
-  const std::string non_finite = pose.non_finite();
-  TORCH_CHECK(non_finite.empty(), "Avatar: pose.", non_finite);
-  const FramePose frame = frame_pose(pose);
-  const at::Tensor coarse_residual =
-      hand_residual_ ? hand_residual_->forward(frame.left_hand, frame.right_hand) : at::Tensor();
-  const FrameBody body = body_->pose(frame.rotations, frame.expression, frame.translation, coarse_residual);
-  const CanonicalAttributes attributes = attributes_at(time);
-  const CanonicalGaussians canonical = canonical_gaussians(frame, body, attributes);
+  FramePose frame;
+  at::Tensor coarse_residual;
+  {
+    const StageScope stage("avatar: pose and hand residual");
+    frame = frame_pose(pose);
+    if (hand_residual_) coarse_residual = hand_residual_->forward(frame.left_hand, frame.right_hand);
+  }
+  FrameBody body;
+  {
+    const StageScope stage("avatar: body (correctives, subdivision, joints)");
+    body = body_->pose(frame.rotations, frame.expression, frame.translation, coarse_residual);
+  }
+  CanonicalAttributes attributes;
+  {
+    const StageScope stage("avatar: canonical attributes (planes, heads)");
+    attributes = attributes_at(time);
+  }
+  CanonicalGaussians canonical;
+  {
+    const StageScope stage("avatar: structure offset");
+    canonical = canonical_gaussians(frame, body, attributes);
+  }
 
-  // Skinning: the body model's own transforms carry every Gaussian, its mean and its covariance.
-  const at::Tensor blended = body::blend_transforms(body_->weights(), body.skinning_transforms);
   AvatarOutput out;
-  out.means = transform_points(blended, canonical.means);
-  out.covariances = isotropic_covariances(blended, canonical.log_scales);
+  {
+    // Skinning: the body model's own transforms carry every Gaussian, its mean and its covariance, and the rest
+    // mesh.
+    const StageScope stage("avatar: skinning");
+    const skin::SkinnedGaussians skinned = skin::skin_gaussians(body_->skinning_weights(), body.skinning_transforms,
+                                                                canonical.means, canonical.log_scales, body.rest);
+    out.means = skinned.means;
+    out.covariances = skinned.covariances;
+    out.posed_vertices = skinned.posed_rest;
+  }
   out.opacities = opacities_;
   out.canonical_means = canonical.means;
   out.log_scales = canonical.log_scales;
@@ -175,12 +201,13 @@ AvatarOutput AvatarImpl::forward(const body::SmplxPose& pose, FrameTime time) {
   out.structure_offset = canonical.structure_offset;
   out.scale_offset = canonical.scale_offset;
   out.hand_residual = body.point_offsets;
-  out.posed_vertices = body.posed;
   {
     // The body-model surface's orientation: smooth, free of the learned offsets' noise, and no gradient.
+    const StageScope stage("avatar: normals");
     at::NoGradGuard no_grad;
-    out.posed_normals = body::vertex_normals(body.posed.detach(), body_->faces());
+    out.posed_normals = body::vertex_normals(out.posed_vertices.detach(), body_->faces());
   }
+  const StageScope stage("avatar: appearance");
   out.colours = appearance(frame, attributes, time.has_value(), out);
   return out;
 }

@@ -120,6 +120,10 @@ class AvatarImpl : public torch::nn::Module {
   // undefined hand poses also skip that hand's residual) and the frame's time: normalised to [-1, 1] for a frame
   // the training video covered, none for a new motion (frame_time.h).
   AvatarOutput forward(const body::SmplxPose& pose, FrameTime time);
+  // forward without the check that every pose value is finite: for a caller that checked the pose itself before
+  // moving it to the device (Animator: the check of device tensors is a host synchronisation a CUDA graph cannot
+  // hold). A non-finite pose gives non-finite Gaussians.
+  AvatarOutput forward_trusted_pose(const body::SmplxPose& pose, FrameTime time);
 
   // The observation record of training (observation_prior.h): per Gaussian, the share of training steps that saw it
   // front-facing, (N) on any device; undefined clears it. In eval mode an avatar with a record trusts each

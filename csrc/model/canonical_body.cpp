@@ -113,13 +113,20 @@ FrameBody CanonicalBodyImpl::pose(const at::Tensor& rotations, const at::Tensor&
                                                        : at::zeros({1, expression_count()}, options);
   const body::BodyOutput out =
       mesh_->forward(coefficients, rotations.unsqueeze(0), translation.unsqueeze(0), at::Tensor(), at::Tensor(),
-                     coarse_point_offsets);
+                     coarse_point_offsets, /*skin_vertices=*/false);
   FrameBody frame;
   frame.rest = out.rest_vertices.squeeze(0);
-  frame.posed = out.vertices.squeeze(0);
   frame.skinning_transforms = out.skinning_transforms.squeeze(0);
   if (out.point_offsets.defined()) frame.point_offsets = out.point_offsets.squeeze(0);
   return frame;
+}
+
+const skin::SkinningWeights& CanonicalBodyImpl::skinning_weights() const {
+  const at::Tensor& dense = weights();
+  if (!skinning_weights_.weights.defined() || skinning_weights_.weights.device() != dense.device() ||
+      skinning_weights_.weights.scalar_type() != dense.scalar_type())
+    skinning_weights_ = skin::SkinningWeights::from_dense(dense);
+  return skinning_weights_;
 }
 
 at::Tensor CanonicalBodyImpl::star_pose_vertices() const {

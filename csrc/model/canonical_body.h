@@ -3,8 +3,9 @@
 // template is the subject's shape and whose blend shapes are the expressions — midpoint-subdivided, with one
 // Gaussian per subdivided vertex. The canonical frame is the model's rest pose (the T-pose): there the expression
 // blend shapes and pose correctives are defined, and the mesh's own skinning transforms, applied to any canonical
-// point (body::blend_transforms), carry the Gaussians into the frame. Beside the mesh it keeps what the avatar
-// needs per point: part labels, dominant joints, initial scales and the star pose the feature planes are read in.
+// point (the fused skinning op, skin/skin.h), carry the Gaussians into the frame. Beside the mesh it keeps what the
+// avatar needs per point: part labels, dominant joints, initial scales and the star pose the feature planes are read
+// in.
 #include <cstdint>
 
 #include <torch/nn/module.h>
@@ -13,6 +14,7 @@
 #include "body/skeleton.h"
 #include "body/skinned_mesh.h"
 #include "body/smplx.h"
+#include "skin/skin.h"
 
 namespace sfgs::model {
 
@@ -25,10 +27,9 @@ struct ShapedModel {
 // betas: (B) or (1, B), any floating dtype and device.
 ShapedModel shape_model(const body::SmplxModelData& data, const at::Tensor& betas, int64_t num_betas);
 
-// The body of one frame, at the points (the subdivided mesh).
+// The body of one frame, at the points (the subdivided mesh); the avatar skins the points itself.
 struct FrameBody {
   at::Tensor rest;                 // (N, 3) the frame's rest mesh: subject shape, expression, pose correctives
-  at::Tensor posed;                // (N, 3) the body-model mesh in the frame's pose (no learned offsets)
   at::Tensor skinning_transforms;  // (J, 4, 4) rest pose -> posed, per joint (translation included)
   at::Tensor point_offsets;        // (N, 3) the coarse point offsets given to pose(), subdivided; or undefined
 };
@@ -52,6 +53,8 @@ class CanonicalBodyImpl : public torch::nn::Module {
 
   const at::Tensor& vertices() const { return vertices_; }                      // (N, 3) shaped rest pose
   const at::Tensor& weights() const { return mesh_->weights(); }                // (N, J) skinning weights
+  // The same weights as each point's influences, for the fused skinning op; converted on first use after a move.
+  const skin::SkinningWeights& skinning_weights() const;
   const at::Tensor& faces() const { return faces_; }                            // (F, 3) int64
   const at::Tensor& part_labels() const { return part_labels_; }                // (N) uint8 body::BodyPart
   const at::Tensor& dominant_joints() const { return dominant_joints_; }        // (N) int64
@@ -65,6 +68,7 @@ class CanonicalBodyImpl : public torch::nn::Module {
 
  private:
   body::SkinnedMesh mesh_{nullptr};
+  mutable skin::SkinningWeights skinning_weights_;
   at::Tensor vertices_, faces_, part_labels_, dominant_joints_, initial_log_scales_, joints_;
   at::Tensor hand_mean_left_, hand_mean_right_;
 };

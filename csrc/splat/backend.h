@@ -6,6 +6,7 @@
 
 #include <ATen/core/Tensor.h>
 
+#include "splat/splat.h"
 #include "splat/stages.h"
 
 namespace sfgs::splat {
@@ -41,6 +42,9 @@ template <typename T> PinholeCamera<T> to_pinhole(const CameraSpec& c) {
   cam.near_plane = T(c.near_plane); cam.far_plane = T(c.far_plane);
   return cam;
 }
+
+// The BinningBudget installed on this thread (splat.h), or null.
+const BinningBudget* active_binning_budget();
 
 struct BackendSettings {
   ProjectionSettings projection;

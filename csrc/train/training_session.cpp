@@ -8,6 +8,7 @@
 #include <ATen/ATen.h>
 #include <nlohmann/json.hpp>
 
+#include "common/stage_timer.h"
 #include "metrics/image_metrics.h"
 #include "model/observation_prior.h"
 
@@ -110,11 +111,15 @@ void TrainingSession::step(int64_t it) {
   std::uniform_int_distribution<size_t> pick(0, train_frames.size() - 1);
   std::uniform_real_distribution<float> colour(0.0f, 1.0f);
   const int64_t f = train_frames[pick(rng_)];
-  const auto [image, mask] = frames_->get(f, device_);
   const float bg_values[3] = {colour(rng_), colour(rng_), colour(rng_)};
-  const at::Tensor background = at::tensor(std::vector<float>(bg_values, bg_values + 3), at::kFloat).to(device_);
-  const at::Tensor m = mask.unsqueeze(2);
-  const at::Tensor target = image * m + background * (1 - m);
+  at::Tensor background, target;
+  {
+    const StageScope stage("train: frame upload and target");
+    const auto [image, mask] = frames_->get(f, device_);
+    background = at::tensor(std::vector<float>(bg_values, bg_values + 3), at::kFloat).to(device_);
+    const at::Tensor m = mask.unsqueeze(2);
+    target = image * m + background * (1 - m);
+  }
 
   const data::FrameRecord& record = dataset_.frames[size_t(f)];
   // The time branch is a residual that new motions go without: some steps train without it (docs/avatar.md).
@@ -122,19 +127,39 @@ void TrainingSession::step(int64_t it) {
   if (std::uniform_real_distribution<double>(0.0, 1.0)(rng_) < config_.avatar.time_dropout) time.reset();
   const model::AvatarOutput out = avatar_->forward(record.pose, time);
   const Camera camera = render_camera(record);
-  const RenderResult r = render(to_gaussians(out), background, camera);
-  observation_sum_ += model::frame_observation(out.means, out.posed_normals, r.depth, camera);
-  ++observation_steps_;
+  RenderResult r;
+  {
+    const StageScope stage("train: render");
+    r = render(to_gaussians(out), background, camera);
+  }
+  {
+    const StageScope stage("train: observation record");
+    observation_sum_ += model::frame_observation(out.means, out.posed_normals, r.depth, camera);
+    ++observation_steps_;
+  }
   LossTerms terms;
-  image_loss_->add_terms(r.image, target, terms);
-  regularisers_->add_terms(out, terms);
-  const at::Tensor loss = total_loss(terms);
-  // Gradients are dropped, not zeroed: a parameter a step does not reach (the time planes in a step without time)
-  // then has none and Adam leaves it alone, in a resumed run (whose parameters start without gradients) exactly as
-  // in an uninterrupted one; LibTorch versions differ in what zero_grad() does.
-  for (at::Tensor& p : avatar_->parameters()) p.mutable_grad().reset();
-  loss.backward();
-  optimizer_->step();
+  {
+    const StageScope stage("train: image loss");
+    image_loss_->add_terms(r.image, target, terms);
+  }
+  at::Tensor loss;
+  {
+    const StageScope stage("train: regularisers");
+    regularisers_->add_terms(out, terms);
+    loss = total_loss(terms);
+  }
+  {
+    const StageScope stage("train: backward");
+    // Gradients are dropped, not zeroed: a parameter a step does not reach (the time planes in a step without
+    // time) then has none and Adam leaves it alone, in a resumed run (whose parameters start without gradients)
+    // exactly as in an uninterrupted one; LibTorch versions differ in what zero_grad() does.
+    for (at::Tensor& p : avatar_->parameters()) p.mutable_grad().reset();
+    loss.backward();
+  }
+  {
+    const StageScope stage("train: optimizer");
+    optimizer_->step();
+  }
   watch_.record(it + 1, terms, {{"psnr", metrics::psnr(r.image.detach(), target)}});
 }
 
@@ -146,7 +171,10 @@ TrainSummary TrainingSession::run(int64_t start, int64_t end) {
   summary_.first_iteration = start;
   for (int64_t it = start; it < end; ++it) {
     const auto step_started = std::chrono::steady_clock::now();
-    step(it);
+    {
+      const StageScope stage("train: step");
+      step(it);
+    }
     training_seconds_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - step_started).count();
     finish_step(it + 1, end);
   }

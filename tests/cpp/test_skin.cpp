@@ -1,0 +1,143 @@
+// The fused skinning op (csrc/skin/skin.h) against its LibTorch reference composition: forward in float64 and
+// float32, gradients against the reference's autograd and against central finite differences in float64, the
+// reference fallback when the transforms need a gradient, the sparse weight rows, and the checks of its inputs.
+#include <ATen/ATen.h>
+#include <gtest/gtest.h>
+#include <torch/csrc/autograd/autograd.h>
+
+#include "skin/skin.h"
+
+namespace sfgs::testing {
+namespace {
+
+struct Scene {
+  at::Tensor dense, transforms, means, log_scales, rest;
+};
+
+// n Gaussians influenced by up to 4 of j joints (weights summing to 1, some rows with fewer), random affine
+// transforms near the identity.
+Scene random_scene(int64_t n, int64_t j, at::ScalarType dtype, uint64_t seed) {
+  at::manual_seed(seed);
+  const auto options = at::TensorOptions().dtype(dtype);
+  at::Tensor raw = at::rand({n, j}, options);
+  const at::Tensor kth = std::get<0>(raw.topk(4, 1)).select(1, 3).unsqueeze(1);
+  raw = at::where(raw >= kth, raw, at::zeros_like(raw));
+  raw.select(0, 0).zero_();
+  raw.select(0, 0)[1] = 1;  // a row with one influence
+  Scene s;
+  s.dense = raw / raw.sum(1, true);
+  s.transforms = at::eye(4, options).repeat({j, 1, 1});
+  s.transforms.narrow(1, 0, 3).add_(0.3 * at::randn({j, 3, 4}, options));
+  s.means = at::randn({n, 3}, options);
+  s.log_scales = -2 + 0.5 * at::randn({n}, options);
+  s.rest = at::randn({n, 3}, options);
+  return s;
+}
+
+double max_difference(const at::Tensor& a, const at::Tensor& b) { return (a - b).abs().max().item<double>(); }
+
+TEST(SkinOp, MatchesTheLibTorchReferenceInFloat64AndFloat32) {
+  for (const auto dtype : {at::kDouble, at::kFloat}) {
+    const Scene s = random_scene(300, 9, dtype, 1);
+    const skin::SkinnedGaussians fused = skin::skin_gaussians(skin::SkinningWeights::from_dense(s.dense),
+                                                              s.transforms, s.means, s.log_scales, s.rest);
+    const skin::SkinnedGaussians reference =
+        skin::skinning_reference(s.dense, s.transforms, s.means, s.log_scales, s.rest);
+    const double bound = dtype == at::kDouble ? 1e-12 : 1e-5;
+    EXPECT_LT(max_difference(fused.means, reference.means), bound) << dtype;
+    EXPECT_LT(max_difference(fused.covariances, reference.covariances), bound) << dtype;
+    EXPECT_LT(max_difference(fused.posed_rest, reference.posed_rest), bound) << dtype;
+  }
+}
+
+TEST(SkinOp, GradientsMatchTheReferenceAndFiniteDifferences) {
+  const Scene s = random_scene(40, 6, at::kDouble, 2);
+  const skin::SkinningWeights weights = skin::SkinningWeights::from_dense(s.dense);
+  const at::Tensor grad_means = at::randn({40, 3}, s.means.options());
+  const at::Tensor grad_covariances = at::randn({40, 6}, s.means.options());
+  const at::Tensor grad_posed_rest = at::randn({40, 3}, s.means.options());
+  const auto loss_of = [&](const skin::SkinnedGaussians& out) {
+    at::Tensor loss = (out.means * grad_means).sum() + (out.covariances * grad_covariances).sum();
+    return out.posed_rest.defined() ? loss + (out.posed_rest * grad_posed_rest).sum() : loss;
+  };
+  const auto gradients = [&](bool fused) {
+    const at::Tensor means = s.means.clone().requires_grad_(true);
+    const at::Tensor log_scales = s.log_scales.clone().requires_grad_(true);
+    const at::Tensor rest = s.rest.clone().requires_grad_(true);
+    const skin::SkinnedGaussians out =
+        fused ? skin::skin_gaussians(weights, s.transforms, means, log_scales, rest)
+              : skin::skinning_reference(s.dense, s.transforms, means, log_scales, rest);
+    return torch::autograd::grad({loss_of(out)}, {means, log_scales, rest});
+  };
+  const auto fused = gradients(true), reference = gradients(false);
+  for (size_t k = 0; k < fused.size(); ++k) EXPECT_LT(max_difference(fused[k], reference[k]), 1e-12) << k;
+  const at::Tensor& fused_means = fused[0];
+  const at::Tensor& fused_scales = fused[1];
+
+  // Central differences of the fused forward, for a few entries of each input.
+  const double h = 1e-6;
+  const auto loss_at = [&](const at::Tensor& means, const at::Tensor& log_scales) {
+    return loss_of(skin::skin_gaussians(weights, s.transforms, means, log_scales)).item<double>();
+  };
+  for (int64_t i : {0, 7, 39})
+    for (int64_t c = 0; c < 3; ++c) {
+      at::Tensor plus = s.means.clone(), minus = s.means.clone();
+      plus[i][c] += h;
+      minus[i][c] -= h;
+      const double numeric = (loss_at(plus, s.log_scales) - loss_at(minus, s.log_scales)) / (2 * h);
+      EXPECT_NEAR(fused_means[i][c].item<double>(), numeric, 1e-6 * (1 + std::abs(numeric))) << i << "," << c;
+    }
+  for (int64_t i : {0, 13, 39}) {
+    at::Tensor plus = s.log_scales.clone(), minus = s.log_scales.clone();
+    plus[i] += h;
+    minus[i] -= h;
+    const double numeric = (loss_at(s.means, plus) - loss_at(s.means, minus)) / (2 * h);
+    EXPECT_NEAR(fused_scales[i].item<double>(), numeric, 1e-6 * (1 + std::abs(numeric))) << i;
+  }
+}
+
+TEST(SkinOp, TransformsThatNeedAGradientGetOneThroughTheReference) {
+  const Scene s = random_scene(30, 5, at::kDouble, 3);
+  const at::Tensor transforms = s.transforms.clone().requires_grad_(true);
+  const skin::SkinnedGaussians out = skin::skin_gaussians(skin::SkinningWeights::from_dense(s.dense), transforms,
+                                                          s.means, s.log_scales, s.rest);
+  const at::Tensor grad = torch::autograd::grad({out.means.sum() + out.posed_rest.sum()}, {transforms})[0];
+  EXPECT_GT(grad.abs().sum().item<double>(), 0);
+  // Rows 0-2 of every used joint receive a gradient; the unread last row none.
+  EXPECT_EQ(grad.select(1, 3).abs().sum().item<double>(), 0);
+}
+
+TEST(SkinningWeights, KeepEveryNonZeroWeightOfEachRow) {
+  const Scene s = random_scene(50, 8, at::kFloat, 4);
+  const skin::SkinningWeights weights = skin::SkinningWeights::from_dense(s.dense);
+  EXPECT_EQ(weights.weights.size(1), 4);
+  EXPECT_EQ(weights.joints.scalar_type(), at::kInt);
+  EXPECT_TRUE(weights.to_dense().equal(s.dense));
+}
+
+TEST(SkinOp, RefusesBadInputsWithClearErrors) {
+  const Scene s = random_scene(10, 4, at::kFloat, 5);
+  const skin::SkinningWeights weights = skin::SkinningWeights::from_dense(s.dense);
+  const auto message = [&](const std::function<void()>& call) {
+    try {
+      call();
+    } catch (const c10::Error& e) {
+      return std::string(e.what_without_backtrace());
+    }
+    return std::string("no error");
+  };
+  EXPECT_NE(message([&] { skin::skin_gaussians(weights, s.transforms.narrow(0, 0, 3), s.means, s.log_scales); })
+                .find("transforms must have shape (4, 4, 4)"),
+            std::string::npos);
+  EXPECT_NE(message([&] { skin::skin_gaussians(weights, s.transforms, s.means.narrow(0, 0, 9), s.log_scales); })
+                .find("canonical_means must have shape (10, 3)"),
+            std::string::npos);
+  EXPECT_NE(message([&] { skin::skin_gaussians(weights, s.transforms, s.means.to(at::kDouble), s.log_scales); })
+                .find("canonical_means must be Float"),
+            std::string::npos);
+  EXPECT_NE(message([&] { skin::SkinningWeights::from_dense(at::ones({3})); }).find("floating (N, J)"),
+            std::string::npos);
+}
+
+}  // namespace
+}  // namespace sfgs::testing
