@@ -23,7 +23,13 @@ InputGradients backward(const SplatInputs&, const CameraSpec&, const BackendSett
 namespace sfgs::skin::cuda {
 
 bool available() { return false; }
-void forward(const ForwardTensors&) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
-void backward(const BackwardTensors&) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
+void forward(const SkinArrays<float>&, at::Device) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
+void forward(const SkinArrays<double>&, at::Device) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
+void backward(const SkinGradientArrays<float>&, at::Device) {
+  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
+}
+void backward(const SkinGradientArrays<double>&, at::Device) {
+  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
+}
 
 }  // namespace sfgs::skin::cuda

@@ -1,5 +1,4 @@
-// CUDA backend of the skinning op: the torch side of skin_kernels.h, queued on the current stream.
-#include <ATen/ATen.h>
+// CUDA backend of the skinning op: the torch side of skin_kernels.h, queued on the device's current stream.
 #include <ATen/cuda/CUDAContext.h>
 #include <c10/cuda/CUDAGuard.h>
 
@@ -7,43 +6,27 @@
 #include "skin/backend.h"
 
 namespace sfgs::skin::cuda {
-namespace {
-
-template <typename T> const T* data_or_null(const at::Tensor& t) { return t.defined() ? t.data_ptr<T>() : nullptr; }
-template <typename T> T* mutable_or_null(const at::Tensor& t) { return t.defined() ? t.data_ptr<T>() : nullptr; }
-
-template <typename T> void forward_typed(const ForwardTensors& t) {
-  const c10::cuda::CUDAGuard guard(t.means.device());
-  const SkinArrays<T> s{t.joints.data_ptr<int32_t>(), t.weights.data_ptr<T>(), int(t.weights.size(1)),
-                        t.weights.size(0),           t.transforms.data_ptr<T>(), t.canonical_means.data_ptr<T>(),
-                        t.log_scales.data_ptr<T>(),  data_or_null<T>(t.rest),  t.means.data_ptr<T>(),
-                        t.covariances.data_ptr<T>(), mutable_or_null<T>(t.posed_rest)};
-  cuda_kernels::skin_forward(s, at::cuda::getCurrentCUDAStream());
-}
-
-template <typename T> void backward_typed(const BackwardTensors& t) {
-  const c10::cuda::CUDAGuard guard(t.covariances.device());
-  const SkinGradientArrays<T> g{t.joints.data_ptr<int32_t>(), t.weights.data_ptr<T>(),   int(t.weights.size(1)),
-                                t.weights.size(0),           t.transforms.data_ptr<T>(), t.covariances.data_ptr<T>(),
-                                data_or_null<T>(t.grad_means), data_or_null<T>(t.grad_covariances),
-                                data_or_null<T>(t.grad_posed_rest), t.grad_canonical_means.data_ptr<T>(),
-                                t.grad_log_scales.data_ptr<T>(),     mutable_or_null<T>(t.grad_rest)};
-  cuda_kernels::skin_backward(g, at::cuda::getCurrentCUDAStream());
-}
-
-}  // namespace
 
 bool available() { return true; }
 
-void forward(const ForwardTensors& t) {
-  if (t.means.scalar_type() == at::kDouble) forward_typed<double>(t);
-  else if (t.means.scalar_type() == at::kFloat) forward_typed<float>(t);
-  else TORCH_CHECK(false, "skin_gaussians: tensors must be float32 or float64, got ", t.means.scalar_type());
+void forward(const SkinArrays<float>& a, at::Device device) {
+  const c10::cuda::CUDAGuard guard(device);
+  cuda_kernels::skin_forward(a, at::cuda::getCurrentCUDAStream());
 }
 
-void backward(const BackwardTensors& t) {
-  if (t.covariances.scalar_type() == at::kDouble) backward_typed<double>(t);
-  else backward_typed<float>(t);
+void forward(const SkinArrays<double>& a, at::Device device) {
+  const c10::cuda::CUDAGuard guard(device);
+  cuda_kernels::skin_forward(a, at::cuda::getCurrentCUDAStream());
+}
+
+void backward(const SkinGradientArrays<float>& a, at::Device device) {
+  const c10::cuda::CUDAGuard guard(device);
+  cuda_kernels::skin_backward(a, at::cuda::getCurrentCUDAStream());
+}
+
+void backward(const SkinGradientArrays<double>& a, at::Device device) {
+  const c10::cuda::CUDAGuard guard(device);
+  cuda_kernels::skin_backward(a, at::cuda::getCurrentCUDAStream());
 }
 
 }  // namespace sfgs::skin::cuda

@@ -1,8 +1,10 @@
 #pragma once
 // The contract between the skinning op (csrc/skin/skin.cpp: validation, autograd) and its two backends
 // (csrc/cpu/skin_cpu.cpp, csrc/cuda/skin_cuda.cpp). Tensors arrive validated, contiguous, of one floating dtype
-// and on one device; outputs are allocated by the op.
+// and on one device; outputs are allocated by the op, which picks the dtype and hands the backends raw arrays.
 #include <ATen/core/Tensor.h>
+
+#include "skin/skin_math.h"
 
 namespace sfgs::skin {
 
@@ -19,15 +21,40 @@ struct BackwardTensors {
   at::Tensor grad_rest;                                      // output, defined with grad_posed_rest
 };
 
+// The tensors as the raw arrays of skin_math.h in their dtype T, built once here for both backends.
+template <typename T> const T* data_or_null(const at::Tensor& t) { return t.defined() ? t.data_ptr<T>() : nullptr; }
+template <typename T> T* mutable_data_or_null(const at::Tensor& t) { return t.defined() ? t.data_ptr<T>() : nullptr; }
+
+template <typename T> SkinArrays<T> arrays_of(const ForwardTensors& t) {
+  return SkinArrays<T>{t.joints.data_ptr<int32_t>(),   t.weights.data_ptr<T>(),    int(t.weights.size(1)),
+                       t.weights.size(0),             t.transforms.data_ptr<T>(), t.canonical_means.data_ptr<T>(),
+                       t.log_scales.data_ptr<T>(),    data_or_null<T>(t.rest),    t.means.data_ptr<T>(),
+                       t.covariances.data_ptr<T>(),   mutable_data_or_null<T>(t.posed_rest)};
+}
+
+template <typename T> SkinGradientArrays<T> arrays_of(const BackwardTensors& t) {
+  return SkinGradientArrays<T>{t.joints.data_ptr<int32_t>(),        t.weights.data_ptr<T>(),
+                               int(t.weights.size(1)),              t.weights.size(0),
+                               t.transforms.data_ptr<T>(),          t.covariances.data_ptr<T>(),
+                               data_or_null<T>(t.grad_means),       data_or_null<T>(t.grad_covariances),
+                               data_or_null<T>(t.grad_posed_rest),  t.grad_canonical_means.data_ptr<T>(),
+                               t.grad_log_scales.data_ptr<T>(),     mutable_data_or_null<T>(t.grad_rest)};
+}
+
 namespace cpu {
-void forward(const ForwardTensors& t);
-void backward(const BackwardTensors& t);
+void forward(const SkinArrays<float>& arrays);
+void forward(const SkinArrays<double>& arrays);
+void backward(const SkinGradientArrays<float>& arrays);
+void backward(const SkinGradientArrays<double>& arrays);
 }  // namespace cpu
 
+// On `device`'s current stream.
 namespace cuda {
 bool available();
-void forward(const ForwardTensors& t);
-void backward(const BackwardTensors& t);
+void forward(const SkinArrays<float>& arrays, at::Device device);
+void forward(const SkinArrays<double>& arrays, at::Device device);
+void backward(const SkinGradientArrays<float>& arrays, at::Device device);
+void backward(const SkinGradientArrays<double>& arrays, at::Device device);
 }  // namespace cuda
 
 }  // namespace sfgs::skin

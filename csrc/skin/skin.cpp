@@ -21,14 +21,27 @@ void check_matrix(const at::Tensor& t, const char* name, int64_t rows, int64_t c
               " must be ", like.scalar_type(), " on ", like.device(), " like the weights, got ", describe(t));
 }
 
+template <typename T> void forward_as(const ForwardTensors& t) {
+  const SkinArrays<T> arrays = arrays_of<T>(t);
+  if (t.means.is_cuda()) cuda::forward(arrays, t.means.device());
+  else cpu::forward(arrays);
+}
+
+template <typename T> void backward_as(const BackwardTensors& t) {
+  const SkinGradientArrays<T> arrays = arrays_of<T>(t);
+  if (t.grad_canonical_means.is_cuda()) cuda::backward(arrays, t.grad_canonical_means.device());
+  else cpu::backward(arrays);
+}
+
 void dispatch_forward(const ForwardTensors& t) {
-  if (t.means.is_cuda()) cuda::forward(t);
-  else cpu::forward(t);
+  if (t.means.scalar_type() == at::kDouble) forward_as<double>(t);
+  else if (t.means.scalar_type() == at::kFloat) forward_as<float>(t);
+  else TORCH_CHECK(false, "skin_gaussians: tensors must be float32 or float64, got ", t.means.scalar_type());
 }
 
 void dispatch_backward(const BackwardTensors& t) {
-  if (t.grad_canonical_means.is_cuda()) cuda::backward(t);
-  else cpu::backward(t);
+  if (t.covariances.scalar_type() == at::kDouble) backward_as<double>(t);
+  else backward_as<float>(t);
 }
 
 // One node: canonical means, log-scales and (when given, as a non-empty tensor) rest points in; means,
@@ -139,7 +152,7 @@ SkinnedGaussians skin_gaussians(const SkinningWeights& w, const at::Tensor& tran
   TORCH_CHECK(transforms.defined() && transforms.dim() == 3 && transforms.size(0) == j && transforms.size(1) == 4 &&
                   transforms.size(2) == 4,
               "skin_gaussians: transforms must have shape (", j, ", 4, 4), got ", describe(transforms));
-  check_matrix(transforms.view({j, 16}), "transforms", j, 16, w.weights);
+  check_matrix(transforms.reshape({j, 16}), "transforms", j, 16, w.weights);
   check_matrix(canonical_means, "canonical_means", n, 3, w.weights);
   check_matrix(log_scales.unsqueeze(1), "log_scales", n, 1, w.weights);
   if (rest.defined()) check_matrix(rest, "rest", n, 3, w.weights);
