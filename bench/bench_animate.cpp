@@ -1,10 +1,18 @@
 // Animation benchmark: pose -> image of an avatar through animate::Animator (csrc/animate/animator.h), at several
 // image sizes. Per size: the median frame time and frames/s of graph frames (one CUDA graph replay each) and of eager
 // frames, and the per-stage split of an eager frame (StageClock, device synchronised per stage).
-// Usage: bench_animate [--device cpu|cuda] [--shared DIR] [--levels L] [--sizes 800x1200,540x960] [--frames N]
+// CUDA: graph frames are also timed per back-facing cull cosine (--cull-cosines, default 0.3,0.5,0.7,1; 1 culls
+// nothing), each with the lowest PSNR of its frames against the exact render (the LibTorch float32 structure
+// offset, nothing culled): the cull's run time against its error.
+// Usage: bench_animate [--device cpu|cuda] [--shared DIR] [--run DIR] [--levels L] [--sizes 800x1200,540x960]
+//                      [--frames N] [--cull-cosines C,...] [--profile 1]
 //   --shared DIR: the Anny stand-in body of DIR/bodies (with MANO hands and face ids) instead of the procedural body.
-// The avatar is untrained (same work per frame as a trained one of its configuration) and shows the motion of a
-// smooth sweep between two random poses, framed by a camera in front of it.
+//   --run DIR: a trained avatar (a run folder of `sfgs train`) instead of an untrained one; --shared, --levels unused.
+//   --profile 1: for Nsight Compute (`ncu --profile-from-start off --nvtx`): after the warm-up, one eager frame and
+//   one graph frame of the first size are profiled, their stages as NVTX ranges (profiled_range.h); no timing.
+// Without --run the avatar is untrained (same network work per frame as a trained one of its configuration; the
+// splatting work differs); it shows the motion of a smooth sweep between two random poses, framed by a camera in
+// front of it.
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -20,6 +28,9 @@
 #include "animate/animator.h"
 #include "body/skeleton.h"
 #include "common/host_memory.h"
+#include "metrics/image_metrics.h"
+#include "train/run_folder.h"
+#include "profiled_range.h"
 #include "stage_clock.h"
 
 namespace {
@@ -29,14 +40,17 @@ using sfgs::body::SmplxPose;
 struct Arguments {
   std::string device = "cuda";
   std::string shared;
+  std::string run;
   int64_t levels = 2;
   std::vector<std::pair<int64_t, int64_t>> sizes{{800, 1200}, {540, 960}};
   int frames = 200;
+  bool profile = false;
+  std::vector<double> cull_cosines{0.3, 0.5, 0.7, 1.0};
 };
 
 [[noreturn]] void usage() {
-  std::fprintf(stderr, "usage: bench_animate [--device cpu|cuda] [--shared DIR] [--levels L] [--sizes WxH,...] "
-                       "[--frames N]\n");
+  std::fprintf(stderr, "usage: bench_animate [--device cpu|cuda] [--shared DIR] [--run DIR] [--levels L] "
+                       "[--sizes WxH,...] [--frames N] [--cull-cosines C,...] [--profile 1]\n");
   std::exit(2);
 }
 
@@ -48,8 +62,16 @@ Arguments parse(int argc, char** argv) {
     const std::string value = argv[++i];
     if (flag == "--device") a.device = value;
     else if (flag == "--shared") a.shared = value;
+    else if (flag == "--run") a.run = value;
     else if (flag == "--levels") a.levels = std::max(0, std::atoi(value.c_str()));
     else if (flag == "--frames") a.frames = std::max(1, std::atoi(value.c_str()));
+    else if (flag == "--profile") a.profile = value == "1";
+    else if (flag == "--cull-cosines") {
+      a.cull_cosines.clear();
+      std::stringstream list(value);
+      for (std::string item; std::getline(list, item, ',');) a.cull_cosines.push_back(std::atof(item.c_str()));
+      if (a.cull_cosines.empty()) usage();
+    }
     else if (flag == "--sizes") {
       a.sizes.clear();
       std::stringstream list(value);
@@ -125,6 +147,47 @@ std::vector<double> time_frames(sfgs::animate::Animator& animator, const SmplxPo
   return ms;
 }
 
+// Run time against error of the back-facing cull: per cosine, the median graph frame, its intersections, and the
+// lowest PSNR over a few poses of its frames against the exact render (the LibTorch float32 structure offset,
+// nothing culled). The cache is cleared for the exact render and kept again after.
+void print_culling_table(sfgs::model::Avatar& avatar, const sfgs::Camera& camera, const at::Tensor& background,
+                         const SmplxPose& a, const SmplxPose& b, const Arguments& args) {
+  const int checks = 5;
+  std::vector<SmplxPose> poses;
+  for (int k = 0; k < checks; ++k) poses.push_back(blend(a, b, double(k) / (checks - 1)));
+  std::vector<double> frame_ms;
+  std::vector<int64_t> intersections;
+  std::vector<std::vector<at::Tensor>> images;
+  for (double cosine : args.cull_cosines) {
+    sfgs::animate::AnimatorOptions options;
+    options.back_facing_cosine = cosine;
+    sfgs::animate::Animator animator(avatar, camera, background, options);
+    time_frames(animator, a, b, 3, true);  // captures
+    frame_ms.push_back(median(time_frames(animator, a, b, args.frames, true)));
+    intersections.push_back(animator.stats().intersections);
+    images.emplace_back();
+    for (const SmplxPose& pose : poses) images.back().push_back(animator.render(pose).clone());
+  }
+  std::vector<double> lowest(args.cull_cosines.size(), 1e9);
+  {
+    at::NoGradGuard no_grad;
+    avatar->clear_cache();
+    for (int k = 0; k < checks; ++k) {
+      const at::Tensor exact = sfgs::render(sfgs::model::to_gaussians(avatar->forward(poses[size_t(k)], std::nullopt)),
+                                            background.to(images[0][0].device()), camera)
+                                   .image;
+      for (size_t c = 0; c < lowest.size(); ++c)
+        lowest[c] = std::min(lowest[c], sfgs::metrics::psnr(images[c][size_t(k)], exact).item<double>());
+    }
+    avatar->cache_static_features();
+  }
+  std::printf("  back-facing cull: cosine | graph frame ms | intersections | PSNR vs exact render (lowest of %d "
+              "poses; cosine >= 1: nothing culled, the fused MLP alone)\n", checks);
+  for (size_t c = 0; c < lowest.size(); ++c)
+    std::printf("    %.2f | %.3f | %ld | %.1f dB\n", args.cull_cosines[c], frame_ms[c], long(intersections[c]),
+                lowest[c]);
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -136,22 +199,30 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "bench_animate: --device cuda, but this LibTorch sees no CUDA device\n");
     return 1;
   }
-  const std::string bodies = args.shared + "/bodies/";
-  const sfgs::model::AvatarBody body =
-      args.shared.empty()
-          ? sfgs::model::AvatarBody::procedural()
-          : sfgs::model::AvatarBody::load(bodies + "anny_smplx_layout.npz", bodies + "anny_mano_left.npz",
-                                          bodies + "anny_mano_right.npz", bodies + "MANO_SMPLX_vertex_ids.npz",
-                                          bodies + "FLAME_SMPLX_vertex_ids.npy");
-  sfgs::model::AvatarConfig config;
-  config.subdivision_levels = args.levels;
-  sfgs::model::Avatar avatar(body, at::zeros({10}), config);
-  avatar->to(cuda ? at::kCUDA : at::kCPU);
+  const at::Device device = cuda ? at::kCUDA : at::kCPU;
+  sfgs::model::Avatar avatar{nullptr};
+  std::string description;
+  if (!args.run.empty()) {
+    avatar = sfgs::train::load_trained_avatar(sfgs::train::RunFolder{args.run}, device).avatar;
+    description = "trained avatar of " + args.run;
+  } else {
+    const std::string bodies = args.shared + "/bodies/";
+    const sfgs::model::AvatarBody body =
+        args.shared.empty()
+            ? sfgs::model::AvatarBody::procedural()
+            : sfgs::model::AvatarBody::load(bodies + "anny_smplx_layout.npz", bodies + "anny_mano_left.npz",
+                                            bodies + "anny_mano_right.npz", bodies + "MANO_SMPLX_vertex_ids.npz",
+                                            bodies + "FLAME_SMPLX_vertex_ids.npy");
+    sfgs::model::AvatarConfig config;
+    config.subdivision_levels = args.levels;
+    avatar = sfgs::model::Avatar(body, at::zeros({10}), config);
+    avatar->to(device);
+    description = std::string("untrained avatar, ") + (args.shared.empty() ? "procedural" : "Anny") + " body";
+  }
   avatar->eval();
   const SmplxPose a = random_pose(11), b = random_pose(12);
-  std::printf("sfgs animation benchmark: %s body, %ld Gaussians, %s, %d frames per size (median)\n",
-              args.shared.empty() ? "procedural" : "Anny", long(avatar->gaussian_count()), args.device.c_str(),
-              args.frames);
+  std::printf("sfgs animation benchmark: %s, %ld Gaussians, %s, %d frames per size (median)\n", description.c_str(),
+              long(avatar->gaussian_count()), args.device.c_str(), args.frames);
   for (const auto& [width, height] : args.sizes) {
     const sfgs::Camera camera = framing_camera(avatar, a, width, height);
     const at::Tensor white = at::ones({3});
@@ -159,6 +230,22 @@ int main(int argc, char** argv) {
     eager_options.use_graph = false;
     sfgs::animate::Animator eager(avatar, camera, white, eager_options);
     time_frames(eager, a, b, 3, cuda);  // warm-up
+    if (args.profile) {
+      sfgs::animate::Animator graphed(avatar, camera, white);
+      time_frames(graphed, a, b, 3, cuda);  // captures
+      sfgs::bench::NvtxStages stages;
+      const sfgs::ScopedStageRecorder recording(&stages);
+      {
+        const sfgs::bench::ProfiledRange range("eager frame");
+        eager.render(a);
+      }
+      {
+        const sfgs::bench::ProfiledRange range("graph frame");
+        graphed.render(a);
+      }
+      std::printf("profiled one eager and one graph frame at %ldx%ld\n", long(width), long(height));
+      return 0;
+    }
     const double eager_ms = median(time_frames(eager, a, b, args.frames, cuda));
     sfgs::bench::StageClock clock(cuda);
     {
@@ -182,6 +269,7 @@ int main(int argc, char** argv) {
                   "(budget %ld); largest difference to the eager frame %.2e\n",
                   graph_ms, 1000 / graph_ms, long(s.captures), long(s.budget_overflows), long(s.intersections),
                   long(s.budget), difference);
+      print_culling_table(avatar, camera, white, a, b, args);
     }
   }
   return 0;

@@ -1,10 +1,13 @@
 // Training-step benchmark: `steps` iterations of the real trainer (train::train_avatar) on a dataset folder with a
 // config, after `warmup` iterations, with the per-stage split of a step (StageClock, device synchronised per stage)
 // and the peak GPU memory. The step time without the recorder is the trainer's own training_seconds.
-// Usage: bench_train_step --data DIR --config FILE [--warmup N] [--steps N] [--out DIR]
+// Usage: bench_train_step --data DIR --config FILE [--warmup N] [--steps N] [--out DIR] [--profile 1]
+//   --profile 1: for Nsight Compute (`ncu --profile-from-start off --nvtx`): only the step after the warm-up is
+//   profiled, its stages as NVTX ranges (profiled_range.h); no timing.
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <optional>
 #include <string>
 
 #include <ATen/ATen.h>
@@ -15,6 +18,7 @@
 
 #include "common/host_memory.h"
 #include "data/dataset.h"
+#include "profiled_range.h"
 #include "stage_clock.h"
 #include "train/trainer.h"
 
@@ -23,10 +27,11 @@ namespace {
 struct Arguments {
   std::string data, config, out = "/tmp/sfgs-bench-train-step";
   int64_t warmup = 20, steps = 100;
+  bool profile = false;
 };
 
 [[noreturn]] void usage() {
-  std::fprintf(stderr, "usage: bench_train_step --data DIR --config FILE [--warmup N] [--steps N] [--out DIR]\n");
+  std::fprintf(stderr, "usage: bench_train_step --data DIR --config FILE [--warmup N] [--steps N] [--out DIR] [--profile 1]\n");
   std::exit(2);
 }
 
@@ -41,6 +46,7 @@ Arguments parse(int argc, char** argv) {
     else if (flag == "--out") a.out = value;
     else if (flag == "--warmup") a.warmup = std::max(1, std::atoi(value.c_str()));
     else if (flag == "--steps") a.steps = std::max(1, std::atoi(value.c_str()));
+    else if (flag == "--profile") a.profile = value == "1";
     else usage();
   }
   if (a.data.empty() || a.config.empty()) usage();
@@ -65,6 +71,26 @@ class SteadyStateClock : public sfgs::StageRecorder {
   int64_t warmup_, steps_ = 0;
 };
 
+// Profiles the step after the warm-up: the profiler collects from its start to its end, its stages NVTX ranges.
+class ProfiledStep : public sfgs::StageRecorder {
+ public:
+  explicit ProfiledStep(int64_t warmup) : warmup_(warmup) {}
+  void begin(const char* stage) override {
+    if (std::string(stage) == SteadyStateClock::kStep && ++steps_ == warmup_ + 1) range_.emplace("profiled step");
+    if (range_) stages_.begin(stage);
+  }
+  void end(const char* stage) override {
+    if (!range_) return;
+    stages_.end(stage);
+    if (std::string(stage) == SteadyStateClock::kStep) range_.reset();
+  }
+
+ private:
+  int64_t warmup_, steps_ = 0;
+  sfgs::bench::NvtxStages stages_;
+  std::optional<sfgs::bench::ProfiledRange> range_;
+};
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -81,6 +107,14 @@ int main(int argc, char** argv) {
   options.progress = false;
   std::filesystem::create_directories(args.out);
 
+  if (args.profile) {
+    config.schedule.iterations = args.warmup + 1;
+    ProfiledStep profiled(args.warmup);
+    const sfgs::ScopedStageRecorder recording(&profiled);
+    sfgs::train::train_avatar(dataset, config, sfgs::train::RunFolder{args.out + "/profiled"}, options);
+    std::printf("profiled training step %ld\n", long(args.warmup + 1));
+    return 0;
+  }
   // Plain run: the trainer's own step time.
   const sfgs::train::TrainSummary plain =
       sfgs::train::train_avatar(dataset, config, sfgs::train::RunFolder{args.out + "/plain"}, options);

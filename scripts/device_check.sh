@@ -3,7 +3,7 @@
 # tests, compute-sanitizer memcheck and racecheck on the small CudaSanitizer.* scenes, and the benchmark.
 #
 #   bash scripts/device_check.sh [build] [test] [python] [sanitize] [bench] [profile] [avatar] [animate] [train-step]
-#                                [train] [ablate] [novel]
+#                                [animate-trained] [stage-profile] [train] [ablate] [novel]
 #   (no argument: the first five, in this order)
 #
 # python: the pytest suite against the module built with the machine's pip torch and pybind11 (CUDA included).
@@ -22,9 +22,13 @@
 #   .device/shared      ../shared/bodies and ../shared/lpips (avatar and train steps)
 #
 # avatar: the avatar benchmark on the GPU and the avatar and trainer tests (CPU, with the GPU build).
-# animate: the animation path's CUDA tests (skinning kernel, binning budget, Animator graph frames; the small ones
-# under compute-sanitizer memcheck) and bench_animate on the Anny body (800x1200 and 540x960) and the procedural one.
+# animate: the animation path's CUDA tests (skinning kernel, fused gathered MLP, binning budget, Animator graph and
+# fast frames; the small ones under compute-sanitizer memcheck) and bench_animate on the Anny body (800x1200 and 540x960) and the procedural one.
 # train-step: bench_train_step on the Anny scene at SFGS_DEVICE_STEP_SIZE (default 800x1200), 40 frames.
+# stage-profile: Nsight Compute over one eager and one graph frame (bench_animate --profile 1, Anny, 800x1200; the
+# trained avatar of animate-trained when that step ran) and one
+# training step (bench_train_step --profile 1, the train-step scene): every kernel's GPU time and DRAM bytes, summed
+# per stage (scripts/kernel_profile_summary.py).
 # train: synthesise the Anny scene (SFGS_DEVICE_TRAIN_SIZE, default 800x1200; SFGS_DEVICE_TRAIN_FRAMES, default
 # 100) and train, evaluate (with LPIPS) and render it on CUDA with configs/device_anny.yaml
 # (SFGS_DEVICE_TRAIN_ITERATIONS overrides its iterations).
@@ -230,10 +234,10 @@ fi
 
 if wants animate; then
   run animate-tests 250 env OMP_NUM_THREADS="$jobs" "$tests" --gtest_color=no \
-    --gtest_filter='SkinCuda*:BinningBudget.*:AnimatorCuda.*'
+    --gtest_filter='SkinCuda*:GatheredMlpCuda*:BinningBudget.*:AnimatorCuda.*'
   grep -E "^\[  FAILED|^\[  PASSED|^\[       OK|Failure|Expected|Which is|actual" "$out/animate-tests.log" | cut -c1-300
   run animate-sanitize 250 compute-sanitizer --tool memcheck --error-exitcode 99 "$tests" --gtest_color=no \
-    --gtest_filter='SkinCudaSanitizer.*:BinningBudget.*:AnimatorCuda.GraphFramesEqual*'
+    --gtest_filter='SkinCudaSanitizer.*:GatheredMlpCudaSanitizer.*:BinningBudget.*:AnimatorCuda.GraphFramesEqual*'
   grep -E "ERROR SUMMARY|^\[  PASSED|^\[  FAILED|Invalid" "$out/animate-sanitize.log" | head -n 10
   run animate-bench 250 "$build/bench/bench_animate" --device cuda --shared "$root/.device/shared" \
     --frames "${SFGS_DEVICE_ANIMATE_FRAMES:-300}"
@@ -260,6 +264,44 @@ if wants train-step; then
   run train-step 300 "$build/bench/bench_train_step" --data "$scene/data" --config "$scene/config.yaml" \
     --warmup 20 --steps "${SFGS_DEVICE_STEP_COUNT:-60}"
   cat "$out/train-step.log"
+fi
+
+# animate-trained: a short training of the Anny scene (SFGS_DEVICE_ANIMATE_ITERATIONS, default 1000; 40 frames at
+# 800x1200), then bench_animate on that trained avatar (its splatting work is a trained one's).
+trained=/tmp/sfgs-anny-trained
+if wants animate-trained; then
+  export SFGS_SHARED_DIR=$shared
+  anny_scene trained-synth "$trained" 800x1200 40
+  run trained-train 400 "$build/sfgs" train --data "$trained/data" --out "$trained/run" --config "$trained/config.yaml" \
+    --iterations "${SFGS_DEVICE_ANIMATE_ITERATIONS:-1000}" --force
+  tail -n 3 "$out/trained-train.log"
+  run animate-trained 250 "$build/bench/bench_animate" --device cuda --run "$trained/run" \
+    --frames "${SFGS_DEVICE_ANIMATE_FRAMES:-300}"
+  cat "$out/animate-trained.log"
+fi
+
+if wants stage-profile; then
+  export SFGS_SHARED_DIR=$shared
+  ncu=$(command -v ncu || echo /usr/local/cuda/bin/ncu)
+  metrics=gpu__time_duration.sum,dram__bytes_read.sum,dram__bytes_write.sum
+  profile_stages() {
+    local name=$1
+    shift
+    run "$name" 280 "$ncu" --profile-from-start off --nvtx --clock-control none --metrics "$metrics" -f \
+      -o "/tmp/$name" "$@"
+    "$ncu" --import "/tmp/$name.ncu-rep" --csv --page raw >"$out/$name-kernels.csv" 2>&1
+    python3 "$root/scripts/kernel_profile_summary.py" "$out/$name-kernels.csv" >"$out/$name-summary.txt" 2>&1
+    cat "$out/$name-summary.txt"
+  }
+  # The trained avatar of animate-trained when that step ran, else the untrained Anny avatar.
+  avatar_args=(--shared "$root/.device/shared")
+  [ -f "$trained/run/checkpoint.pt" ] && avatar_args=(--run "$trained/run")
+  profile_stages frame-profile "$build/bench/bench_animate" --device cuda "${avatar_args[@]}" --sizes 800x1200 \
+    --profile 1
+  scene=/tmp/sfgs-anny-step
+  [ -d "$scene/data" ] || anny_scene step-synth "$scene" "${SFGS_DEVICE_STEP_SIZE:-800x1200}" 40
+  profile_stages step-profile "$build/bench/bench_train_step" --data "$scene/data" --config "$scene/config.yaml" \
+    --warmup 5 --profile 1
 fi
 
 if wants train; then

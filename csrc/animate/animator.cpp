@@ -10,6 +10,7 @@
 #include <torch/csrc/autograd/grad_mode.h>
 
 #include "animate/frame_graph.h"
+#include "animate/visibility.h"
 #include "common/constants.h"
 #include "common/stage_timer.h"
 #include "common/tensor_description.h"
@@ -49,7 +50,11 @@ Animator::Animator(model::Avatar avatar, const Camera& camera, const at::Tensor&
   TORCH_CHECK(background.defined() && background.dim() == 1 && background.size(0) == 3 &&
                   at::isFloatingType(background.scalar_type()),
               "Animator: background must be a floating (3) tensor, got ", describe(background));
+  TORCH_CHECK(std::isfinite(options_.back_facing_cosine), "Animator: back_facing_cosine must be finite, got ",
+              options_.back_facing_cosine);
   background_ = background.to(device_, at::kFloat).contiguous();
+  camera_centre_ = at::empty({3}, at::TensorOptions(device_).dtype(at::kFloat));
+  set_camera(camera_);
   avatar_->eval();
   avatar_->cache_static_features();
   if (device_.is_cuda()) counts_ = at::zeros({BinningBudget::kCounts}, at::TensorOptions(device_).dtype(at::kLong));
@@ -61,7 +66,17 @@ void Animator::set_camera(const Camera& camera) {
   const std::string problem = camera_problem(camera);
   TORCH_CHECK(problem.empty(), "Animator: ", problem);
   camera_ = camera;
+  const std::array<double, 3> centre = camera_centre(camera_);
+  camera_centre_.copy_(at::tensor({centre[0], centre[1], centre[2]}, at::kDouble));
   graph_.reset();  // the camera is part of the recorded launches
+}
+
+at::Tensor Animator::splat(const model::AvatarOutput& out) {
+  const StageScope stage("render");
+  Gaussians gaussians = model::to_gaussians(out);
+  gaussians.opacities = cull_back_facing(gaussians.opacities, out.means, out.posed_normals, camera_centre_,
+                                         options_.back_facing_cosine);
+  return sfgs::render(gaussians, background_, camera_, options_.render).image;
 }
 
 at::Tensor Animator::render(const body::SmplxPose& pose, model::FrameTime time) {
@@ -73,9 +88,7 @@ at::Tensor Animator::render(const body::SmplxPose& pose, model::FrameTime time) 
 
 at::Tensor Animator::render_eagerly(const body::SmplxPose& pose, model::FrameTime time) {
   at::NoGradGuard no_grad;
-  const model::AvatarOutput out = avatar_->forward_trusted_pose(pose, time);
-  const StageScope stage("render");
-  return sfgs::render(model::to_gaussians(out), background_, camera_, options_.render).image;
+  return splat(avatar_->forward_trusted_pose(pose, time));
 }
 
 void Animator::stage_pose(const body::SmplxPose& pose) {
@@ -119,8 +132,7 @@ void Animator::capture() {
   const auto frame = [this] {
     at::NoGradGuard no_grad;
     const ScopedBinningBudget budget(BinningBudget{intersection_budget_, tile_budget_, counts_});
-    const model::AvatarOutput out = avatar_->forward_trusted_pose(staged_pose_, std::nullopt);
-    image_ = sfgs::render(model::to_gaussians(out), background_, camera_, options_.render).image;
+    image_ = splat(avatar_->forward_trusted_pose(staged_pose_, std::nullopt));
   };
   if (intersection_budget_ == 0) {
     // The first frame of this avatar: eager passes (which also make every lazy one-time allocation outside the

@@ -26,6 +26,10 @@ struct AnimatorOptions {
   // Headroom of the splatting budget over the counts of the frame it was taken from (>= 1): a new pose or camera
   // may touch more tiles; a frame beyond the budget is recorded and replayed again, once.
   double budget_slack = kAnimatorBudgetSlack;
+  // Gaussians facing away from the camera by more than this cosine are not splatted (animate/visibility.h);
+  // >= 1 (the default) splats every Gaussian, as the exact render does; kAnimatorFastBackFacingCosine trades
+  // accuracy for speed (docs/performance.md).
+  double back_facing_cosine = kAnimatorBackFacingCosine;
   RenderOptions render;
 };
 
@@ -58,6 +62,8 @@ class Animator {
 
  private:
   at::Tensor render_eagerly(const body::SmplxPose& pose, model::FrameTime time);
+  // The frame's image from the posed avatar, back-facing Gaussians culled.
+  at::Tensor splat(const model::AvatarOutput& out);
   at::Tensor render_with_graph(const body::SmplxPose& pose);
   void stage_pose(const body::SmplxPose& pose);
   void capture();
@@ -68,6 +74,7 @@ class Animator {
   model::Avatar avatar_;
   Camera camera_;
   at::Tensor background_;
+  at::Tensor camera_centre_;  // (3) on the device, updated in place (graphs read it)
   AnimatorOptions options_;
   at::Device device_;
   AnimatorStats stats_;

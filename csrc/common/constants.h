@@ -56,6 +56,13 @@ inline constexpr long kCpuMaxTilePairs = 1L << 25;
 // counts of a pass that fitted (a new pose may touch more tiles than the one the budget was taken from).
 inline constexpr long kAnimatorInitialIntersectionsPerGaussian = 4;
 inline constexpr double kAnimatorBudgetSlack = 1.5;
+// The Animator can cull Gaussians whose posed normal faces away from the camera by more than a cosine (between the
+// normal and the view ray; animate/visibility.h). Off by default (1): on a trained avatar it is lossy (0.3: the
+// frame 9 % faster, but 38-42 dB against the exact render; docs/performance.md), because small Gaussians' opacity
+// is scaled down by the antialiasing compensation and the near side does not hide the far side completely.
+inline constexpr double kAnimatorBackFacingCosine = 1.0;
+// A cosine that culls clearly back-facing Gaussians only, for callers who trade that accuracy for speed.
+inline constexpr double kAnimatorFastBackFacingCosine = 0.3;
 
 // ---- metrics (docs/metrics.md) -----------------------------------------------------------------------------
 // Images are compared on values in [0, 1]: PSNR, SSIM's C1/C2 and LPIPS's 2v - 1 mapping assume this range.

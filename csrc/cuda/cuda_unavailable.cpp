@@ -2,6 +2,7 @@
 // reports a clear error, so these entry points are only reached by a caller that bypasses it.
 #include <c10/util/Exception.h>
 
+#include "gathered_mlp/backend.h"
 #include "skin/backend.h"
 #include "splat/backend.h"
 
@@ -33,3 +34,10 @@ void backward(const SkinGradientArrays<double>&, at::Device) {
 }
 
 }  // namespace sfgs::skin::cuda
+
+namespace sfgs::gathered_mlp::cuda {
+
+bool available() { return false; }
+void forward(const GatheredMlpArrays&, at::Device) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
+
+}  // namespace sfgs::gathered_mlp::cuda

@@ -31,4 +31,9 @@ class StageObserver {
 // Installs the observer for all later calls on every thread (null removes it).
 void set_stage_observer(StageObserver* observer);
 
+// Starts (true) or stops (false) the profiler's collection (cudaProfilerStart / Stop): under
+// `ncu --profile-from-start off` only the kernels launched in between are profiled, so a benchmark can profile one
+// frame or one training step after its warm-up.
+void set_profiler_capture(bool capture);
+
 }  // namespace sfgs::splat::cuda_kernels

@@ -305,8 +305,12 @@ CanonicalGaussians AvatarImpl::canonical_gaussians(const FramePose& frame, const
   g.means = body.rest + attributes.mean_offset;
   g.log_scales = attributes.log_scales;
   if (structure_offset_) {
+    // Inference from the cache on CUDA: the fused kernel (gathered_mlp.h); a gradient (training, or through the
+    // pose) takes the LibTorch composition.
+    const bool fused = attributes.structure_projection_half.defined() && !at::GradMode::is_enabled();
     const StructureOffsetOutput structure =
-        structure_offset_->forward(attributes.structure_projection, frame.rotations_6d);
+        fused ? structure_offset_->forward_inference(attributes.structure_projection_half, frame.rotations_6d)
+              : structure_offset_->forward(attributes.structure_projection, frame.rotations_6d);
     g.structure_offset = trusted(structure.mean_offset);
     g.scale_offset = trusted(structure.log_scale_offset.unsqueeze(1)).squeeze(1);
     g.means = g.means + g.structure_offset;

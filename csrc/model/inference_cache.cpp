@@ -17,6 +17,8 @@ void InferenceCache::keep(const CanonicalAttributes& attributes, FrameTime time)
   for (at::Tensor* t : {&kept.mean_offset, &kept.log_scales, &kept.colour_logits, &kept.structure_projection,
                         &kept.colour_projection})
     if (t->defined()) *t = t->detach();
+  if (kept.structure_projection.defined() && kept.structure_projection.is_cuda())
+    kept.structure_projection_half = kept.structure_projection.to(at::kHalf);
   if (timeless(time)) {
     timeless_ = std::move(kept);
   } else {

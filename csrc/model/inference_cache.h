@@ -20,6 +20,9 @@ struct CanonicalAttributes {
   at::Tensor colour_logits;         // (N, 3)
   at::Tensor structure_projection;  // (N, H), structure offset only
   at::Tensor colour_projection;     // (N, H), colour offset only
+  // The inference cache's half-precision copy of structure_projection on CUDA, which the fused structure offset
+  // reads (half the bytes of a frame's largest read); undefined elsewhere.
+  at::Tensor structure_projection_half;
 };
 
 class InferenceCache {

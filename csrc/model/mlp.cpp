@@ -110,6 +110,12 @@ at::Tensor MlpImpl::forward(const std::vector<at::Tensor>& inputs) const {
   return finish(first);
 }
 
+gathered_mlp::GatheredMlpWeights MlpImpl::gathered_weights() const {
+  TORCH_CHECK(shape_.hidden_widths.size() == 2 && !shape_.group_norm,
+              "Mlp::gathered_weights: the gathered MLP has exactly two hidden layers and no GroupNorm");
+  return {hidden_weights_[0], hidden_biases_[0], output_weight_, output_bias_};
+}
+
 int64_t MlpImpl::parameter_count(const MlpShape& shape) {
   int64_t in = 0;
   for (int64_t w : shape.input_widths) in += w;

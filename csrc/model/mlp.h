@@ -9,6 +9,8 @@
 #include <torch/nn/module.h>
 #include <torch/nn/pimpl.h>
 
+#include "gathered_mlp/gathered_mlp.h"
+
 namespace sfgs::model {
 
 // GroupNorm(kMlpGroupNormGroups) of an (N, C) input without its affine part, for many points N and few channels C,
@@ -40,6 +42,9 @@ class MlpImpl : public torch::nn::Module {
   at::Tensor forward(const std::vector<at::Tensor>& inputs) const;
 
   const MlpShape& shape() const { return shape_; }
+  // The layers after the first as the gathered MLP takes them (gathered_mlp.h): for a network of two hidden layers
+  // without GroupNorm, whose first layer is the gathered sum.
+  gathered_mlp::GatheredMlpWeights gathered_weights() const;
   // Parameters of a network of this shape (the formula docs/avatar.md gives).
   static int64_t parameter_count(const MlpShape& shape);
 

@@ -37,16 +37,35 @@ at::Tensor StructureOffsetImpl::project_features(const at::Tensor& features) con
   return mlp_->project(0, features);
 }
 
-StructureOffsetOutput StructureOffsetImpl::forward(const at::Tensor& feature_projection,
-                                                   const at::Tensor& joint_rotations_6d) const {
+at::Tensor StructureOffsetImpl::joint_features(const at::Tensor& joint_rotations_6d) const {
   const int64_t joints = canonical_joints_.size(0);
   body::check_tensor(joint_rotations_6d, "StructureOffset: joint_rotations_6d", {joints, kRotation6dSize},
                      canonical_joints_.scalar_type(), canonical_joints_.device());
-  const at::Tensor joint_features = at::cat({joint_rotations_6d, canonical_joints_, embedding_}, 1);
+  return at::cat({joint_rotations_6d, canonical_joints_, embedding_}, 1);
+}
+
+StructureOffsetOutput StructureOffsetImpl::forward(const at::Tensor& feature_projection,
+                                                   const at::Tensor& joint_rotations_6d) const {
+  const at::Tensor joint_features = this->joint_features(joint_rotations_6d);
   // A gather of 55 rows into N: embedding's backward reduces the N gradients per row by sorting, where
   // index_select's would pile N atomic additions onto 55 rows (tens of milliseconds on a GPU at 250k points).
   const at::Tensor joint_projection = at::embedding(mlp_->project(1, joint_features), dominant_joints_);
   const at::Tensor out = mlp_->finish(feature_projection + joint_projection);
+  return {out.narrow(1, 0, 3), out.select(1, 3)};
+}
+
+const at::Tensor& StructureOffsetImpl::dominant_joint_ids() const {
+  if (!dominant_joints_int32_.defined() || dominant_joints_int32_.device() != dominant_joints_.device() ||
+      dominant_joints_int32_.size(0) != dominant_joints_.size(0))
+    dominant_joints_int32_ = dominant_joints_.to(at::kInt);
+  return dominant_joints_int32_;
+}
+
+StructureOffsetOutput StructureOffsetImpl::forward_inference(const at::Tensor& feature_projection,
+                                                             const at::Tensor& joint_rotations_6d) const {
+  const at::Tensor joint_projection = mlp_->project(1, joint_features(joint_rotations_6d));
+  const at::Tensor out =
+      gathered_mlp::gathered_mlp(feature_projection, joint_projection, dominant_joint_ids(), mlp_->gathered_weights());
   return {out.narrow(1, 0, 3), out.select(1, 3)};
 }
 

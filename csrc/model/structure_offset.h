@@ -28,12 +28,23 @@ class StructureOffsetImpl : public torch::nn::Module {
   at::Tensor project_features(const at::Tensor& features) const;
   // joint_rotations_6d (J, 6): the current local joint rotations (body::matrix_to_rotation_6d).
   StructureOffsetOutput forward(const at::Tensor& feature_projection, const at::Tensor& joint_rotations_6d) const;
+  // The same offsets for inference (no gradient) through the gathered MLP (gathered_mlp.h): on CUDA one fused
+  // kernel that reads the feature projection once, kept in half precision by the caller.
+  StructureOffsetOutput forward_inference(const at::Tensor& feature_projection,
+                                          const at::Tensor& joint_rotations_6d) const;
 
   // The authors' fusion network: two hidden layers without normalisation.
   static MlpShape shape(int64_t feature_width, int64_t hidden_width, int64_t embedding_size);
 
  private:
+  // (J, 6 + 3 + embedding): [6D rotation, canonical position, embedding] of every joint.
+  at::Tensor joint_features(const at::Tensor& joint_rotations_6d) const;
+  // dominant_joints_ as int32 for the fused kernel, converted once per device (not a buffer: checkpoints keep
+  // their layout).
+  const at::Tensor& dominant_joint_ids() const;
+
   at::Tensor canonical_joints_, dominant_joints_;
+  mutable at::Tensor dominant_joints_int32_;
   at::Tensor embedding_;  // (J, embedding_size)
   Mlp mlp_{nullptr};      // groups: fused feature, joint feature
 };

@@ -85,7 +85,7 @@ std::vector<std::pair<std::string, Section>> sections(TrainConfig& c) {
       {"schedule", {{"iterations", field(s.iterations)}, {"warmup_iterations", field(s.warmup_iterations)},
                     {"decay_at", field(s.decay_at)}, {"decay_factor", field(s.decay_factor)},
                     {"learning_rate", field(s.learning_rate)}, {"colour_learning_rate", field(s.colour_learning_rate)},
-                    {"adam_epsilon", field(s.adam_epsilon)}}},
+                    {"adam_epsilon", field(s.adam_epsilon)}, {"fused_adam", field(s.fused_adam)}}},
   };
 }
 

@@ -37,6 +37,8 @@ struct Schedule {
   double learning_rate = 1e-3;        // feature planes, networks, embeddings
   double colour_learning_rate = 1e-3;
   double adam_epsilon = 1e-15;
+  // CUDA: Adam as one fused multi-tensor kernel per parameter group (train/adam_step.h); the same update.
+  bool fused_adam = true;
 };
 
 // Which body model drives the avatar: empty smplx means the built-in procedural body (with its MANO-layout hands).

@@ -73,6 +73,7 @@ TrainingSession::TrainingSession(const data::Dataset& dataset, const TrainConfig
   torch::manual_seed(config.seed);
   avatar_ = make_avatar(config, dataset.betas, device_);
   optimizer_ = make_optimizer(avatar_, config.schedule);
+  adam_ = std::make_unique<AdamStepper>(*optimizer_, config.schedule.fused_adam);
   for (size_t g = 0; g < optimizer_->param_groups().size(); ++g) base_rates_.push_back(adam_options(*optimizer_, g).lr());
   image_loss_ = std::make_unique<ImageLoss>(config.loss, device_);
   regularisers_ = std::make_unique<Regularisers>(config.loss, avatar_->part_labels(), avatar_->faces(), device_);
@@ -158,7 +159,7 @@ void TrainingSession::step(int64_t it) {
   }
   {
     const StageScope stage("train: optimizer");
-    optimizer_->step();
+    adam_->step();
   }
   watch_.record(it + 1, terms, {{"psnr", metrics::psnr(r.image.detach(), target)}});
 }

@@ -6,6 +6,7 @@
 
 #include <torch/optim/adam.h>
 
+#include "train/adam_step.h"
 #include "train/checkpoint.h"
 #include "train/loss_watch.h"
 #include "train/progress.h"
@@ -47,6 +48,7 @@ class TrainingSession {
   data::ReplayClock replay_clock_;  // each training frame's time, asked every step
   model::Avatar avatar_{nullptr};
   std::unique_ptr<torch::optim::Adam> optimizer_;
+  std::unique_ptr<AdamStepper> adam_;  // steps optimizer_ (one fused kernel per group on CUDA)
   std::vector<double> base_rates_;
   std::unique_ptr<ImageLoss> image_loss_;
   std::unique_ptr<Regularisers> regularisers_;

@@ -1,8 +1,10 @@
 // The animation path on the GPU: the skinning kernel against the CPU reference (forward and gradients, float64 and
-// float32), the splatting op under a binning budget (within it: the plain render exactly; beyond it: only the
+// float32), the fused gathered MLP (the structure offset's inference kernel) against its LibTorch reference, the splatting op under a binning budget (within it: the plain render exactly; beyond it: only the
 // background, with the true counts reported), and the Animator's CUDA graph frames against eager frames, including
-// a frame that outgrows its budget and a new pose layout. SkinCudaSanitizer.* and AnimatorCuda.GraphFrame* run under
-// compute-sanitizer in scripts/device_check.sh. Every test skips without a CUDA device.
+// a frame that outgrows its budget and a new pose layout, and the fast frame (fused structure offset MLP) against
+// the exact render. SkinCudaSanitizer.*, GatheredMlpCuda.* and AnimatorCuda.GraphFrame* run under compute-sanitizer in scripts/device_check.sh. Every test skips without a CUDA device.
+#include <cmath>
+#include <cstdio>
 #include <string>
 
 #include <ATen/ATen.h>
@@ -11,6 +13,8 @@
 #include <torch/cuda.h>
 
 #include "animate/animator.h"
+#include "gathered_mlp/gathered_mlp.h"
+#include "metrics/image_metrics.h"
 #include "skin/skin.h"
 #include "test_avatar_utils.h"
 
@@ -114,6 +118,84 @@ TEST(BinningBudget, WithinItTheRenderIsThePlainOneAndBeyondItOnlyTheBackground) 
   }
   EXPECT_TRUE(beyond.equal(background.view({1, 1, 3}).expand_as(beyond)));
   EXPECT_EQ(counts.cpu()[0].item<int64_t>(), intersections);
+}
+
+// The fused kernel against the reference in float32 on the same (half-rounded) row inputs: what remains is the
+// half-precision hidden layer input and weights, relative to the outputs' size.
+double fused_mlp_error(int64_t n, int64_t outputs, int64_t groups, uint64_t seed) {
+  at::manual_seed(seed);
+  const auto gpu = at::TensorOptions(at::kCUDA);
+  const int64_t h = gathered_mlp::kFusedWidth;
+  const double bound = 1 / std::sqrt(double(h));
+  gathered_mlp::GatheredMlpWeights w{bound * at::randn({h, h}, gpu), 0.1 * at::randn({h}, gpu),
+                                     bound * at::randn({outputs, h}, gpu), 0.1 * at::randn({outputs}, gpu)};
+  const at::Tensor rows = at::randn({n, h}, gpu).to(at::kHalf), group_rows = at::randn({groups, h}, gpu);
+  const at::Tensor ids = at::randint(groups, {n}, gpu.dtype(at::kInt));
+  at::NoGradGuard no_grad;
+  EXPECT_TRUE(gathered_mlp::fuses(rows, w));
+  const at::Tensor fused = gathered_mlp::gathered_mlp(rows, group_rows, ids, w);
+  const at::Tensor reference = gathered_mlp::gathered_mlp_reference(rows, group_rows, ids, w);
+  EXPECT_EQ(fused.sizes(), reference.sizes());
+  if (n == 0) return 0;
+  return max_difference(fused, reference) / reference.abs().max().item<double>();
+}
+
+TEST(GatheredMlpCudaSanitizer, FusedKernelMatchesTheReference) {
+  SKIP_WITHOUT_CUDA();
+  EXPECT_LT(fused_mlp_error(1007, 4, 55, 1), 5e-3) << "rows not a multiple of the warp's 16";
+  EXPECT_LT(fused_mlp_error(5, 8, 3, 2), 5e-3) << "fewer rows than one warp's pass, the most outputs";
+  EXPECT_LT(fused_mlp_error(64, 1, 1, 3), 5e-3) << "one output, one group";
+  EXPECT_EQ(fused_mlp_error(0, 4, 55, 4), 0);
+}
+
+TEST(GatheredMlpCuda, FusedKernelMatchesTheReferenceAtAvatarScale) {
+  SKIP_WITHOUT_CUDA();
+  EXPECT_LT(fused_mlp_error(215782, 4, 55, 5), 5e-3);
+}
+
+TEST(GatheredMlpCuda, RowOfAGroupOutOfRangeIsNanAndTheOthersStay) {
+  SKIP_WITHOUT_CUDA();
+  const auto gpu = at::TensorOptions(at::kCUDA);
+  const int64_t h = gathered_mlp::kFusedWidth;
+  gathered_mlp::GatheredMlpWeights w{0.1 * at::randn({h, h}, gpu), at::randn({h}, gpu), at::randn({4, h}, gpu),
+                                     at::randn({4}, gpu)};
+  const at::Tensor rows = at::randn({40, h}, gpu).to(at::kHalf), group_rows = at::randn({5, h}, gpu);
+  at::Tensor ids = at::randint(5, {40}, gpu.dtype(at::kInt));
+  at::NoGradGuard no_grad;
+  const at::Tensor before = gathered_mlp::gathered_mlp(rows, group_rows, ids, w);
+  ids[17] = 5;
+  ids[30] = -1;
+  const at::Tensor after = gathered_mlp::gathered_mlp(rows, group_rows, ids, w).cpu();
+  EXPECT_TRUE(after[17].isnan().all().item<bool>());
+  EXPECT_TRUE(after[30].isnan().all().item<bool>());
+  const at::Tensor others = at::ones({40}, at::kBool).index_fill_(0, at::tensor({17, 30}, at::kLong), false);
+  EXPECT_TRUE(after.index({others}).equal(before.cpu().index({others})));
+}
+
+TEST(AnimatorCuda, FastFrameMatchesTheExactRender) {
+  SKIP_WITHOUT_CUDA();
+  model::AvatarConfig config = small_config();
+  config.subdivision_levels = 1;
+  config.hidden_width = gathered_mlp::kFusedWidth;  // the width the fused structure offset runs at
+  model::Avatar avatar(procedural_avatar_body(), subject_betas(), config);
+  randomise_parameters(*avatar, 0.02, 32);
+  avatar->to(at::kCUDA);
+  avatar->eval();
+  const at::Tensor background = at::zeros({3}).cuda();  // the body's colours are near 0.5 at small parameters
+  const Camera camera = front_camera(192, 256);
+  const body::SmplxPose pose = test_pose(40, 0.3, true);
+  at::Tensor exact;
+  {
+    at::NoGradGuard no_grad;
+    avatar->clear_cache();  // the float32 LibTorch structure offset, every Gaussian splatted
+    exact = render(model::to_gaussians(avatar->forward(pose, std::nullopt)), background, camera).image;
+  }
+  animate::Animator animator(avatar, camera, background);  // the fused structure offset, nothing culled
+  const at::Tensor fast = animator.render(pose).clone();
+  const double psnr = metrics::psnr(fast.cpu(), exact.cpu()).item<double>();
+  EXPECT_GT(psnr, 50.0);
+  EXPECT_GT(exact.cpu().max().item<double>(), 0.2) << "the body is in view";
+  std::printf("fast frame vs exact render: PSNR %.1f dB\n", psnr);
 }
 
 TEST(AnimatorCuda, GraphFramesEqualEagerFramesOverAMotion) {
