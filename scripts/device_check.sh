@@ -234,10 +234,10 @@ fi
 
 if wants animate; then
   run animate-tests 250 env OMP_NUM_THREADS="$jobs" "$tests" --gtest_color=no \
-    --gtest_filter='SkinCuda*:GatheredMlpCuda*:BinningBudget.*:AnimatorCuda.*'
+    --gtest_filter='SkinCuda*:GatheredMlpCuda*:KinematicChainCuda*:VertexNormalsCuda*:BinningBudget.*:AnimatorCuda.*:AdamStepperCuda.*'
   grep -E "^\[  FAILED|^\[  PASSED|^\[       OK|Failure|Expected|Which is|actual" "$out/animate-tests.log" | cut -c1-300
   run animate-sanitize 250 compute-sanitizer --tool memcheck --error-exitcode 99 "$tests" --gtest_color=no \
-    --gtest_filter='SkinCudaSanitizer.*:GatheredMlpCudaSanitizer.*:BinningBudget.*:AnimatorCuda.GraphFramesEqual*'
+    --gtest_filter='*CudaSanitizer.*:BinningBudget.*:AnimatorCuda.GraphFramesEqual*:AdamStepperCuda.FusedSteps*'
   grep -E "ERROR SUMMARY|^\[  PASSED|^\[  FAILED|Invalid" "$out/animate-sanitize.log" | head -n 10
   run animate-bench 250 "$build/bench/bench_animate" --device cuda --shared "$root/.device/shared" \
     --frames "${SFGS_DEVICE_ANIMATE_FRAMES:-300}"

@@ -5,6 +5,7 @@
 #include <ATen/Functions.h>
 #include <ATen/TensorOperators.h>
 
+#include "body/body_backend.h"
 #include "body/tensor_checks.h"
 
 namespace sfgs::body {
@@ -85,8 +86,8 @@ bool KinematicTreeImpl::in_subtree(int64_t ancestor, int64_t joint) const {
   return false;
 }
 
-PosedSkeleton KinematicTreeImpl::pose(const at::Tensor& rotations, const at::Tensor& rest_joints,
-                                      const at::Tensor& translation) const {
+void KinematicTreeImpl::check_pose_inputs(const at::Tensor& rotations, const at::Tensor& rest_joints,
+                                          const at::Tensor& translation) const {
   const int64_t j = size();
   TORCH_CHECK(rotations.dim() == 4 && rotations.size(1) == j && rotations.size(2) == 3 && rotations.size(3) == 3,
               "KinematicTree::pose: rotations must have shape (B, ", j, ", 3, 3), got ", describe(rotations));
@@ -96,7 +97,52 @@ PosedSkeleton KinematicTreeImpl::pose(const at::Tensor& rotations, const at::Ten
       "KinematicTree::pose: rest_joints must have shape (", b, ", ", j, ", 3), got ", describe(rest_joints));
   TORCH_CHECK(translation.dim() == 2 && translation.size(0) == b && translation.size(1) == 3,
               "KinematicTree::pose: translation must have shape (", b, ", 3), got ", describe(translation));
+}
 
+PosedSkeleton KinematicTreeImpl::pose(const at::Tensor& rotations, const at::Tensor& rest_joints,
+                                      const at::Tensor& translation) const {
+  check_pose_inputs(rotations, rest_joints, translation);
+  return fuses(rotations, rest_joints, translation) ? pose_fused(rotations, rest_joints, translation)
+                                                   : pose_reference(rotations, rest_joints, translation);
+}
+
+bool KinematicTreeImpl::fuses(const at::Tensor& rotations, const at::Tensor& rest_joints,
+                              const at::Tensor& translation) const {
+  for (const at::Tensor* t : {&rotations, &rest_joints, &translation})
+    if (!t->is_cuda() || t->scalar_type() != at::kFloat || t->requires_grad() || t->device() != rotations.device())
+      return false;
+  return cuda::available();
+}
+
+PosedSkeleton KinematicTreeImpl::pose_fused(const at::Tensor& rotations, const at::Tensor& rest_joints,
+                                            const at::Tensor& translation) const {
+  const int64_t b = rotations.size(0), j = size();
+  if (!device_parents_.defined() || device_parents_.device() != rotations.device())
+    device_parents_ = at::tensor(std::vector<int32_t>(parents_.begin(), parents_.end()), at::kInt)
+                          .to(rotations.device());
+  const at::Tensor r = rotations.contiguous(), rest = rest_joints.contiguous(), t = translation.contiguous();
+  PosedSkeleton out;
+  out.joints = at::empty({b, j, 3}, r.options());
+  out.joint_transforms = at::empty({b, j, 4, 4}, r.options());
+  out.skinning_transforms = at::empty({b, j, 4, 4}, r.options());
+  KinematicChainArrays arrays{};
+  arrays.rotations = r.data_ptr<float>();
+  arrays.rest_joints = rest.data_ptr<float>();
+  arrays.translation = t.data_ptr<float>();
+  arrays.parents = device_parents_.data_ptr<int32_t>();
+  arrays.batch = b;
+  arrays.joints = static_cast<int32_t>(j);
+  arrays.posed_joints = out.joints.data_ptr<float>();
+  arrays.joint_transforms = out.joint_transforms.data_ptr<float>();
+  arrays.skinning_transforms = out.skinning_transforms.data_ptr<float>();
+  cuda::kinematic_chain(arrays, r.device());
+  return out;
+}
+
+PosedSkeleton KinematicTreeImpl::pose_reference(const at::Tensor& rotations, const at::Tensor& rest_joints,
+                                                const at::Tensor& translation) const {
+  check_pose_inputs(rotations, rest_joints, translation);
+  const int64_t j = size();
   // Offsets of every joint from its parent in the rest pose; the root's is its position plus the translation.
   at::Tensor offsets = rest_joints - rest_joints.index_select(1, parent_or_self_);
   offsets = at::cat({rest_joints.narrow(1, 0, 1) + translation.unsqueeze(1), offsets.narrow(1, 1, j - 1)}, 1);

@@ -24,7 +24,10 @@ struct PosedSkeleton {
 };
 
 // A joint tree with parents[0] = -1 and 0 <= parents[j] < j otherwise (the SMPL-family order). Joints of equal
-// depth are composed in one batched step: the 55-joint SMPL-X tree takes 10 steps instead of 54.
+// depth are composed in one batched step: the 55-joint SMPL-X tree takes 10 steps instead of 54. On CUDA, for
+// float32 inputs none of which requires a gradient (every frame of inference, and training without pose
+// refinement), the whole chain is one fused kernel (csrc/cuda/kinematic_chain.cu) instead of some 80 small
+// launches; that LibTorch composition is its reference.
 class KinematicTreeImpl : public BodyModule {
  public:
   explicit KinematicTreeImpl(std::vector<int64_t> parents);
@@ -36,12 +39,24 @@ class KinematicTreeImpl : public BodyModule {
 
   // Local joint rotations (B, J, 3, 3) about rest joints (B, J, 3); `translation` (B, 3) moves the root.
   PosedSkeleton pose(const at::Tensor& rotations, const at::Tensor& rest_joints, const at::Tensor& translation) const;
+  // The LibTorch composition (differentiable, any dtype and device): what pose() runs when it does not fuse.
+  PosedSkeleton pose_reference(const at::Tensor& rotations, const at::Tensor& rest_joints,
+                               const at::Tensor& translation) const;
+  // Whether pose() takes the fused kernel for these inputs.
+  bool fuses(const at::Tensor& rotations, const at::Tensor& rest_joints, const at::Tensor& translation) const;
 
  private:
+  void check_pose_inputs(const at::Tensor& rotations, const at::Tensor& rest_joints,
+                         const at::Tensor& translation) const;
+  PosedSkeleton pose_fused(const at::Tensor& rotations, const at::Tensor& rest_joints,
+                           const at::Tensor& translation) const;
+
   std::vector<int64_t> parents_;
   // Per depth level >= 1: its joints, and where their parents sit in the depth-ordered concatenation.
   std::vector<at::Tensor> level_joints_, level_parent_slots_;
   at::Tensor root_, parent_or_self_, depth_order_inverse_;
+  // parents_ as int32 on the device of the latest fused call (not a buffer: checkpoints keep their layout).
+  mutable at::Tensor device_parents_;
 };
 TORCH_MODULE(KinematicTree);
 

@@ -5,6 +5,7 @@
 #include <ATen/Functions.h>
 #include <ATen/TensorOperators.h>
 
+#include "body/body_backend.h"
 #include "body/tensor_checks.h"
 #include "common/constants.h"
 
@@ -136,6 +137,29 @@ at::Tensor uniform_laplacian(const VertexNeighbours& neighbours, const at::Tenso
 }
 
 at::Tensor vertex_normals(const at::Tensor& vertices, const at::Tensor& faces) {
+  TORCH_CHECK(vertices.defined() && vertices.dim() == 2 && vertices.size(1) == 3,
+              "vertex_normals: vertices must have shape (V, 3), got ", describe(vertices));
+  TORCH_CHECK(faces.defined() && faces.dim() == 2 && faces.size(1) == 3 && faces.scalar_type() == at::kLong &&
+                  faces.device() == vertices.device(),
+              "vertex_normals: faces must be an int64 (F, 3) tensor on ", vertices.device(), ", got ", describe(faces));
+  const bool fused = vertices.is_cuda() && vertices.scalar_type() == at::kFloat && !vertices.requires_grad() &&
+                     cuda::available();
+  if (!fused) return vertex_normals_reference(vertices, faces);
+  const at::Tensor v = vertices.contiguous(), f = faces.contiguous();
+  at::Tensor sums = at::zeros_like(v), normals = at::empty_like(v);
+  VertexNormalArrays arrays{};
+  arrays.vertices = v.data_ptr<float>();
+  arrays.faces = f.data_ptr<int64_t>();
+  arrays.vertex_count = v.size(0);
+  arrays.face_count = f.size(0);
+  arrays.min_length = static_cast<float>(kMinNormalLength);
+  arrays.sums = sums.data_ptr<float>();
+  arrays.normals = normals.data_ptr<float>();
+  cuda::vertex_normals(arrays, v.device());
+  return normals;
+}
+
+at::Tensor vertex_normals_reference(const at::Tensor& vertices, const at::Tensor& faces) {
   const at::Tensor v0 = vertices.index_select(0, faces.select(1, 0));
   const at::Tensor v1 = vertices.index_select(0, faces.select(1, 1));
   const at::Tensor v2 = vertices.index_select(0, faces.select(1, 2));

@@ -59,8 +59,12 @@ struct VertexNeighbours {
 VertexNeighbours vertex_neighbours(const at::Tensor& faces, int64_t num_vertices, int64_t max_neighbours = -1);
 
 // Area-weighted unit vertex normals (V, 3) of vertices (V, 3) with faces (F, 3) int64 on the same device
-// (counter-clockwise seen from outside); vertices on no face, or only on degenerate ones, get 0.
+// (counter-clockwise seen from outside); vertices on no face, or only on degenerate ones, get 0. For float32 CUDA
+// vertices that need no gradient it is one fused pair of kernels (csrc/cuda/vertex_normals.cu; a face with an index
+// outside [0, V) is skipped there rather than checked with a device read), otherwise vertex_normals_reference.
 at::Tensor vertex_normals(const at::Tensor& vertices, const at::Tensor& faces);
+// The LibTorch composition (differentiable, any dtype and device), the fused path's reference.
+at::Tensor vertex_normals_reference(const at::Tensor& vertices, const at::Tensor& faces);
 
 // Uniform Laplacian x_i - mean of x_j over the neighbours j of i, for values (V, C) or (B, V, C) on any device;
 // isolated vertices get 0. Differentiable; deterministic on every device (a gather, no atomics).

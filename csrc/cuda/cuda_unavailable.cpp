@@ -2,6 +2,7 @@
 // reports a clear error, so these entry points are only reached by a caller that bypasses it.
 #include <c10/util/Exception.h>
 
+#include "body/body_backend.h"
 #include "gathered_mlp/backend.h"
 #include "skin/backend.h"
 #include "splat/backend.h"
@@ -41,3 +42,13 @@ bool available() { return false; }
 void forward(const GatheredMlpArrays&, at::Device) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
 
 }  // namespace sfgs::gathered_mlp::cuda
+
+namespace sfgs::body::cuda {
+
+bool available() { return false; }
+void kinematic_chain(const KinematicChainArrays&, at::Device) {
+  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
+}
+void vertex_normals(const VertexNormalArrays&, at::Device) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
+
+}  // namespace sfgs::body::cuda

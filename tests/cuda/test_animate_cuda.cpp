@@ -1,8 +1,10 @@
 // The animation path on the GPU: the skinning kernel against the CPU reference (forward and gradients, float64 and
-// float32), the fused gathered MLP (the structure offset's inference kernel) against its LibTorch reference, the splatting op under a binning budget (within it: the plain render exactly; beyond it: only the
-// background, with the true counts reported), and the Animator's CUDA graph frames against eager frames, including
-// a frame that outgrows its budget and a new pose layout, and the fast frame (fused structure offset MLP) against
-// the exact render. SkinCudaSanitizer.*, GatheredMlpCuda.* and AnimatorCuda.GraphFrame* run under compute-sanitizer in scripts/device_check.sh. Every test skips without a CUDA device.
+// float32); the fused gathered MLP (the structure offset's inference kernel), kinematic chain and vertex normals
+// against their LibTorch references; the splatting op under a binning budget (within it: the plain render exactly;
+// beyond it: only the background, with the true counts reported); the Animator's CUDA graph frames against eager
+// frames, including a frame that outgrows its budget and a new pose layout; and the fast frame against the exact
+// render. The *CudaSanitizer.* suites and AnimatorCuda.GraphFrame* run under compute-sanitizer in
+// scripts/device_check.sh. Every test skips without a CUDA device.
 #include <cmath>
 #include <cstdio>
 #include <string>
@@ -13,6 +15,9 @@
 #include <torch/cuda.h>
 
 #include "animate/animator.h"
+#include "body/kinematics.h"
+#include "body/mesh.h"
+#include "body/rotations.h"
 #include "gathered_mlp/gathered_mlp.h"
 #include "metrics/image_metrics.h"
 #include "skin/skin.h"
@@ -170,6 +175,49 @@ TEST(GatheredMlpCuda, RowOfAGroupOutOfRangeIsNanAndTheOthersStay) {
   EXPECT_TRUE(after[30].isnan().all().item<bool>());
   const at::Tensor others = at::ones({40}, at::kBool).index_fill_(0, at::tensor({17, 30}, at::kLong), false);
   EXPECT_TRUE(after.index({others}).equal(before.cpu().index({others})));
+}
+
+// The fused kinematic chain against its LibTorch composition: the 55-joint SMPL-X tree (batch 3) and a 16-joint
+// MANO-like tree (batch 1), random rotations, rest joints and translations.
+TEST(KinematicChainCudaSanitizer, FusedChainMatchesTheReference) {
+  SKIP_WITHOUT_CUDA();
+  at::manual_seed(11);
+  const std::vector<int64_t> mano{-1, 0, 1, 2, 0, 4, 5, 0, 7, 8, 0, 10, 11, 0, 13, 14};
+  for (const std::vector<int64_t>& parents : {procedural_avatar_body().smplx.parents, mano}) {
+    body::KinematicTree tree(parents);
+    tree->to(at::kCUDA);
+    const int64_t j = tree->size(), b = parents.size() == mano.size() ? 1 : 3;
+    const auto gpu = at::TensorOptions(at::kCUDA);
+    const at::Tensor rotations = body::axis_angle_to_matrix(0.6 * at::randn({b * j, 3}, gpu)).view({b, j, 3, 3});
+    const at::Tensor rest = 0.3 * at::randn({b, j, 3}, gpu), translation = at::randn({b, 3}, gpu);
+    ASSERT_TRUE(tree->fuses(rotations, rest, translation));
+    const body::PosedSkeleton fused = tree->pose(rotations, rest, translation);
+    const body::PosedSkeleton reference = tree->pose_reference(rotations, rest, translation);
+    EXPECT_LT(max_difference(fused.joints, reference.joints), 1e-5) << j << " joints";
+    EXPECT_LT(max_difference(fused.joint_transforms, reference.joint_transforms), 1e-5) << j << " joints";
+    EXPECT_LT(max_difference(fused.skinning_transforms, reference.skinning_transforms), 1e-5) << j << " joints";
+    EXPECT_FALSE(tree->fuses(rotations.clone().requires_grad_(true), rest, translation))
+        << "a gradient through the pose takes the LibTorch composition";
+    EXPECT_FALSE(tree->fuses(rotations.to(at::kDouble), rest.to(at::kDouble), translation.to(at::kDouble)));
+  }
+}
+
+// The fused vertex normals against their LibTorch composition on the procedural body's mesh, moved off its rest
+// shape, plus a vertex on no face (normal 0) and a degenerate face.
+TEST(VertexNormalsCudaSanitizer, FusedNormalsMatchTheReference) {
+  SKIP_WITHOUT_CUDA();
+  at::manual_seed(12);
+  const body::SmplxModelData& model = procedural_avatar_body().smplx;
+  const int64_t v = model.v_template.size(0);
+  const at::Tensor vertices =
+      at::cat({model.v_template.to(at::kFloat) + 0.002 * at::randn({v, 3}), at::zeros({1, 3})}).cuda();
+  const at::Tensor faces = at::cat({model.faces.to(at::kLong), at::tensor({0, 0, 1}, at::kLong).view({1, 3})}).cuda();
+  const at::Tensor fused = body::vertex_normals(vertices, faces);
+  const at::Tensor reference = body::vertex_normals_reference(vertices, faces);
+  EXPECT_LT(max_difference(fused, reference), 1e-4);
+  EXPECT_EQ(fused[v].abs().sum().item<double>(), 0.0) << "the vertex on no face";
+  const at::Tensor lengths = fused.narrow(0, 0, v).norm(2, 1);
+  EXPECT_LT((lengths - 1).abs().max().item<double>(), 1e-5);
 }
 
 TEST(AnimatorCuda, FastFrameMatchesTheExactRender) {

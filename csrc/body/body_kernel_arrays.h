@@ -1,0 +1,32 @@
+#pragma once
+// The raw arrays of the body layers' fused CUDA kernels as they take them: torch-free, so nvcc compiles the kernels
+// without a CUDA LibTorch. Each has a LibTorch composition as its reference and the path for everything else.
+#include <cstdint>
+
+namespace sfgs::body {
+
+// KinematicTreeImpl::pose (kinematics.h).
+struct KinematicChainArrays {
+  const float* rotations;     // (batch, joints, 3, 3) local rotations, row-major
+  const float* rest_joints;   // (batch, joints, 3)
+  const float* translation;   // (batch, 3): moves the root
+  const int32_t* parents;     // (joints): parents[0] = -1, 0 <= parents[j] < j otherwise
+  int64_t batch;
+  int32_t joints;
+  float* posed_joints;         // (batch, joints, 3) out
+  float* joint_transforms;     // (batch, joints, 4, 4) out: [R_world | t_world; 0 0 0 1]
+  float* skinning_transforms;  // (batch, joints, 4, 4) out: [R_world | t_world - R_world rest_j; 0 0 0 1]
+};
+
+// vertex_normals (mesh.h).
+struct VertexNormalArrays {
+  const float* vertices;  // (vertex_count, 3)
+  const int64_t* faces;   // (face_count, 3), validated to lie in [0, vertex_count)
+  int64_t vertex_count;
+  int64_t face_count;
+  float min_length;       // kMinNormalLength: shorter sums give a zero normal
+  float* sums;            // (vertex_count, 3) scratch, zeroed by the caller
+  float* normals;         // (vertex_count, 3) out
+};
+
+}  // namespace sfgs::body
