@@ -30,11 +30,15 @@ class FrameCache {
       const data::Frame f = dataset_.load(index);
       packed = at::cat({f.image, f.mask.unsqueeze(2)}, 2).mul(kEightBitMax).round().to(at::kByte);
       if (bytes_ + packed.numel() <= kFrameCacheBytes) {
+        // Kept page-locked for a CUDA run: its later uploads are then asynchronous, not a host synchronisation
+        // every step (a kept frame is never written again, so the copy in flight reads it safely).
+        if (device.is_cuda()) packed = packed.pin_memory();
         bytes_ += packed.numel();
         frames_[index] = packed;
       }
     }
-    const at::Tensor values = packed.to(device).to(at::kFloat).div_(float(kEightBitMax));
+    const at::Tensor uploaded = packed.to(device, packed.scalar_type(), /*non_blocking=*/packed.is_pinned());
+    const at::Tensor values = uploaded.to(at::kFloat).div_(float(kEightBitMax));
     return {values.slice(2, 0, 3), values.select(2, 3)};
   }
 
@@ -117,7 +121,9 @@ void TrainingSession::step(int64_t it) {
   {
     const StageScope stage("train: frame upload and target");
     const auto [image, mask] = frames_->get(f, device_);
-    background = at::tensor(std::vector<float>(bg_values, bg_values + 3), at::kFloat).to(device_);
+    // Filled on the device from scalars: a host tensor's upload would wait for the queued GPU work.
+    background = at::empty({3}, at::TensorOptions(device_).dtype(at::kFloat));
+    for (int64_t k = 0; k < 3; ++k) background.select(0, k).fill_(bg_values[k]);
     const at::Tensor m = mask.unsqueeze(2);
     target = image * m + background * (1 - m);
   }
