@@ -19,6 +19,7 @@
 #include "common/atomic_file.h"
 #include "common/folder_lock.h"
 #include "data/image_io.h"
+#include "data/motion_file.h"
 #include "data/motions.h"
 #include "train/evaluate.h"
 #include "train/run_folder.h"
@@ -29,6 +30,10 @@ namespace fs = std::filesystem;
 namespace {
 
 constexpr double kTwoPi = 6.283185307179586;
+// Cameras of `render --camera orbit|fixed|follow`: distance from the body's centre (m), focal length as a multiple
+// of the image height (about 45 degrees of vertical view).
+constexpr double kRenderCameraDistance = 2.8;
+constexpr double kRenderFocalPerHeight = 1.2;
 constexpr double kRenderFramesPerSecond = 24.0;  // of the video, and of library motions sampled for it
 
 // --device, or else the device the run was trained on where this build has it, else the CPU.
@@ -181,38 +186,115 @@ class WrittenFiles {
 
 struct RenderRequest {
   std::string out, motion, data;
-  int64_t frames = 0;
+  int64_t frames = 0;  // 0: the whole motion file, or kDefaultRenderFrames of another motion
   bool force = false;
+  std::string camera;  // orbit, fixed or follow; empty: the dataset's camera orbiting (library and dataset motions)
+  double distance = kRenderCameraDistance, height = 0, fps = kRenderFramesPerSecond;
+  int64_t width = 0, image_height = 0;  // 0: the training dataset's
 };
 
-// Renders the orbit into PNG frames and the video; returns the frames per second of avatar + rasterisation.
-double render_orbit(train::TrainedAvatar& t, const RenderRequest& request, at::Device device, WrittenFiles& written,
-                    bool& wrote_video) {
+constexpr int64_t kDefaultRenderFrames = 48;
+
+// A camera at `eye` looking at `target`, world +Y up (the body model's frame), image x to the world's right.
+Camera look_at_camera(const std::array<double, 3>& eye, const std::array<double, 3>& target, int64_t width,
+                      int64_t height) {
+  Camera cam = Camera::looking_forward(kRenderFocalPerHeight * double(height), width, height);
+  double fwd[3] = {target[0] - eye[0], target[1] - eye[1], target[2] - eye[2]};
+  const double fn = std::sqrt(fwd[0] * fwd[0] + fwd[1] * fwd[1] + fwd[2] * fwd[2]);
+  TORCH_CHECK(fn > 0, "render: the camera distance must be positive");
+  for (double& v : fwd) v /= fn;
+  double right[3] = {-fwd[2], 0.0, fwd[0]};  // fwd x (0, 1, 0)
+  const double rn = std::sqrt(right[0] * right[0] + right[2] * right[2]);
+  TORCH_CHECK(rn > 0, "render: the camera looks straight up or down (its height is its whole distance)");
+  right[0] /= rn;
+  right[2] /= rn;
+  const double down[3] = {fwd[1] * right[2] - fwd[2] * right[1], fwd[2] * right[0] - fwd[0] * right[2],
+                          fwd[0] * right[1] - fwd[1] * right[0]};
+  const double* rows[3] = {right, down, fwd};
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) cam.world_to_camera[size_t(4 * r + c)] = rows[r][c];
+    cam.world_to_camera[size_t(4 * r + 3)] = -(rows[r][0] * eye[0] + rows[r][1] * eye[1] + rows[r][2] * eye[2]);
+  }
+  return cam;
+}
+
+// The centre of the posed body's bounding box (the mean of the Gaussians sits high: hands and face are dense).
+std::array<double, 3> centre_of(const model::AvatarOutput& o) {
+  const at::Tensor points = o.means.detach();
+  const at::Tensor c = ((std::get<0>(points.min(0)) + std::get<0>(points.max(0))) / 2).cpu().to(at::kDouble);
+  return {c[0].item<double>(), c[1].item<double>(), c[2].item<double>()};
+}
+
+// A motion file's frame as the avatar takes it: absolute hand poses made relative to the model's mean hand when the
+// avatar adds that mean.
+body::SmplxPose avatar_pose(model::Avatar& avatar, const data::MotionClip& clip, int64_t frame) {
+  body::SmplxPose p = clip.poses[size_t(frame)];
+  if (clip.absolute_hands && !avatar->config().flat_hand_mean) {
+    p.left_hand_pose = p.left_hand_pose - avatar->hand_mean(body::Side::kLeft).cpu().to(at::kDouble);
+    p.right_hand_pose = p.right_hand_pose - avatar->hand_mean(body::Side::kRight).cpu().to(at::kDouble);
+  }
+  return p;
+}
+
+// Renders the frames into PNGs and the video; returns the frames per second of avatar + rasterisation.
+double render_frames(train::TrainedAvatar& t, RenderRequest& request, WrittenFiles& written, bool& wrote_video) {
   const data::Dataset trained_on = train::read_run_dataset(t, request.data);
   std::optional<data::Dataset> motion;
-  if (!data::is_motion(request.motion)) motion = data::read_dataset(request.motion);
+  std::optional<data::MotionClip> clip;
+  if (data::is_motion_file(request.motion)) {
+    clip = data::resample(data::read_amass(request.motion), request.fps);
+    if (!clip->note.empty()) std::printf("sfgs render: %s: %s\n", request.motion.c_str(), clip->note.c_str());
+    const int64_t length = static_cast<int64_t>(clip->poses.size());
+    request.frames = request.frames > 0 ? std::min(request.frames, length) : length;
+  } else if (!data::is_motion(request.motion)) {
+    motion = data::read_dataset(request.motion);
+  }
+  if (request.frames == 0) request.frames = kDefaultRenderFrames;
+  // A motion file may walk anywhere: the camera follows it. A size of one's own needs a camera of one's own.
+  if (request.camera.empty() && clip) request.camera = "follow";
+  if (request.camera.empty() && request.width > 0) request.camera = "orbit";
   // A motion from another dataset is new to the avatar: no time (model/frame_time.h). Frames of the training
   // dataset keep their replay times.
   const bool replay = motion && motion->fingerprint() == trained_on.fingerprint();
   t.avatar->eval();
   t.avatar->cache_static_features();
   at::NoGradGuard no_grad;
+  const auto pose_at = [&](int64_t i) {
+    if (clip) return t.avatar->forward(avatar_pose(t.avatar, *clip, i), std::nullopt);
+    if (replay) return train::pose_avatar(t.avatar, *motion, i % motion->size());
+    if (motion) return t.avatar->forward(motion->frames[size_t(i % motion->size())].pose, std::nullopt);
+    return t.avatar->forward(data::motion_pose(request.motion, double(i) / request.fps,
+                                               t.avatar->config().num_expression_coeffs),
+                             std::nullopt);
+  };
   const Camera base = train::render_camera(trained_on.frames[0]);
-  const at::Tensor c = train::pose_avatar(t.avatar, trained_on, 0).means.mean(0).cpu().to(at::kDouble);
-  const std::array<double, 3> centre{c[0].item<double>(), c[1].item<double>(), c[2].item<double>()};
-  VideoWriter video((fs::path(request.out) / "render.mp4").string(), int(base.width), int(base.height),
-                    kRenderFramesPerSecond,
-                    request.force);
+  const int64_t width = request.width > 0 ? request.width : base.width;
+  const int64_t height = request.image_height > 0 ? request.image_height : base.height;
+  // The dataset's camera orbits the training frame's body; the other cameras aim at the motion's first frame (orbit,
+  // fixed) or at every frame's body (follow), from the front (+Z, where the body model faces).
+  const std::array<double, 3> first = request.camera.empty() ? centre_of(train::pose_avatar(t.avatar, trained_on, 0))
+                                                             : centre_of(pose_at(0));
+  const auto camera_at = [&](int64_t i, const model::AvatarOutput& o) {
+    const double angle = kTwoPi * double(i) / double(request.frames);
+    if (request.camera.empty()) {
+      Camera c = orbit_camera(base, first, angle);
+      return c;
+    }
+    const std::array<double, 3> target = request.camera == "follow" ? centre_of(o) : first;
+    const double a = request.camera == "orbit" ? angle : 0.0;
+    const std::array<double, 3> eye{target[0] + request.distance * std::sin(a), target[1] + request.height,
+                                    target[2] + request.distance * std::cos(a)};
+    return look_at_camera(eye, target, width, height);
+  };
+  const int64_t video_width = request.camera.empty() ? base.width : width;
+  const int64_t video_height = request.camera.empty() ? base.height : height;
+  VideoWriter video((fs::path(request.out) / "render.mp4").string(), int(video_width), int(video_height),
+                    request.fps, request.force);
   double seconds = 0;
   for (int64_t i = 0; i < request.frames; ++i) {
-    const Camera cam = orbit_camera(base, centre, kTwoPi * double(i) / double(request.frames));
     const auto start = std::chrono::steady_clock::now();
-    const model::AvatarOutput o =
-        replay   ? train::pose_avatar(t.avatar, *motion, i % motion->size())
-        : motion ? t.avatar->forward(motion->frames[size_t(i % motion->size())].pose, std::nullopt)
-                 : t.avatar->forward(data::motion_pose(request.motion, double(i) / kRenderFramesPerSecond,
-                                                       t.avatar->config().num_expression_coeffs),
-                                     std::nullopt);
+    const model::AvatarOutput o = pose_at(i);
+    const Camera cam = camera_at(i, o);
     const at::Tensor image = render(model::to_gaussians(o), at::ones({3}, o.means.options()), cam).image.cpu();
     seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     char name[32];
@@ -232,10 +314,27 @@ int run_render(Arguments& args) {
   const train::RunFolder run{args.required("run")};
   RenderRequest request;
   request.out = args.required("out");
-  request.frames = args.integer("frames", 48, 1, 100000);
+  request.frames = args.has("frames") ? args.integer("frames", kDefaultRenderFrames, 1, 100000) : 0;
   request.motion = args.text("motion", "overhead");
   request.data = args.text("data", "");
   request.force = args.flag("force");
+  request.camera = args.text("camera", "");
+  TORCH_CHECK(request.camera.empty() || request.camera == "orbit" || request.camera == "fixed" ||
+                  request.camera == "follow",
+              "render: --camera must be orbit, fixed or follow, got '", request.camera, "'");
+  request.distance = args.real("distance", kRenderCameraDistance, 1e-3, 1e4);
+  request.height = args.real("height", 0.0, -1e4, 1e4);
+  request.fps = args.real("fps", kRenderFramesPerSecond, 1.0, 1000.0);
+  if (args.has("size")) {
+    const std::string size = args.text("size", "");
+    long w = 0, h = 0;
+    char rest = 0;
+    TORCH_CHECK(std::sscanf(size.c_str(), "%ldx%ld%c", &w, &h, &rest) == 2 && w > 0 && h > 0 && w <= 16384 &&
+                    h <= 16384,
+                "render: --size must be WIDTHxHEIGHT (for example 540x960), got '", size, "'");
+    request.width = w;
+    request.image_height = h;
+  }
   const at::Device device = pick_device(args.text("device", ""), run);
   args.finish();
   train::TrainedAvatar t = train::load_trained_avatar(run, device);
@@ -245,7 +344,7 @@ int run_render(Arguments& args) {
   bool wrote_video = false;
   double fps = 0;
   try {
-    fps = render_orbit(t, request, device, written, wrote_video);
+    fps = render_frames(t, request, written, wrote_video);
   } catch (const std::exception& e) {
     const size_t frames = written.size();
     written.remove_all();

@@ -354,6 +354,7 @@ Gaussians to_gaussians(const AvatarOutput& out) {
 int64_t AvatarImpl::gaussian_count() const { return body_->point_count(); }
 const at::Tensor& AvatarImpl::part_labels() const { return body_->part_labels(); }
 const at::Tensor& AvatarImpl::faces() const { return body_->faces(); }
+const at::Tensor& AvatarImpl::hand_mean(body::Side side) const { return body_->hand_mean(side); }
 const AvatarConfig& AvatarImpl::config() const { return config_; }
 
 int64_t parameter_count(const AvatarConfig& c, bool has_mano) {

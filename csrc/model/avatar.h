@@ -141,6 +141,8 @@ class AvatarImpl : public torch::nn::Module {
   int64_t gaussian_count() const;
   const at::Tensor& part_labels() const;  // (N) uint8 body::BodyPart, on the module's device
   const at::Tensor& faces() const;        // (F, 3) int64 of the subdivided mesh (Laplacian, export), likewise
+  // (15, 3) the body model's mean hand pose, which forward adds to given hand poses unless config().flat_hand_mean.
+  const at::Tensor& hand_mean(body::Side side) const;
   const AvatarConfig& config() const;
 
  private:

@@ -1,0 +1,172 @@
+#include "data/motion_file.h"
+
+#include <cmath>
+#include <filesystem>
+#include <sstream>
+
+#include <ATen/ATen.h>
+
+#include "body/rotations.h"
+#include "body/skeleton.h"
+#include "common/tensor_description.h"
+#include "io/npz.h"
+
+namespace sfgs::data {
+namespace fs = std::filesystem;
+
+namespace {
+
+constexpr int64_t kAmassSmplxPoseSize = 165;  // root, 21 body joints, jaw, two eyes, 2 x 15 hand joints
+constexpr int64_t kAmassSmplhPoseSize = 156;  // root, 21 body joints, 2 x 15 hand joints
+
+std::string key_list(const io::NpzArchive& npz) {
+  std::ostringstream list;
+  for (size_t k = 0; k < npz.keys().size(); ++k) list << (k ? ", " : "") << npz.keys()[k];
+  return list.str();
+}
+
+// The array `key` as float64 (frames, columns), every value finite; undefined when absent and not required.
+at::Tensor frames_array(const io::NpzArchive& npz, const std::string& key, int64_t columns, int64_t frames,
+                        bool required) {
+  if (!npz.contains(key)) {
+    TORCH_CHECK(!required, "motion file '", npz.path(), "' lacks '", key, "' (expected shape (T, ", columns,
+                "); keys: ", key_list(npz), ")");
+    return at::Tensor();
+  }
+  const at::Tensor a = npz.read(key);
+  TORCH_CHECK(at::isFloatingType(a.scalar_type()) && a.dim() == 2 && a.size(1) == columns &&
+                  (frames < 0 || a.size(0) == frames),
+              "motion file '", npz.path(), "': '", key, "' must be a floating array of shape (",
+              frames < 0 ? std::string("T") : std::to_string(frames), ", ", columns, "), got ", describe(a));
+  const at::Tensor values = a.to(at::kDouble);
+  TORCH_CHECK(values.isfinite().all().item<bool>(), "motion file '", npz.path(), "': '", key,
+              "' holds NaN or infinite values");
+  return values;
+}
+
+double frame_rate(const io::NpzArchive& npz) {
+  const char* key = npz.contains("mocap_frame_rate")  ? "mocap_frame_rate"
+                    : npz.contains("mocap_framerate") ? "mocap_framerate"
+                                                      : nullptr;
+  TORCH_CHECK(key, "motion file '", npz.path(), "' lacks its frame rate: expected 'mocap_frame_rate' (AMASS SMPL-X) "
+              "or 'mocap_framerate' (AMASS SMPL-H); keys: ", key_list(npz));
+  const at::Tensor rate = npz.read(key);
+  TORCH_CHECK(rate.numel() == 1 && (at::isFloatingType(rate.scalar_type()) || at::isIntegralType(rate.scalar_type(), false)),
+              "motion file '", npz.path(), "': '", key, "' must be one number, got ", describe(rate));
+  const double fps = rate.to(at::kDouble).item<double>();
+  TORCH_CHECK(std::isfinite(fps) && fps > 0, "motion file '", npz.path(), "': '", key,
+              "' must be a positive frame rate, got ", fps);
+  return fps;
+}
+
+// AMASS is Z-up, the avatar Y-up: the rotation taking +Z to +Y (and +Y to -Z), about the X axis.
+at::Tensor z_up_to_y_up() {
+  return at::tensor({1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, -1.0, 0.0}, at::kDouble).view({3, 3});
+}
+
+// `a` rotated a fraction `w` of the shortest arc towards `b`: axis-angle (..., 3).
+at::Tensor rotation_between(const at::Tensor& a, const at::Tensor& b, double w) {
+  const at::Tensor ra = body::axis_angle_to_matrix(a), rb = body::axis_angle_to_matrix(b);
+  const at::Tensor relative = body::matrix_to_axis_angle(ra.transpose(-1, -2).matmul(rb));
+  return body::matrix_to_axis_angle(ra.matmul(body::axis_angle_to_matrix(relative * w)));
+}
+
+body::SmplxPose blend(const body::SmplxPose& a, const body::SmplxPose& b, double w) {
+  body::SmplxPose out;
+  for (const body::SmplxPose::Field& f : body::SmplxPose::fields()) {
+    const at::Tensor &x = a.*(f.member), &y = b.*(f.member);
+    if (!x.defined()) continue;
+    const std::string name = f.name;
+    const bool linear = name == "expression" || name == "transl";
+    out.*(f.member) = linear ? x * (1 - w) + y * w : rotation_between(x.reshape({-1, 3}), y.reshape({-1, 3}), w)
+                                                         .reshape(x.sizes());
+  }
+  return out;
+}
+
+}  // namespace
+
+bool is_motion_file(const std::string& path) { return fs::path(path).extension() == ".npz"; }
+
+MotionClip read_amass(const std::string& path) {
+  TORCH_CHECK(fs::is_regular_file(path), "motion file '", path, "' does not exist or is not a file");
+  const io::NpzArchive npz(path);
+  MotionClip clip;
+  clip.source = path;
+  clip.frames_per_second = frame_rate(npz);
+  at::Tensor root, body, jaw, eyes, hands;
+  if (npz.contains("poses")) {
+    const at::Tensor probe = npz.read("poses");
+    TORCH_CHECK(probe.dim() == 2 && (probe.size(1) == kAmassSmplxPoseSize || probe.size(1) == kAmassSmplhPoseSize),
+                "motion file '", path, "': 'poses' must have shape (T, ", kAmassSmplxPoseSize, ") (SMPL-X) or (T, ",
+                kAmassSmplhPoseSize, ") (SMPL-H), got ", describe(probe));
+    const bool smplx = probe.size(1) == kAmassSmplxPoseSize;
+    const at::Tensor poses = frames_array(npz, "poses", probe.size(1), -1, true);
+    root = poses.narrow(1, 0, 3);
+    body = poses.narrow(1, 3, 63);
+    if (smplx) {
+      jaw = poses.narrow(1, 66, 3);
+      eyes = poses.narrow(1, 69, 6);
+      hands = poses.narrow(1, 75, 90);
+      clip.format = "amass-smplx";
+    } else {
+      hands = poses.narrow(1, 66, 90);
+      clip.format = "amass-smplh";
+      clip.note = "SMPL-H motion: body and hands taken, jaw and eyes left at rest";
+    }
+  } else {
+    root = frames_array(npz, "root_orient", 3, -1, true);
+    const int64_t t = root.size(0);
+    body = frames_array(npz, "pose_body", 63, t, true);
+    hands = frames_array(npz, "pose_hand", 90, t, true);
+    jaw = frames_array(npz, "pose_jaw", 3, t, false);
+    eyes = frames_array(npz, "pose_eye", 6, t, false);
+    clip.format = "amass-smplx";
+    if (!jaw.defined() || !eyes.defined()) clip.note = "no 'pose_jaw' or 'pose_eye': jaw and eyes left at rest";
+  }
+  const int64_t frames = root.size(0);
+  TORCH_CHECK(frames > 0, "motion file '", path, "' holds no frame");
+  at::Tensor trans = frames_array(npz, "trans", 3, frames, false);
+  if (!trans.defined()) trans = at::zeros({frames, 3}, at::kDouble);
+
+  const at::Tensor up = z_up_to_y_up();
+  const at::Tensor orient = body::matrix_to_axis_angle(up.matmul(body::axis_angle_to_matrix(root)));
+  trans = trans.matmul(up.t());
+  for (int64_t t = 0; t < frames; ++t) {
+    body::SmplxPose p;
+    p.global_orient = orient[t].clone();
+    p.body_pose = body[t].reshape({body::kSmplxBodyJointCount, 3}).clone();
+    p.left_hand_pose = hands[t].narrow(0, 0, body::kHandPoseSize).reshape({body::kHandJointCount, 3}).clone();
+    p.right_hand_pose =
+        hands[t].narrow(0, body::kHandPoseSize, body::kHandPoseSize).reshape({body::kHandJointCount, 3}).clone();
+    p.jaw_pose = jaw.defined() ? jaw[t].clone() : at::zeros({3}, at::kDouble);
+    p.leye_pose = eyes.defined() ? eyes[t].narrow(0, 0, 3).clone() : at::zeros({3}, at::kDouble);
+    p.reye_pose = eyes.defined() ? eyes[t].narrow(0, 3, 3).clone() : at::zeros({3}, at::kDouble);
+    p.transl = trans[t].clone();
+    clip.poses.push_back(std::move(p));
+  }
+  return clip;
+}
+
+MotionClip resample(const MotionClip& clip, double frames_per_second) {
+  TORCH_CHECK(std::isfinite(frames_per_second) && frames_per_second > 0,
+              "resample: the frame rate must be positive, got ", frames_per_second);
+  TORCH_CHECK(!clip.poses.empty() && clip.frames_per_second > 0, "resample: the clip '", clip.source,
+              "' holds no frame or has no frame rate");
+  MotionClip out = clip;
+  out.poses.clear();
+  out.frames_per_second = frames_per_second;
+  const int64_t n = static_cast<int64_t>(clip.poses.size());
+  const double last = double(n - 1) / clip.frames_per_second;  // the time of the last source frame
+  const int64_t count = static_cast<int64_t>(std::floor(last * frames_per_second + 1e-9)) + 1;
+  for (int64_t k = 0; k < count; ++k) {
+    const double source = double(k) * clip.frames_per_second / frames_per_second;
+    const int64_t i = std::min<int64_t>(static_cast<int64_t>(std::floor(source + 1e-9)), n - 1);
+    const double w = source - double(i);
+    out.poses.push_back(w < 1e-9 || i + 1 >= n ? clip.poses[size_t(i)]
+                                               : blend(clip.poses[size_t(i)], clip.poses[size_t(i + 1)], w));
+  }
+  return out;
+}
+
+}  // namespace sfgs::data
