@@ -41,7 +41,8 @@ __global__ void normalise_kernel(const VertexNormalArrays a) {
 void check_launch(const char* what) {
   const cudaError_t status = cudaGetLastError();
   if (status != cudaSuccess)
-    throw std::runtime_error(std::string("sfgs vertex normals: ") + what + " launch failed: " + cudaGetErrorString(status));
+    throw std::runtime_error(std::string("sfgs vertex normals: ") + what + " launch failed: " +
+                             cudaGetErrorString(status));
 }
 
 }  // namespace

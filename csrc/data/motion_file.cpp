@@ -51,8 +51,9 @@ double frame_rate(const io::NpzArchive& npz) {
   TORCH_CHECK(key, "motion file '", npz.path(), "' lacks its frame rate: expected 'mocap_frame_rate' (AMASS SMPL-X) "
               "or 'mocap_framerate' (AMASS SMPL-H); keys: ", key_list(npz));
   const at::Tensor rate = npz.read(key);
-  TORCH_CHECK(rate.numel() == 1 && (at::isFloatingType(rate.scalar_type()) || at::isIntegralType(rate.scalar_type(), false)),
-              "motion file '", npz.path(), "': '", key, "' must be one number, got ", describe(rate));
+  const bool numeric = at::isFloatingType(rate.scalar_type()) || at::isIntegralType(rate.scalar_type(), false);
+  TORCH_CHECK(rate.numel() == 1 && numeric, "motion file '", npz.path(), "': '", key, "' must be one number, got ",
+              describe(rate));
   const double fps = rate.to(at::kDouble).item<double>();
   TORCH_CHECK(std::isfinite(fps) && fps > 0, "motion file '", npz.path(), "': '", key,
               "' must be a positive frame rate, got ", fps);

@@ -2,28 +2,19 @@
 // function as the structure offset's network on the concatenated inputs, the structure offset's inference path equal
 // to its training path, and clear errors at its boundary. The fused CUDA kernel is compared with this reference in
 // tests/cuda/test_animate_cuda.cpp.
-#include <functional>
-#include <string>
-
 #include <ATen/ATen.h>
 #include <gtest/gtest.h>
 #include <torch/csrc/autograd/grad_mode.h>
 
+#include <string>
+
 #include "gathered_mlp/gathered_mlp.h"
 #include "model/mlp.h"
 #include "model/structure_offset.h"
+#include "test_files.h"
 
 namespace sfgs::testing {
 namespace {
-
-std::string error_of(const std::function<void()>& call) {
-  try {
-    call();
-  } catch (const c10::Error& e) {
-    return e.what_without_backtrace();
-  }
-  return "no error";
-}
 
 // Every parameter of `module` replaced by N(0, std^2) noise (the output layers start at zero).
 void randomise(torch::nn::Module& module, double std, uint64_t seed) {
@@ -39,9 +30,8 @@ TEST(GatheredMlp, IsTheNetworkOnTheConcatenatedInputs) {
   const at::Tensor row_features = at::randn({n, rows_width}), group_features = at::randn({groups, groups_width});
   const at::Tensor ids = at::randint(groups, {n}, at::kLong);
   at::NoGradGuard no_grad;
-  const at::Tensor gathered = gathered_mlp::gathered_mlp(mlp->project(0, row_features),
-                                                         mlp->project(1, group_features), ids.to(at::kInt),
-                                                         mlp->gathered_weights());
+  const at::Tensor gathered = gathered_mlp::gathered_mlp(mlp->project(0, row_features), mlp->project(1, group_features),
+                                                         ids.to(at::kInt), mlp->gathered_weights());
   const at::Tensor whole = mlp->forward({row_features, group_features.index_select(0, ids)});
   EXPECT_TRUE(at::allclose(gathered, whole, 1e-5, 1e-6)) << (gathered - whole).abs().max();
   EXPECT_GT(whole.abs().max().item<double>(), 0.1) << "the network is not the constant zero";
@@ -66,27 +56,21 @@ TEST(GatheredMlp, RefusesBadInputsByName) {
   const at::Tensor rows = at::randn({n, h}), group_rows = at::randn({groups, h});
   const at::Tensor ids = at::randint(groups, {n}, at::kInt);
   at::NoGradGuard no_grad;
-  EXPECT_NE(error_of([&] { gathered_mlp::gathered_mlp(rows.narrow(1, 0, 3), group_rows, ids, w); })
-                .find("hidden_weight must be a floating (3, 3) tensor"),
-            std::string::npos);
-  EXPECT_NE(error_of([&] { gathered_mlp::gathered_mlp(rows, group_rows, ids.narrow(0, 0, 5), w); })
-                .find("groups must be an int32 or int64 (8) tensor"),
-            std::string::npos);
-  EXPECT_NE(error_of([&] { gathered_mlp::gathered_mlp(rows, group_rows, ids.to(at::kFloat), w); })
-                .find("groups must be an int32 or int64"),
-            std::string::npos);
-  EXPECT_NE(error_of([&] { gathered_mlp::gathered_mlp(rows, group_rows, ids + groups, w); })
-                .find("groups must lie in [0, 3)"),
-            std::string::npos);
+  expect_error_mentioning([&] { gathered_mlp::gathered_mlp(rows.narrow(1, 0, 3), group_rows, ids, w); },
+                          "hidden_weight must be a floating (3, 3) tensor");
+  expect_error_mentioning([&] { gathered_mlp::gathered_mlp(rows, group_rows, ids.narrow(0, 0, 5), w); },
+                          "groups must be an int32 or int64 (8) tensor");
+  expect_error_mentioning([&] { gathered_mlp::gathered_mlp(rows, group_rows, ids.to(at::kFloat), w); },
+                          "groups must be an int32 or int64");
+  expect_error_mentioning([&] { gathered_mlp::gathered_mlp(rows, group_rows, ids + groups, w); },
+                          "groups must lie in [0, 3)");
   gathered_mlp::GatheredMlpWeights doubles = w;
   doubles.output_bias = w.output_bias.to(at::kDouble);
-  EXPECT_NE(error_of([&] { gathered_mlp::gathered_mlp(rows, group_rows, ids, doubles); })
-                .find("output_bias must be a Float tensor of shape [2]"),
-            std::string::npos);
+  expect_error_mentioning([&] { gathered_mlp::gathered_mlp(rows, group_rows, ids, doubles); },
+                          "output_bias must be a Float tensor of shape [2]");
   at::GradMode::set_enabled(true);
   const at::Tensor learned = rows.clone().requires_grad_(true);
-  EXPECT_NE(error_of([&] { gathered_mlp::gathered_mlp(learned, group_rows, ids, w); }).find("inference only"),
-            std::string::npos);
+  expect_error_mentioning([&] { gathered_mlp::gathered_mlp(learned, group_rows, ids, w); }, "inference only");
   at::GradMode::set_enabled(false);
   EXPECT_FALSE(gathered_mlp::fuses(rows, w)) << "CPU tensors take the reference";
 }
