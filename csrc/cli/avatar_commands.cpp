@@ -225,13 +225,15 @@ std::array<double, 3> centre_of(const model::AvatarOutput& o) {
   return {c[0].item<double>(), c[1].item<double>(), c[2].item<double>()};
 }
 
-// A motion file's frame as the avatar takes it: absolute hand poses made relative to the model's mean hand when the
-// avatar adds that mean.
+// A motion file's frame as the avatar takes it: hand poses in the avatar's convention (relative to the model's mean
+// hand when the avatar adds that mean, absolute otherwise).
 body::SmplxPose avatar_pose(model::Avatar& avatar, const data::MotionClip& clip, int64_t frame) {
   body::SmplxPose p = clip.poses[size_t(frame)];
-  if (clip.absolute_hands && !avatar->config().flat_hand_mean) {
-    p.left_hand_pose = p.left_hand_pose - avatar->hand_mean(body::Side::kLeft).cpu().to(at::kDouble);
-    p.right_hand_pose = p.right_hand_pose - avatar->hand_mean(body::Side::kRight).cpu().to(at::kDouble);
+  const bool avatar_absolute = avatar->config().flat_hand_mean;
+  if (clip.absolute_hands != avatar_absolute) {
+    const double sign = clip.absolute_hands ? -1.0 : 1.0;
+    p.left_hand_pose = p.left_hand_pose + sign * avatar->hand_mean(body::Side::kLeft).cpu().to(at::kDouble);
+    p.right_hand_pose = p.right_hand_pose + sign * avatar->hand_mean(body::Side::kRight).cpu().to(at::kDouble);
   }
   return p;
 }
@@ -242,7 +244,7 @@ double render_frames(train::TrainedAvatar& t, RenderRequest& request, WrittenFil
   std::optional<data::Dataset> motion;
   std::optional<data::MotionClip> clip;
   if (data::is_motion_file(request.motion)) {
-    clip = data::resample(data::read_amass(request.motion), request.fps);
+    clip = data::resample(data::read_motion(request.motion), request.fps);
     if (!clip->note.empty()) std::printf("sfgs render: %s: %s\n", request.motion.c_str(), clip->note.c_str());
     const int64_t length = static_cast<int64_t>(clip->poses.size());
     request.frames = request.frames > 0 ? std::min(request.frames, length) : length;

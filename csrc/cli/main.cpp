@@ -38,8 +38,8 @@ commands:
            --split test|val|train (test)  --device cpu|cuda (the run's)  --eight-bit  --save-images  --force
            --no-observation-prior (trust every Gaussian's learned colour and offsets: the ablation)
   render   novel poses to PNG frames and an MP4: --run RUN --out DIR  --frames N (48; a file: all of it)
-           --motion MOTION|DATASET|FILE.npz (overhead; motions: sway walk wave overhead bend guard turn sit;
-           FILE.npz: AMASS SMPL-X or SMPL-H, docs/motions.md)  --fps F (24)
+           --motion MOTION|DATASET|FILE.npz|FOLDER (overhead; motions: sway walk wave overhead bend guard turn
+           sit; FILE.npz: AMASS SMPL-X or SMPL-H; FOLDER: ExAvatar smplx_params_smoothed; docs/motions.md)  --fps F (24)
            --camera orbit|fixed|follow (the dataset's camera orbiting; a motion file: follow)
            --distance M (2.8)  --height M (0)  --size WxH (the dataset's)
            --data DATASET (the training one)  --device cpu|cuda (the run's)  --force

@@ -1,14 +1,18 @@
 #include "data/motion_file.h"
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <sstream>
 
 #include <ATen/ATen.h>
+#include <nlohmann/json.hpp>
 
 #include "body/rotations.h"
 #include "body/skeleton.h"
 #include "common/tensor_description.h"
+#include "data/json_values.h"
+#include "data/neuman.h"
 #include "io/npz.h"
 
 namespace sfgs::data {
@@ -18,6 +22,9 @@ namespace {
 
 constexpr int64_t kAmassSmplxPoseSize = 165;  // root, 21 body joints, jaw, two eyes, 2 x 15 hand joints
 constexpr int64_t kAmassSmplhPoseSize = 156;  // root, 21 body joints, 2 x 15 hand joints
+constexpr double kExavatarFramesPerSecond = 30.0;  // the frame rate of ExAvatar's (NeuMan's) videos
+
+const char* const kExavatarParams = "smplx_optimized/smplx_params_smoothed";
 
 std::string key_list(const io::NpzArchive& npz) {
   std::ostringstream list;
@@ -87,7 +94,72 @@ body::SmplxPose blend(const body::SmplxPose& a, const body::SmplxPose& b, double
 
 }  // namespace
 
-bool is_motion_file(const std::string& path) { return fs::path(path).extension() == ".npz"; }
+bool is_motion_file(const std::string& path) {
+  return fs::path(path).extension() == ".npz" || fs::is_directory(fs::path(path) / kExavatarParams);
+}
+
+MotionClip read_motion(const std::string& path) {
+  if (fs::path(path).extension() == ".npz") return read_amass(path);
+  TORCH_CHECK(fs::is_directory(fs::path(path) / kExavatarParams), "motion '", path, "' is neither an AMASS .npz nor "
+              "an ExAvatar motion folder (with ", kExavatarParams, "/)");
+  return read_exavatar_motion(path);
+}
+
+// The rigid transform [R | t] of an ExAvatar camera file: "R" (3, 3) and "t" (3), float64.
+std::pair<at::Tensor, at::Tensor> read_camera(const std::string& path) {
+  const nlohmann::json j = read_json_file(path);
+  for (const char* key : {"R", "t"})
+    TORCH_CHECK(j.contains(key), "camera file '", path, "' lacks '", key, "' (R: (3, 3) world to camera, t: (3))");
+  return {json_numbers(j.at("R"), {3, 3}, path + ": R").to(at::kDouble),
+          json_numbers(j.at("t"), {3}, path + ": t").to(at::kDouble)};
+}
+
+MotionClip read_exavatar_motion(const std::string& folder) {
+  const fs::path params = fs::path(folder) / kExavatarParams;
+  TORCH_CHECK(fs::is_directory(params), "motion folder '", folder, "' lacks ", kExavatarParams, "/");
+  std::vector<std::pair<int64_t, fs::path>> files;
+  for (const fs::directory_entry& e : fs::directory_iterator(params)) {
+    const std::string stem = e.path().stem().string();
+    if (e.path().extension() != ".json" || stem.empty() || stem.find_first_not_of("0123456789") != std::string::npos)
+      continue;
+    files.emplace_back(std::stoll(stem), e.path());
+  }
+  TORCH_CHECK(!files.empty(), "motion folder '", folder, "': ", params.string(), " holds no frame file like 0.json");
+  std::sort(files.begin(), files.end());
+  const fs::path cameras = fs::path(folder) / "cam_params";
+  const bool has_cameras = fs::is_directory(cameras);
+
+  MotionClip clip;
+  clip.source = folder;
+  clip.format = "exavatar";
+  clip.frames_per_second = kExavatarFramesPerSecond;
+  clip.absolute_hands = false;
+  // The camera frame (x right, y down, z forward) to the avatar's (y up; the body facing the camera faces +z).
+  const at::Tensor flip = at::tensor({1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0}, at::kDouble).view({3, 3});
+  at::Tensor first_rotation, first_translation;
+  for (const auto& [number, file] : files) {
+    body::SmplxPose p = read_exavatar_pose(file.string()).to(at::TensorOptions().dtype(at::kDouble));
+    at::Tensor rotation = flip, translation = at::zeros({3}, at::kDouble);  // camera k -> avatar frame
+    if (has_cameras) {
+      const fs::path camera = cameras / (std::to_string(number) + ".json");
+      TORCH_CHECK(fs::is_regular_file(camera), "motion folder '", folder, "': frame ", number, " has no ",
+                  camera.string(), " (the folder's other frames have cameras)");
+      const auto [r, t] = read_camera(camera.string());
+      if (!first_rotation.defined()) {
+        first_rotation = r;
+        first_translation = t;
+      }
+      // Camera k to the first camera: p0 = R0 Rk^T (pk - tk) + t0.
+      const at::Tensor to_first = first_rotation.matmul(r.t());
+      rotation = flip.matmul(to_first);
+      translation = flip.matmul(first_translation - to_first.matmul(t));
+    }
+    p.global_orient = body::matrix_to_axis_angle(rotation.matmul(body::axis_angle_to_matrix(p.global_orient)));
+    p.transl = rotation.matmul(p.transl) + translation;
+    clip.poses.push_back(std::move(p));
+  }
+  return clip;
+}
 
 MotionClip read_amass(const std::string& path) {
   TORCH_CHECK(fs::is_regular_file(path), "motion file '", path, "' does not exist or is not a file");

@@ -8,6 +8,13 @@
 // rotated into the avatar's Y-up frame (global orientation and translation; the constant offset SMPL-X's rotation
 // about the pelvis adds stays, and the cameras frame the body itself). The file's `betas` and `gender` are not used:
 // the avatar keeps its subject's shape. Hand poses are absolute (relative to a flat hand).
+//
+// ExAvatar/SFGS motion folders: smplx_optimized/smplx_params_smoothed/N.json (ExAvatar's per-frame SMPL-X
+// parameters, in the camera's coordinates; frames in numeric order) and, when present, cam_params/N.json (the frame's
+// camera, "R" (3, 3) and "t" (3), world to camera). With cameras every frame is brought into the first frame's camera
+// (a moving camera's motion is taken out); the camera's frame (y down, z forward) is then turned into the avatar's
+// (y up, the body facing the camera facing +z). 30 frames/s (ExAvatar's videos); hands relative to the mean hand.
+// docs/motions.md.
 #include <string>
 #include <vector>
 
@@ -19,18 +26,22 @@ struct MotionClip {
   std::vector<body::SmplxPose> poses;  // one per frame, float64 on the CPU, in the avatar's Y-up frame
   double frames_per_second = 0;
   std::string source;                  // the file
-  std::string format;                  // "amass-smplx" or "amass-smplh"
+  std::string format;                  // "amass-smplx", "amass-smplh" or "exavatar"
   bool absolute_hands = true;          // hand poses relative to a flat hand (not to the model's mean hand)
   std::string note;                    // what the reader filled in or left out, for the user; empty when nothing
 
   double seconds() const { return poses.empty() ? 0 : double(poses.size()) / frames_per_second; }
 };
 
-// Whether `path` names a motion file this reader takes (a .npz).
+// Whether `path` names a motion this reader takes: a .npz, or a folder holding smplx_optimized/smplx_params_smoothed.
 bool is_motion_file(const std::string& path);
 
 // Reads an AMASS-format .npz. Errors name the file, the key and the shape that was expected.
 MotionClip read_amass(const std::string& path);
+// Reads an ExAvatar/SFGS motion folder. Errors name the file and what was expected.
+MotionClip read_exavatar_motion(const std::string& folder);
+// Either, by what `path` is (is_motion_file).
+MotionClip read_motion(const std::string& path);
 
 // The clip sampled at `frames_per_second` over its duration: rotations interpolated along the shortest arc between
 // the neighbouring source frames (per joint), translations and expressions linearly. The first output frame is the

@@ -36,6 +36,8 @@ std::set<std::string> split_names(const std::string& path) {
   return names;
 }
 
+}  // namespace
+
 SmplxPose read_exavatar_pose(const std::string& path) {
   const nlohmann::json j = read_json_file(path);
   const auto field = [&](const char* key, std::vector<int64_t> shape) {
@@ -54,8 +56,6 @@ SmplxPose read_exavatar_pose(const std::string& path) {
   p.transl = field("trans", {3});
   return p;
 }
-
-}  // namespace
 
 Dataset read_neuman(const std::string& folder) {
   const fs::path root(folder);

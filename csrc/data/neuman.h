@@ -10,4 +10,8 @@ namespace sfgs::data {
 
 Dataset read_neuman(const std::string& folder);
 
+// One ExAvatar SMPL-X parameter file (root_pose, body_pose, jaw_pose, leye_pose, reye_pose, lhand_pose, rhand_pose,
+// expr, trans); errors name the file and the key.
+body::SmplxPose read_exavatar_pose(const std::string& path);
+
 }  // namespace sfgs::data

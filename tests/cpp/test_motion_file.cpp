@@ -2,9 +2,12 @@
 // resampling to another frame rate, and clear errors naming the key and the shape expected.
 #include <ATen/ATen.h>
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 
 #include <cmath>
 #include <filesystem>
+#include <fstream>
+#include <vector>
 #include <string>
 
 #include "body/rotations.h"
@@ -166,6 +169,102 @@ TEST(MotionFile, ResamplesAlongTheShortestArc) {
   EXPECT_TRUE(at::allclose(half, expected, 1e-9, 1e-9)) << half << expected;
   EXPECT_NEAR(faster.poses[3].transl[0].item<double>(), 0.15, 1e-12);
   expect_error_mentioning([&] { data::resample(clip, 0); }, "must be positive");
+}
+
+}  // namespace
+}  // namespace sfgs::testing
+
+namespace sfgs::testing {
+namespace {
+
+// An ExAvatar motion folder: frame files N.json of `poses` (camera coordinates) and, when given, cam_params/N.json.
+std::string exavatar_folder(const std::string& name, const std::vector<body::SmplxPose>& poses,
+                            const std::vector<std::pair<at::Tensor, at::Tensor>>& cameras) {
+  const fs::path root = fs::path(temp_path(name));
+  fs::remove_all(root);
+  fs::create_directories(root / "smplx_optimized" / "smplx_params_smoothed");
+  const auto list = [](const at::Tensor& t) {
+    const at::Tensor flat = t.to(at::kDouble).contiguous().flatten();
+    return std::vector<double>(flat.data_ptr<double>(), flat.data_ptr<double>() + flat.numel());
+  };
+  for (size_t k = 0; k < poses.size(); ++k) {
+    const body::SmplxPose& p = poses[k];
+    nlohmann::json j;
+    j["root_pose"] = list(p.global_orient);
+    j["body_pose"] = list(p.body_pose);
+    j["jaw_pose"] = list(p.jaw_pose);
+    j["leye_pose"] = list(p.leye_pose);
+    j["reye_pose"] = list(p.reye_pose);
+    j["lhand_pose"] = list(p.left_hand_pose);
+    j["rhand_pose"] = list(p.right_hand_pose);
+    j["expr"] = list(p.expression);
+    j["trans"] = list(p.transl);
+    std::ofstream(root / "smplx_optimized" / "smplx_params_smoothed" / (std::to_string(k + 7) + ".json")) << j.dump();
+    if (k < cameras.size()) {
+      fs::create_directories(root / "cam_params");
+      nlohmann::json c;
+      c["R"] = std::vector<std::vector<double>>{list(cameras[k].first[0]), list(cameras[k].first[1]),
+                                                list(cameras[k].first[2])};
+      c["t"] = list(cameras[k].second);
+      c["focal"] = {1000.0, 1000.0};
+      std::ofstream(root / "cam_params" / (std::to_string(k + 7) + ".json")) << c.dump();
+    }
+  }
+  return root.string();
+}
+
+body::SmplxPose camera_pose(const at::Tensor& root, const at::Tensor& trans) {
+  body::SmplxPose p = body::SmplxPose::zeros(10).to(at::TensorOptions().dtype(at::kDouble));
+  p.global_orient = root;
+  p.transl = trans;
+  return p;
+}
+
+TEST(MotionFile, ExavatarFolderTurnsTheCameraFrameIntoTheAvatars) {
+  // Values pass through ExAvatar's JSON as float32: compared to 1e-5.
+  // A body upright in front of a static camera (image up is -y, the body faces the camera: -z), 3 m away.
+  const at::Tensor facing = at::tensor({3.141592653589793, 0.0, 0.0}, at::kDouble);  // body +y up -> camera -y
+  const std::string folder =
+      exavatar_folder("exavatar_static", {camera_pose(facing, at::tensor({0.0, 0.0, 3.0}, at::kDouble))}, {});
+  ASSERT_TRUE(data::is_motion_file(folder));
+  const data::MotionClip clip = data::read_motion(folder);
+  EXPECT_EQ(clip.format, "exavatar");
+  EXPECT_FALSE(clip.absolute_hands);
+  EXPECT_EQ(clip.frames_per_second, 30.0);
+  // Upright and facing +z in the avatar's frame: the identity; in front of the camera: -z.
+  EXPECT_TRUE(at::allclose(body::axis_angle_to_matrix(clip.poses[0].global_orient), at::eye(3, at::kDouble), 1e-5,
+                           1e-5));
+  EXPECT_TRUE(at::allclose(clip.poses[0].transl, at::tensor({0.0, 0.0, -3.0}, at::kDouble), 1e-5, 1e-5));
+}
+
+TEST(MotionFile, ExavatarFolderTakesAMovingCamerasMotionOut) {
+  // A body standing still in the world, filmed by a camera that turns and moves: in every frame's camera coordinates
+  // it differs, after reading it is the same.
+  const at::Tensor world_root = at::tensor({3.0, 0.1, 0.2}, at::kDouble), world_trans = at::tensor({0.2, 0.1, 3.0});
+  std::vector<body::SmplxPose> poses;
+  std::vector<std::pair<at::Tensor, at::Tensor>> cameras;
+  for (int k = 0; k < 3; ++k) {
+    const at::Tensor r = body::axis_angle_to_matrix(at::tensor({0.05 * k, 0.3 * k, 0.0}, at::kDouble));
+    const at::Tensor t = at::tensor({0.1 * k, -0.2 * k, 0.3 * k}, at::kDouble);
+    poses.push_back(camera_pose(body::matrix_to_axis_angle(r.matmul(body::axis_angle_to_matrix(world_root))),
+                                r.matmul(world_trans.to(at::kDouble)) + t));
+    cameras.emplace_back(r, t);
+  }
+  const data::MotionClip clip = data::read_motion(exavatar_folder("exavatar_moving", poses, cameras));
+  ASSERT_EQ(clip.poses.size(), 3u);
+  for (size_t k = 1; k < 3; ++k) {
+    EXPECT_TRUE(at::allclose(body::axis_angle_to_matrix(clip.poses[k].global_orient),
+                             body::axis_angle_to_matrix(clip.poses[0].global_orient), 1e-5, 1e-5))
+        << "frame " << k;
+    EXPECT_TRUE(at::allclose(clip.poses[k].transl, clip.poses[0].transl, 1e-5, 1e-5)) << "frame " << k;
+  }
+  // A frame without its camera, while others have one, and a folder without frames are named.
+  fs::remove(fs::path(temp_path("exavatar_moving")) / "cam_params" / "8.json");
+  expect_error_mentioning([&] { data::read_motion(temp_path("exavatar_moving")); }, "frame 8 has no");
+  const fs::path empty = fs::path(temp_path("exavatar_empty")) / "smplx_optimized" / "smplx_params_smoothed";
+  fs::create_directories(empty);
+  expect_error_mentioning([&] { data::read_motion(temp_path("exavatar_empty")); }, "holds no frame file like 0.json");
+  expect_error_mentioning([&] { data::read_motion(temp_path("nowhere")); }, "is neither an AMASS .npz nor");
 }
 
 }  // namespace

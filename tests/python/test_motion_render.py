@@ -1,6 +1,7 @@
-"""`sfgs render --motion FILE`: AMASS-format motions drive a trained avatar, with the orbit, fixed and follow cameras,
+"""`sfgs render --motion FILE|DIR`: AMASS-format motions and ExAvatar motion folders drive a trained avatar, with the orbit, fixed and follow cameras,
 resampled to the output frame rate; bad motion files and options get clear errors. Through the `sfgs` executable
 (SFGS_EXECUTABLE, which CTest sets); skipped without it."""
+import json
 import os
 import subprocess
 
@@ -70,6 +71,26 @@ def test_an_amass_motion_drives_the_avatar(tmp_path, trained, camera):
     assert (first < 0.9).any(), "the body should be in view"
     if camera == "follow":
         assert (last < 0.9).any(), "the follow camera keeps the walking body in view"
+
+
+def test_an_exavatar_motion_folder_drives_the_avatar(tmp_path, trained):
+    """Three frames of a body 3 m in front of a static camera (ExAvatar's camera coordinates), raising an arm."""
+    params = tmp_path / "exavatar" / "smplx_optimized" / "smplx_params_smoothed"
+    params.mkdir(parents=True)
+    for k in range(3):
+        body = np.zeros((21, 3))
+        body[15, 2] = -0.5 * k  # left shoulder
+        frame = {"root_pose": [np.pi, 0, 0], "body_pose": body.tolist(), "jaw_pose": [0, 0, 0],
+                 "leye_pose": [0, 0, 0], "reye_pose": [0, 0, 0], "lhand_pose": [[0, 0, 0]] * 15,
+                 "rhand_pose": [[0, 0, 0]] * 15, "expr": [0.0] * 10, "trans": [0, 0.2, 3.0]}
+        (params / f"{k}.json").write_text(json.dumps(frame))
+    out = str(tmp_path / "exavatar_out")
+    result = sfgs_run("render", "--run", trained, "--out", out, "--motion", str(tmp_path / "exavatar"),
+                      "--size", "48x64")
+    assert result.returncode == 0, result.stderr
+    frames = rendered_frames(out)
+    assert len(frames) == 2, frames  # ExAvatar frames at 30 fps end at 2/30 s: at 24 fps, 0 and 1/24 s
+    assert (read_png_rgb(os.path.join(out, frames[0])) < 0.9).any(), "the body should be in view"
 
 
 def test_a_smplh_motion_renders_with_a_note(tmp_path, trained):
