@@ -7,6 +7,7 @@
 #include <torch/extension.h>
 
 #include "data/dataset.h"
+#include "data/motion_file.h"
 #include "scene/builtin_scene.h"
 #include "splat/splat.h"
 #include "train/run_folder.h"
@@ -120,6 +121,30 @@ sfgs::Camera camera_from_dict(const py::object& object) {
 
 // A trained avatar for experiments: the run's checkpoint with its config, and the dataset it was trained on
 // (read when first needed).
+// A motion clip as Python takes it: its frames as pose dicts (Avatar.gaussians/render take them), and what it is.
+py::dict motion_dict(const sfgs::data::MotionClip& clip, const std::vector<SmplxPose>& poses) {
+  py::list frames;
+  for (const SmplxPose& p : poses) {
+    py::dict pose;
+    for (const SmplxPose::Field& f : SmplxPose::fields())
+      if ((p.*(f.member)).defined()) pose[f.name] = p.*(f.member);
+    frames.append(pose);
+  }
+  py::dict out;
+  out["frames"] = frames;
+  out["fps"] = clip.frames_per_second;
+  out["format"] = clip.format;
+  out["note"] = clip.note;
+  out["absolute_hands"] = clip.absolute_hands;
+  return out;
+}
+
+// The clip read from `path`, resampled to `fps` when one is given (> 0).
+sfgs::data::MotionClip read_clip(const std::string& path, double fps) {
+  const sfgs::data::MotionClip clip = sfgs::data::read_motion(path);
+  return fps > 0 ? sfgs::data::resample(clip, fps) : clip;
+}
+
 class TrainedAvatar {
  public:
   TrainedAvatar(const std::string& run, const std::string& device, const std::string& data)
@@ -178,6 +203,16 @@ class TrainedAvatar {
   }
 
   int64_t frame_count() { return dataset().size(); }
+
+  // A motion file or folder as pose dicts in this avatar's hand convention, resampled to `fps` when given.
+  py::dict motion(const std::string& path, double fps) {
+    const sfgs::data::MotionClip clip = read_clip(path, fps);
+    std::vector<SmplxPose> poses;
+    for (int64_t k = 0; k < static_cast<int64_t>(clip.poses.size()); ++k)
+      poses.push_back(sfgs::train::clip_pose(t_.avatar, clip, k));
+    return motion_dict(clip, poses);
+  }
+
   void set_cached(bool cached) {
     if (cached)
       t_.avatar->cache_static_features();
@@ -282,10 +317,15 @@ visible, as render() does.)")
       .def("frame", &TrainedAvatar::frame, py::arg("index"),
            "Training-dataset frame `index`: {'pose': dict, 'camera': dict, 'split': 'train'|'val'|'test'}")
       .def_property_readonly("frame_count", &TrainedAvatar::frame_count)
+      .def("motion", &TrainedAvatar::motion, py::arg("path"), py::arg("fps") = 0.0,
+           R"(An AMASS .npz or ExAvatar motion folder (docs/motions.md) as this avatar takes it: {'frames': [pose dict,
+...], 'fps', 'format', 'note', 'absolute_hands'}; hand poses converted to the avatar's convention; resampled to `fps`
+when given (> 0). Pass a frame to gaussians() or render().)")
       .def("set_cached", &TrainedAvatar::set_cached, py::arg("cached"),
            "Cache the pose-independent features for fast inference (True) or drop the cache (False)")
       .def_property_readonly("iteration", [](const TrainedAvatar& a) { return a.trained().iteration; })
-      .def_property_readonly("gaussian_count", [](const TrainedAvatar& a) { return a.trained().avatar->gaussian_count(); })
+      .def_property_readonly("gaussian_count",
+                             [](const TrainedAvatar& a) { return a.trained().avatar->gaussian_count(); })
       .def_property_readonly("config_yaml", [](const TrainedAvatar& a) { return a.trained().config.to_yaml(); })
       .def_property_readonly("dataset_path", [](const TrainedAvatar& a) { return a.trained().dataset; });
   m.def(
@@ -295,6 +335,16 @@ visible, as render() does.)")
       },
       py::arg("run"), py::arg("device") = "cpu", py::arg("data") = "",
       "Load a trained avatar from a run folder (sfgs train --out RUN); `data` points at its dataset if it moved");
+  m.def(
+      "read_motion",
+      [](const std::string& path, double fps) {
+        const sfgs::data::MotionClip clip = read_clip(path, fps);
+        return motion_dict(clip, clip.poses);
+      },
+      py::arg("path"), py::arg("fps") = 0.0,
+      R"(Read an AMASS SMPL-X/SMPL-H .npz or an ExAvatar motion folder (docs/motions.md): {'frames': [pose dict (float64,
+the avatar's Y-up frame), ...], 'fps', 'format', 'note', 'absolute_hands' (hand poses relative to a flat hand)};
+resampled to `fps` when given (> 0). Avatar.motion converts the hands for an avatar.)");
   m.attr("LOW_PASS_VARIANCE_PX2") = sfgs::kLowPassVariancePx2;
   m.attr("MIN_ALPHA") = sfgs::kMinAlpha;
   m.attr("MAX_ALPHA") = sfgs::kMaxAlpha;

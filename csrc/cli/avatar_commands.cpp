@@ -22,6 +22,7 @@
 #include "data/motion_file.h"
 #include "data/motions.h"
 #include "train/evaluate.h"
+#include "train/export.h"
 #include "train/run_folder.h"
 
 namespace sfgs::cli {
@@ -225,19 +226,6 @@ std::array<double, 3> centre_of(const model::AvatarOutput& o) {
   return {c[0].item<double>(), c[1].item<double>(), c[2].item<double>()};
 }
 
-// A motion file's frame as the avatar takes it: hand poses in the avatar's convention (relative to the model's mean
-// hand when the avatar adds that mean, absolute otherwise).
-body::SmplxPose avatar_pose(model::Avatar& avatar, const data::MotionClip& clip, int64_t frame) {
-  body::SmplxPose p = clip.poses[size_t(frame)];
-  const bool avatar_absolute = avatar->config().flat_hand_mean;
-  if (clip.absolute_hands != avatar_absolute) {
-    const double sign = clip.absolute_hands ? -1.0 : 1.0;
-    p.left_hand_pose = p.left_hand_pose + sign * avatar->hand_mean(body::Side::kLeft).cpu().to(at::kDouble);
-    p.right_hand_pose = p.right_hand_pose + sign * avatar->hand_mean(body::Side::kRight).cpu().to(at::kDouble);
-  }
-  return p;
-}
-
 // Renders the frames into PNGs and the video; returns the frames per second of avatar + rasterisation.
 double render_frames(train::TrainedAvatar& t, RenderRequest& request, WrittenFiles& written, bool& wrote_video) {
   const data::Dataset trained_on = train::read_run_dataset(t, request.data);
@@ -262,7 +250,7 @@ double render_frames(train::TrainedAvatar& t, RenderRequest& request, WrittenFil
   t.avatar->cache_static_features();
   at::NoGradGuard no_grad;
   const auto pose_at = [&](int64_t i) {
-    if (clip) return t.avatar->forward(avatar_pose(t.avatar, *clip, i), std::nullopt);
+    if (clip) return t.avatar->forward(train::clip_pose(t.avatar, *clip, i), std::nullopt);
     if (replay) return train::pose_avatar(t.avatar, *motion, i % motion->size());
     if (motion) return t.avatar->forward(motion->frames[size_t(i % motion->size())].pose, std::nullopt);
     return t.avatar->forward(data::motion_pose(request.motion, double(i) / request.fps,
@@ -373,7 +361,7 @@ int run_export(Arguments& args) {
   if (frame >= 0) dataset = train::read_run_dataset(t, data_folder);
   const fs::path folder = fs::path(out).has_parent_path() ? fs::path(out).parent_path() : fs::path(".");
   remove_stale_temporaries(folder.string());
-  train::export_ply(t.avatar, dataset ? &*dataset : nullptr, frame, out, force);
+  train::export_gaussians(t.avatar, dataset ? &*dataset : nullptr, frame, out, force);
   std::printf("sfgs export: %lld Gaussians (%s) to %s\n", (long long)t.avatar->gaussian_count(),
               frame >= 0 ? ("frame " + std::to_string(frame)).c_str() : "canonical pose", out.c_str());
   return 0;

@@ -43,7 +43,7 @@ commands:
            --camera orbit|fixed|follow (the dataset's camera orbiting; a motion file: follow)
            --distance M (2.8)  --height M (0)  --size WxH (the dataset's)
            --data DATASET (the training one)  --device cpu|cuda (the run's)  --force
-  export   the avatar as a standard 3DGS .ply: --run RUN --out FILE.ply  --frame K (canonical)
+  export   the avatar's Gaussians: --run RUN --out FILE.ply (3DGS) | FILE.splat (web viewers)  --frame K (canonical)
            --data DATASET (the training one, for --frame)  --force
   ablate   the paper's ablation table: --data DATASET --out DIR  --config FILE  --iterations N  --force
   bench    render the built-in Gaussian scene and print forward/backward timings

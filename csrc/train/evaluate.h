@@ -28,9 +28,4 @@ AvatarEvaluation evaluate_avatar(const data::Dataset& dataset, data::Split split
                                  const metrics::EvaluationOptions& options, const std::string& save_folder,
                                  bool overwrite);
 
-// The avatar's Gaussians in one frame's pose (or its canonical pose when frame < 0) as a binary little-endian
-// 3DGS .ply (x y z, normals, f_dc_0..2, opacity logit, log scales, rotation quaternion), written atomically.
-void export_ply(model::Avatar& avatar, const data::Dataset* dataset, int64_t frame, const std::string& path,
-                bool overwrite);
-
 }  // namespace sfgs::train

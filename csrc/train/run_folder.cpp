@@ -29,6 +29,19 @@ model::AvatarOutput pose_avatar(model::Avatar& avatar, const data::Dataset& data
   return avatar->forward(dataset.frames[size_t(frame)].pose, dataset.replay_time(frame));
 }
 
+body::SmplxPose clip_pose(model::Avatar& avatar, const data::MotionClip& clip, int64_t frame) {
+  TORCH_CHECK(frame >= 0 && frame < static_cast<int64_t>(clip.poses.size()), "motion '", clip.source, "': frame ",
+              frame, " is not in [0, ", clip.poses.size(), ")");
+  body::SmplxPose p = clip.poses[size_t(frame)];
+  const bool avatar_absolute = avatar->config().flat_hand_mean;
+  if (clip.absolute_hands != avatar_absolute) {
+    const double sign = clip.absolute_hands ? -1.0 : 1.0;
+    p.left_hand_pose = p.left_hand_pose + sign * avatar->hand_mean(body::Side::kLeft).cpu().to(at::kDouble);
+    p.right_hand_pose = p.right_hand_pose + sign * avatar->hand_mean(body::Side::kRight).cpu().to(at::kDouble);
+  }
+  return p;
+}
+
 Camera render_camera(const data::FrameRecord& frame) {
   Camera c = frame.camera;
   if (frame.pose_in_camera_frame) c.world_to_camera = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};

@@ -5,6 +5,7 @@
 #include <string>
 
 #include "data/dataset.h"
+#include "data/motion_file.h"
 #include "model/avatar.h"
 #include "train/train_config.h"
 
@@ -22,6 +23,9 @@ model::Avatar make_avatar(const TrainConfig& config, const at::Tensor& betas, at
 
 // The avatar in dataset frame `frame`: its SMPL-X pose at its replay time (none for a new motion, dataset.h).
 model::AvatarOutput pose_avatar(model::Avatar& avatar, const data::Dataset& dataset, int64_t frame);
+// Frame `frame` of a motion clip as `avatar` takes it: hand poses in the avatar's convention (relative to the model's
+// mean hand when the avatar adds that mean, absolute otherwise); the avatar poses it without a time.
+body::SmplxPose clip_pose(model::Avatar& avatar, const data::MotionClip& clip, int64_t frame);
 // The camera to render that frame with (identity extrinsics for poses given in camera coordinates).
 Camera render_camera(const data::FrameRecord& frame);
 

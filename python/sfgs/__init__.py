@@ -11,7 +11,8 @@ from ._C import (  # noqa: F401
     cuda_available,
     demo_scene,
     load_avatar,
+    read_motion,
     render,
 )
 
-__all__ = ["render", "cuda_available", "demo_scene", "load_avatar", "Avatar"]
+__all__ = ["render", "cuda_available", "demo_scene", "load_avatar", "read_motion", "Avatar"]

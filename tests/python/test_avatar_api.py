@@ -112,6 +112,30 @@ def read_png_rgb(path):
     return torch.frombuffer(bytearray(b"".join(rows)), dtype=torch.uint8).view(height, width, 3).float() / 255
 
 
+def test_motion_files_pose_the_avatar(run, tmp_path):
+    import numpy as np
+    frames, fps = 30, 60.0
+    poses = np.zeros((frames, 165))
+    poses[:, 0] = np.pi / 2  # upright in AMASS's Z-up frame
+    poses[:, 50] = np.linspace(0, -1, frames)  # the left shoulder lowering the arm
+    path = str(tmp_path / "clip.npz")
+    np.savez(path, poses=poses, trans=np.zeros((frames, 3)), mocap_frame_rate=np.array(fps))
+    motion = sfgs.read_motion(path)
+    assert motion["format"] == "amass-smplx" and motion["fps"] == 60.0 and motion["absolute_hands"]
+    assert len(motion["frames"]) == 30 and motion["frames"][0]["body_pose"].shape == (21, 3)
+    assert torch.allclose(motion["frames"][0]["global_orient"], torch.zeros(3, dtype=torch.float64), atol=1e-9)
+    assert len(sfgs.read_motion(path, fps=20)["frames"]) == 10  # 29/60 s at 20 fps: 0, 0.05, ..., 0.45 s
+    avatar = sfgs.load_avatar(run)
+    posed = avatar.motion(path, fps=20)
+    assert len(posed["frames"]) == 10
+    first, last = (avatar.gaussians(posed["frames"][k])["means"] for k in (0, -1))
+    assert first.shape == (avatar.gaussian_count, 3)
+    assert (first - last).abs().max() > 0.05, "the arm moved"
+    with pytest.raises(RuntimeError, match="lacks its frame rate"):
+        np.savez(str(tmp_path / "bad.npz"), poses=poses)
+        sfgs.read_motion(str(tmp_path / "bad.npz"))
+
+
 def test_bad_inputs_are_clear_errors(run, tmp_path):
     with pytest.raises(RuntimeError, match="checkpoint"):
         sfgs.load_avatar(str(tmp_path))
