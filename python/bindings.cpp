@@ -11,39 +11,12 @@
 #include "scene/builtin_scene.h"
 #include "splat/splat.h"
 #include "train/run_folder.h"
+#include "python_values.h"
 
 namespace py = pybind11;
+using namespace sfgs::python;
 
 namespace {
-
-// Python values into C++ ones with messages that name the argument, the type expected and the type that came
-// (instead of pybind11's "Unable to cast Python instance to C++ type").
-std::string python_type(const py::handle& value) { return py::str(py::type::handle_of(value).attr("__name__")); }
-
-at::Tensor to_tensor(const py::handle& value, const std::string& what) {
-  if (THPVariable_Check(value.ptr())) return THPVariable_Unpack(value.ptr());
-  throw py::type_error(what + ": expected a torch.Tensor, got " + python_type(value) +
-                       (py::isinstance<py::list>(value) || py::isinstance<py::tuple>(value)
-                            ? " (wrap it: torch.tensor(...))"
-                            : ""));
-}
-
-int64_t to_int(const py::handle& value, const std::string& what) {
-  if (py::isinstance<py::bool_>(value) || !py::isinstance<py::int_>(value))
-    throw py::type_error(what + ": expected an int, got " + python_type(value) + " " + std::string(py::repr(value)));
-  return value.cast<int64_t>();
-}
-
-double to_double(const py::handle& value, const std::string& what) {
-  if (py::isinstance<py::bool_>(value) || !(py::isinstance<py::int_>(value) || py::isinstance<py::float_>(value)))
-    throw py::type_error(what + ": expected a number, got " + python_type(value) + " " + std::string(py::repr(value)));
-  return value.cast<double>();
-}
-
-std::optional<at::Tensor> to_optional_tensor(const py::handle& value, const std::string& what) {
-  if (value.is_none()) return std::nullopt;
-  return to_tensor(value, what);
-}
 
 py::dict result_dict(const sfgs::RenderResult& r) {
   py::dict out;
@@ -90,20 +63,6 @@ struct FramePose {
 // Keys of earlier versions, accepted with a DeprecationWarning.
 const std::pair<const char*, const char*> kRenamedPoseKeys[] = {{"left_eye_pose", "leye_pose"},
                                                                 {"right_eye_pose", "reye_pose"}};
-
-py::dict camera_dict(const sfgs::Camera& c) {
-  py::dict d;
-  d["world_to_camera"] = at::tensor(std::vector<double>(c.world_to_camera.begin(), c.world_to_camera.end()),
-                                    at::kDouble)
-                             .view({4, 4});
-  d["fx"] = c.fx;
-  d["fy"] = c.fy;
-  d["cx"] = c.cx;
-  d["cy"] = c.cy;
-  d["width"] = c.width;
-  d["height"] = c.height;
-  return d;
-}
 
 sfgs::Camera camera_from_dict(const py::object& object) {
   if (!py::isinstance<py::dict>(object))
@@ -182,24 +141,7 @@ class TrainedAvatar {
 
   // Frame `index` of the training dataset: its pose (with time), camera and split.
   py::dict frame(const py::object& index_object) {
-    const int64_t index = to_int(index_object, "Avatar.frame(index)");
-    const sfgs::data::Dataset& d = dataset();
-    TORCH_CHECK(index >= 0 && index < d.size(), "frame: index must be in [0, ", d.size(), "), got ", index);
-    const SmplxPose& p = d.frames[size_t(index)].pose;
-    py::dict pose;
-    for (const SmplxPose::Field& f : SmplxPose::fields())
-      if ((p.*(f.member)).defined()) pose[f.name] = p.*(f.member);
-    const std::optional<double> time = d.replay_time(index);
-    pose["time"] = time ? py::object(py::float_(*time)) : py::object(py::none());
-    py::dict out;
-    out["pose"] = pose;
-    out["camera"] = camera_dict(sfgs::train::render_camera(d.frames[size_t(index)]));
-    const char* names[] = {"train", "val", "test"};
-    for (const auto split : {sfgs::data::Split::kTrain, sfgs::data::Split::kVal, sfgs::data::Split::kTest}) {
-      const auto& members = d.split(split);
-      if (std::find(members.begin(), members.end(), index) != members.end()) out["split"] = names[int(split)];
-    }
-    return out;
+    return frame_record_dict(dataset(), to_int(index_object, "Avatar.frame(index)"));
   }
 
   int64_t frame_count() { return dataset().size(); }
@@ -345,6 +287,7 @@ when given (> 0). Pass a frame to gaussians() or render().)")
       R"(Read an AMASS SMPL-X/SMPL-H .npz or an ExAvatar motion folder (docs/motions.md): {'frames': [pose dict (float64,
 the avatar's Y-up frame), ...], 'fps', 'format', 'note', 'absolute_hands' (hand poses relative to a flat hand)};
 resampled to `fps` when given (> 0). Avatar.motion converts the hands for an avatar.)");
+  bind_metrics_and_data(m);
   m.attr("LOW_PASS_VARIANCE_PX2") = sfgs::kLowPassVariancePx2;
   m.attr("MIN_ALPHA") = sfgs::kMinAlpha;
   m.attr("MAX_ALPHA") = sfgs::kMaxAlpha;

@@ -8,11 +8,17 @@ from ._C import (  # noqa: F401
     MIN_TRANSMITTANCE,
     TILE_SIZE,
     Avatar,
+    Dataset,
     cuda_available,
     demo_scene,
     load_avatar,
+    lpips,
+    psnr,
+    read_dataset,
     read_motion,
     render,
+    ssim,
 )
 
-__all__ = ["render", "cuda_available", "demo_scene", "load_avatar", "read_motion", "Avatar"]
+__all__ = ["render", "cuda_available", "demo_scene", "load_avatar", "read_motion", "read_dataset", "psnr", "ssim",
+           "lpips", "Avatar", "Dataset"]

@@ -1,0 +1,66 @@
+#pragma once
+// Python values into C++ ones for the module's bindings, with messages that name the argument, the type expected
+// and the type that came (instead of pybind11's "Unable to cast Python instance to C++ type").
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <torch/extension.h>
+
+#include "data/dataset.h"
+#include "splat/splat.h"
+
+namespace sfgs::python {
+
+namespace py = pybind11;
+
+inline std::string python_type(const py::handle& value) { return py::str(py::type::handle_of(value).attr("__name__")); }
+
+inline at::Tensor to_tensor(const py::handle& value, const std::string& what) {
+  if (THPVariable_Check(value.ptr())) return THPVariable_Unpack(value.ptr());
+  throw py::type_error(what + ": expected a torch.Tensor, got " + python_type(value) +
+                       (py::isinstance<py::list>(value) || py::isinstance<py::tuple>(value)
+                            ? " (wrap it: torch.tensor(...))"
+                            : ""));
+}
+
+inline int64_t to_int(const py::handle& value, const std::string& what) {
+  if (py::isinstance<py::bool_>(value) || !py::isinstance<py::int_>(value))
+    throw py::type_error(what + ": expected an int, got " + python_type(value) + " " + std::string(py::repr(value)));
+  return value.cast<int64_t>();
+}
+
+inline double to_double(const py::handle& value, const std::string& what) {
+  if (py::isinstance<py::bool_>(value) || !(py::isinstance<py::int_>(value) || py::isinstance<py::float_>(value)))
+    throw py::type_error(what + ": expected a number, got " + python_type(value) + " " + std::string(py::repr(value)));
+  return value.cast<double>();
+}
+
+inline std::optional<at::Tensor> to_optional_tensor(const py::handle& value, const std::string& what) {
+  if (value.is_none()) return std::nullopt;
+  return to_tensor(value, what);
+}
+
+// A camera as the Python API gives and takes it.
+inline py::dict camera_dict(const sfgs::Camera& c) {
+  py::dict d;
+  d["world_to_camera"] = at::tensor(std::vector<double>(c.world_to_camera.begin(), c.world_to_camera.end()),
+                                    at::kDouble)
+                             .view({4, 4});
+  d["fx"] = c.fx;
+  d["fy"] = c.fy;
+  d["cx"] = c.cx;
+  d["cy"] = c.cy;
+  d["width"] = c.width;
+  d["height"] = c.height;
+  return d;
+}
+
+// Dataset frame `index` without its images: {'pose': dict (with 'time', None for a frame without replay time),
+// 'camera': dict, 'split': 'train'|'val'|'test' (absent when in none), 'name'}. bindings_data.cpp.
+py::dict frame_record_dict(const sfgs::data::Dataset& dataset, int64_t index);
+
+// The metrics (psnr, ssim, lpips) and dataset reading (read_dataset), bindings_data.cpp.
+void bind_metrics_and_data(py::module_& m);
+
+}  // namespace sfgs::python
