@@ -288,6 +288,7 @@ when given (> 0). Pass a frame to gaussians() or render().)")
 the avatar's Y-up frame), ...], 'fps', 'format', 'note', 'absolute_hands' (hand poses relative to a flat hand)};
 resampled to `fps` when given (> 0). Avatar.motion converts the hands for an avatar.)");
   bind_metrics_and_data(m);
+  bind_body_layers(m);
   m.attr("LOW_PASS_VARIANCE_PX2") = sfgs::kLowPassVariancePx2;
   m.attr("MIN_ALPHA") = sfgs::kMinAlpha;
   m.attr("MAX_ALPHA") = sfgs::kMaxAlpha;

@@ -62,5 +62,7 @@ py::dict frame_record_dict(const sfgs::data::Dataset& dataset, int64_t index);
 
 // The metrics (psnr, ssim, lpips) and dataset reading (read_dataset), bindings_data.cpp.
 void bind_metrics_and_data(py::module_& m);
+// The SMPL-X and MANO layers (Smplx, Mano), bindings_body.cpp.
+void bind_body_layers(py::module_& m);
 
 }  // namespace sfgs::python

@@ -9,6 +9,8 @@ from ._C import (  # noqa: F401
     TILE_SIZE,
     Avatar,
     Dataset,
+    Mano,
+    Smplx,
     cuda_available,
     demo_scene,
     load_avatar,
@@ -21,4 +23,4 @@ from ._C import (  # noqa: F401
 )
 
 __all__ = ["render", "cuda_available", "demo_scene", "load_avatar", "read_motion", "read_dataset", "psnr", "ssim",
-           "lpips", "Avatar", "Dataset"]
+           "lpips", "Avatar", "Dataset", "Smplx", "Mano"]
