@@ -6,14 +6,6 @@
 
 namespace sfgs::animate {
 
-std::array<double, 3> camera_centre(const Camera& camera) {
-  // world_to_camera = [R | t]: the centre is -R^T t.
-  const auto& m = camera.world_to_camera;
-  std::array<double, 3> centre{};
-  for (int i = 0; i < 3; ++i) centre[i] = -(m[0 * 4 + i] * m[3] + m[1 * 4 + i] * m[7] + m[2 * 4 + i] * m[11]);
-  return centre;
-}
-
 at::Tensor cull_back_facing(const at::Tensor& opacities, const at::Tensor& means, const at::Tensor& normals,
                             const at::Tensor& centre, double max_cosine) {
   TORCH_CHECK(means.defined() && means.dim() == 2 && means.size(1) == 3 && at::isFloatingType(means.scalar_type()),

@@ -8,19 +8,14 @@
 // antialiasing compensation scales small Gaussians' opacity down, so the near side does not hide the far side
 // completely): the Animator keeps it off unless asked. bench_animate reports its run time against its error;
 // docs/performance.md has the figures.
-#include <array>
-
 #include <ATen/core/Tensor.h>
 
 #include "splat/splat.h"
 
 namespace sfgs::animate {
 
-// The camera's centre in world coordinates.
-std::array<double, 3> camera_centre(const Camera& camera);
-
 // opacities (N) with those of back-facing Gaussians set to zero (splatting then skips them): means and normals
-// (N, 3) world, normals of unit length; camera_centre (3) on their device (a tensor, so a recorded CUDA graph
+// (N, 3) world, normals of unit length; camera_centre (3) on their device (sfgs::camera_centre) (a tensor, so a recorded CUDA graph
 // reads the current camera); max_cosine >= 1 culls nothing. No host synchronisation.
 at::Tensor cull_back_facing(const at::Tensor& opacities, const at::Tensor& means, const at::Tensor& normals,
                             const at::Tensor& camera_centre, double max_cosine);

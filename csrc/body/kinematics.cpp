@@ -103,7 +103,7 @@ PosedSkeleton KinematicTreeImpl::pose(const at::Tensor& rotations, const at::Ten
                                       const at::Tensor& translation) const {
   check_pose_inputs(rotations, rest_joints, translation);
   return fuses(rotations, rest_joints, translation) ? pose_fused(rotations, rest_joints, translation)
-                                                   : pose_reference(rotations, rest_joints, translation);
+                                                   : compose(rotations, rest_joints, translation);
 }
 
 bool KinematicTreeImpl::fuses(const at::Tensor& rotations, const at::Tensor& rest_joints,
@@ -142,6 +142,11 @@ PosedSkeleton KinematicTreeImpl::pose_fused(const at::Tensor& rotations, const a
 PosedSkeleton KinematicTreeImpl::pose_reference(const at::Tensor& rotations, const at::Tensor& rest_joints,
                                                 const at::Tensor& translation) const {
   check_pose_inputs(rotations, rest_joints, translation);
+  return compose(rotations, rest_joints, translation);
+}
+
+PosedSkeleton KinematicTreeImpl::compose(const at::Tensor& rotations, const at::Tensor& rest_joints,
+                                         const at::Tensor& translation) const {
   const int64_t j = size();
   // Offsets of every joint from its parent in the rest pose; the root's is its position plus the translation.
   at::Tensor offsets = rest_joints - rest_joints.index_select(1, parent_or_self_);

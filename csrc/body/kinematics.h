@@ -48,8 +48,11 @@ class KinematicTreeImpl : public BodyModule {
  private:
   void check_pose_inputs(const at::Tensor& rotations, const at::Tensor& rest_joints,
                          const at::Tensor& translation) const;
+  // The two paths of pose(), on checked inputs: the fused kernel and the LibTorch composition.
   PosedSkeleton pose_fused(const at::Tensor& rotations, const at::Tensor& rest_joints,
                            const at::Tensor& translation) const;
+  PosedSkeleton compose(const at::Tensor& rotations, const at::Tensor& rest_joints,
+                        const at::Tensor& translation) const;
 
   std::vector<int64_t> parents_;
   // Per depth level >= 1: its joints, and where their parents sit in the depth-ordered concatenation.

@@ -142,33 +142,36 @@ int run_eval(Arguments& args) {
 
 namespace {
 
-// The camera circling the subject: at the distance and height of `base`'s centre around `centre`, `angle` radians
-// on from base's own position, looking at the centre (OpenCV axes, world up +y).
-Camera orbit_camera(const Camera& base, const std::array<double, 3>& centre, double angle) {
-  const auto& m = base.world_to_camera;
-  const double ex = -(m[0] * m[3] + m[4] * m[7] + m[8] * m[11]);  // camera centre = -R^T t
-  const double ey = -(m[1] * m[3] + m[5] * m[7] + m[9] * m[11]);
-  const double ez = -(m[2] * m[3] + m[6] * m[7] + m[10] * m[11]);
-  const double cx = centre[0], cy = centre[1], cz = centre[2];
-  const double radius = std::sqrt((ex - cx) * (ex - cx) + (ez - cz) * (ez - cz));
-  const double a = std::atan2(ex - cx, ez - cz) + angle;
-  const double eye[3] = {cx + radius * std::sin(a), ey, cz + radius * std::cos(a)};
-  double fwd[3] = {cx - eye[0], cy - eye[1], cz - eye[2]};
+// `lens` (its intrinsics and size) placed at `eye` and looking at `target`, world +Y up (the body model's frame),
+// image x to the world's right (OpenCV axes).
+Camera look_at_camera(const Camera& lens, const std::array<double, 3>& eye, const std::array<double, 3>& target) {
+  double fwd[3] = {target[0] - eye[0], target[1] - eye[1], target[2] - eye[2]};
   const double fn = std::sqrt(fwd[0] * fwd[0] + fwd[1] * fwd[1] + fwd[2] * fwd[2]);
+  TORCH_CHECK(fn > 0, "render: the camera distance must be positive");
   for (double& v : fwd) v /= fn;
   double right[3] = {-fwd[2], 0.0, fwd[0]};  // fwd x (0, 1, 0)
   const double rn = std::sqrt(right[0] * right[0] + right[2] * right[2]);
+  TORCH_CHECK(rn > 0, "render: the camera looks straight up or down (its height is its whole distance)");
   right[0] /= rn;
   right[2] /= rn;
   const double down[3] = {fwd[1] * right[2] - fwd[2] * right[1], fwd[2] * right[0] - fwd[0] * right[2],
                           fwd[0] * right[1] - fwd[1] * right[0]};
   const double* rows[3] = {right, down, fwd};
-  Camera cam = base;
+  Camera cam = lens;
   for (int r = 0; r < 3; ++r) {
     for (int c = 0; c < 3; ++c) cam.world_to_camera[size_t(4 * r + c)] = rows[r][c];
     cam.world_to_camera[size_t(4 * r + 3)] = -(rows[r][0] * eye[0] + rows[r][1] * eye[1] + rows[r][2] * eye[2]);
   }
   return cam;
+}
+
+// The camera circling the subject: at the distance and height of `base`'s centre around `centre`, `angle` radians
+// on from base's own position, looking at the centre.
+Camera orbit_camera(const Camera& base, const std::array<double, 3>& centre, double angle) {
+  const std::array<double, 3> e = camera_centre(base);
+  const double radius = std::hypot(e[0] - centre[0], e[2] - centre[2]);
+  const double a = std::atan2(e[0] - centre[0], e[2] - centre[2]) + angle;
+  return look_at_camera(base, {centre[0] + radius * std::sin(a), e[1], centre[2] + radius * std::cos(a)}, centre);
 }
 
 // The files a render has written so far: removed again if it fails, so a failed render leaves nothing half done.
@@ -195,29 +198,6 @@ struct RenderRequest {
 };
 
 constexpr int64_t kDefaultRenderFrames = 48;
-
-// A camera at `eye` looking at `target`, world +Y up (the body model's frame), image x to the world's right.
-Camera look_at_camera(const std::array<double, 3>& eye, const std::array<double, 3>& target, int64_t width,
-                      int64_t height) {
-  Camera cam = Camera::looking_forward(kRenderFocalPerHeight * double(height), width, height);
-  double fwd[3] = {target[0] - eye[0], target[1] - eye[1], target[2] - eye[2]};
-  const double fn = std::sqrt(fwd[0] * fwd[0] + fwd[1] * fwd[1] + fwd[2] * fwd[2]);
-  TORCH_CHECK(fn > 0, "render: the camera distance must be positive");
-  for (double& v : fwd) v /= fn;
-  double right[3] = {-fwd[2], 0.0, fwd[0]};  // fwd x (0, 1, 0)
-  const double rn = std::sqrt(right[0] * right[0] + right[2] * right[2]);
-  TORCH_CHECK(rn > 0, "render: the camera looks straight up or down (its height is its whole distance)");
-  right[0] /= rn;
-  right[2] /= rn;
-  const double down[3] = {fwd[1] * right[2] - fwd[2] * right[1], fwd[2] * right[0] - fwd[0] * right[2],
-                          fwd[0] * right[1] - fwd[1] * right[0]};
-  const double* rows[3] = {right, down, fwd};
-  for (int r = 0; r < 3; ++r) {
-    for (int c = 0; c < 3; ++c) cam.world_to_camera[size_t(4 * r + c)] = rows[r][c];
-    cam.world_to_camera[size_t(4 * r + 3)] = -(rows[r][0] * eye[0] + rows[r][1] * eye[1] + rows[r][2] * eye[2]);
-  }
-  return cam;
-}
 
 // The centre of the posed body's bounding box (the mean of the Gaussians sits high: hands and face are dense).
 std::array<double, 3> centre_of(const model::AvatarOutput& o) {
@@ -260,26 +240,22 @@ double render_frames(train::TrainedAvatar& t, RenderRequest& request, WrittenFil
   const Camera base = train::render_camera(trained_on.frames[0]);
   const int64_t width = request.width > 0 ? request.width : base.width;
   const int64_t height = request.image_height > 0 ? request.image_height : base.height;
+  const Camera lens = Camera::looking_forward(kRenderFocalPerHeight * double(height), width, height);
   // The dataset's camera orbits the training frame's body; the other cameras aim at the motion's first frame (orbit,
   // fixed) or at every frame's body (follow), from the front (+Z, where the body model faces).
   const std::array<double, 3> first = request.camera.empty() ? centre_of(train::pose_avatar(t.avatar, trained_on, 0))
                                                              : centre_of(pose_at(0));
   const auto camera_at = [&](int64_t i, const model::AvatarOutput& o) {
     const double angle = kTwoPi * double(i) / double(request.frames);
-    if (request.camera.empty()) {
-      Camera c = orbit_camera(base, first, angle);
-      return c;
-    }
+    if (request.camera.empty()) return orbit_camera(base, first, angle);
     const std::array<double, 3> target = request.camera == "follow" ? centre_of(o) : first;
     const double a = request.camera == "orbit" ? angle : 0.0;
     const std::array<double, 3> eye{target[0] + request.distance * std::sin(a), target[1] + request.height,
                                     target[2] + request.distance * std::cos(a)};
-    return look_at_camera(eye, target, width, height);
+    return look_at_camera(lens, eye, target);
   };
-  const int64_t video_width = request.camera.empty() ? base.width : width;
-  const int64_t video_height = request.camera.empty() ? base.height : height;
-  VideoWriter video((fs::path(request.out) / "render.mp4").string(), int(video_width), int(video_height),
-                    request.fps, request.force);
+  VideoWriter video((fs::path(request.out) / "render.mp4").string(), int(width), int(height), request.fps,
+                    request.force);
   double seconds = 0;
   for (int64_t i = 0; i < request.frames; ++i) {
     const auto start = std::chrono::steady_clock::now();

@@ -56,6 +56,13 @@ RenderResult render(const Gaussians& gaussians, const at::Tensor& background, co
   return RenderResult{image, alpha, depth, radii, radii.select(1, 0) > 0};
 }
 
+std::array<double, 3> camera_centre(const Camera& camera) {
+  const auto& m = camera.world_to_camera;
+  std::array<double, 3> centre{};
+  for (int i = 0; i < 3; ++i) centre[i] = -(m[0 * 4 + i] * m[3] + m[1 * 4 + i] * m[7] + m[2 * 4 + i] * m[11]);
+  return centre;
+}
+
 std::string camera_problem(const Camera& c) {
   std::ostringstream why;
   const auto& m = c.world_to_camera;

@@ -64,7 +64,7 @@ TEST(BackFacing, CullsExactlyThePointsFacingAwayByMoreThanTheMargin) {
   // so the centre comes from the full extrinsics).
   Camera camera = Camera::looking_forward(50, 32, 32);
   camera.world_to_camera = {0, -1, 0, 0, 1, 0, 0, 0, 0, 0, 1, 4, 0, 0, 0, 1};
-  const std::array<double, 3> centre = animate::camera_centre(camera);
+  const std::array<double, 3> centre = camera_centre(camera);
   EXPECT_NEAR(centre[0], 0, 1e-12);
   EXPECT_NEAR(centre[1], 0, 1e-12);
   EXPECT_NEAR(centre[2], -4, 1e-12);
@@ -105,7 +105,7 @@ TEST(Animator, CullingTheFarSideOfTheBodyLeavesTheImage) {
 
   at::NoGradGuard no_grad;
   const model::AvatarOutput out = avatar->forward(pose, std::nullopt);
-  const std::array<double, 3> centre = animate::camera_centre(camera);
+  const std::array<double, 3> centre = camera_centre(camera);
   const at::Tensor kept = animate::cull_back_facing(out.opacities, out.means, out.posed_normals,
                                                     at::tensor({centre[0], centre[1], centre[2]}, at::kFloat),
                                                     kAnimatorFastBackFacingCosine);

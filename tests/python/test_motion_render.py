@@ -1,6 +1,6 @@
-"""`sfgs render --motion FILE|DIR`: AMASS-format motions and ExAvatar motion folders drive a trained avatar, with the orbit, fixed and follow cameras,
-resampled to the output frame rate; bad motion files and options get clear errors. Through the `sfgs` executable
-(SFGS_EXECUTABLE, which CTest sets); skipped without it."""
+"""`sfgs render --motion FILE|DIR`: AMASS-format motions and ExAvatar motion folders drive a trained avatar, with the
+orbit, fixed and follow cameras, resampled to the output frame rate; bad motion files and options get clear errors.
+Through the `sfgs` executable (SFGS_EXECUTABLE, which CTest sets); skipped without it."""
 import json
 import os
 import subprocess
@@ -8,19 +8,11 @@ import subprocess
 import numpy as np
 import pytest
 
-from test_avatar_api import read_png_rgb
+from test_avatar_api import TINY_CONFIG, read_png_rgb
 
 SFGS = os.environ.get("SFGS_EXECUTABLE", "")
 pytestmark = [pytest.mark.cli,
               pytest.mark.skipif(not os.path.isfile(SFGS), reason="SFGS_EXECUTABLE does not name the sfgs executable")]
-
-TINY = """
-run: {seed: 3, log_every: 1, validate_every: 100, checkpoint_every: 100}
-avatar: {subdivision_levels: 0, plane_channels: 4, plane_resolution: 16, time_resolution: 4,
-         face_plane_resolution: 16, hidden_width: 16}
-loss: {use_lpips: false}
-schedule: {iterations: 2, warmup_iterations: 1}
-"""
 
 
 def sfgs_run(*args):
@@ -31,9 +23,9 @@ def sfgs_run(*args):
 def trained(tmp_path_factory):
     root = tmp_path_factory.mktemp("motion_render")
     data, run = str(root / "data"), str(root / "run")
-    subprocess.run([SFGS, "synth", "--out", data, "--frames", "6", "--width", "40", "--height", "32"], check=True,
+    subprocess.run([SFGS, "synth", "--out", data, "--frames", "10", "--width", "40", "--height", "32"], check=True,
                    capture_output=True)
-    (root / "tiny.yaml").write_text(TINY)
+    (root / "tiny.yaml").write_text(TINY_CONFIG)
     result = sfgs_run("train", "--data", data, "--out", run, "--config", str(root / "tiny.yaml"), "--quiet")
     assert result.returncode == 0, result.stderr
     return run
