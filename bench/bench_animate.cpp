@@ -3,9 +3,11 @@
 // frames, and the per-stage split of an eager frame (StageClock, device synchronised per stage).
 // CUDA: graph frames are also timed per back-facing cull cosine (--cull-cosines, default 0.3,0.5,0.7,1; 1 culls
 // nothing), each with the lowest PSNR of its frames against the exact render (the LibTorch float32 structure
-// offset, nothing culled): the cull's run time against its error.
+// offset, nothing culled): the cull's run time against its error. And per forward-blend segment length
+// (--blend-segments, default 0,128,192,256,384,512; 0 never cuts a tile's run; csrc/cuda/blend_forward.cu) the median
+// graph frame and the largest difference to the uncut image.
 // Usage: bench_animate [--device cpu|cuda] [--shared DIR] [--run DIR] [--levels L] [--sizes 800x1200,540x960]
-//                      [--frames N] [--cull-cosines C,...] [--profile 1]
+//                      [--frames N] [--cull-cosines C,...] [--blend-segments L,...] [--profile 1]
 //   --shared DIR: the Anny stand-in body of DIR/bodies (with MANO hands and face ids) instead of the procedural body.
 //   --run DIR: a trained avatar (a run folder of `sfgs train`) instead of an untrained one; --shared, --levels unused.
 //   --profile 1: for Nsight Compute (`ncu --profile-from-start off --nvtx`): after the warm-up, one eager frame and
@@ -28,6 +30,10 @@
 #include "animate/animator.h"
 #include "body/skeleton.h"
 #include "common/host_memory.h"
+#ifdef SFGS_BENCH_CUDA_KERNELS
+#include "common/constants.h"
+#include "cuda/diagnostics.h"
+#endif
 #include "metrics/image_metrics.h"
 #include "train/run_folder.h"
 #include "profiled_range.h"
@@ -46,11 +52,13 @@ struct Arguments {
   int frames = 200;
   bool profile = false;
   std::vector<double> cull_cosines{0.3, 0.5, 0.7, 1.0};
+  std::vector<int64_t> blend_segments{0, 128, 192, 256, 384, 512};
 };
 
 [[noreturn]] void usage() {
   std::fprintf(stderr, "usage: bench_animate [--device cpu|cuda] [--shared DIR] [--run DIR] [--levels L] "
-                       "[--sizes WxH,...] [--frames N] [--cull-cosines C,...] [--profile 1]\n");
+                       "[--sizes WxH,...] [--frames N] [--cull-cosines C,...] [--blend-segments L,...] "
+                       "[--profile 1]\n");
   std::exit(2);
 }
 
@@ -71,6 +79,11 @@ Arguments parse(int argc, char** argv) {
       std::stringstream list(value);
       for (std::string item; std::getline(list, item, ',');) a.cull_cosines.push_back(std::atof(item.c_str()));
       if (a.cull_cosines.empty()) usage();
+    } else if (flag == "--blend-segments") {
+      a.blend_segments.clear();
+      std::stringstream list(value);
+      for (std::string item; std::getline(list, item, ',');) a.blend_segments.push_back(std::atol(item.c_str()));
+      if (a.blend_segments.empty()) usage();
     }
     else if (flag == "--sizes") {
       a.sizes.clear();
@@ -188,6 +201,27 @@ void print_culling_table(sfgs::model::Avatar& avatar, const sfgs::Camera& camera
                 lowest[c]);
 }
 
+// Run time of the forward blend's segment lengths (the first, usually 0 = never cut, is the reference image).
+void print_blend_segment_table(sfgs::model::Avatar& avatar, const sfgs::Camera& camera, const at::Tensor& background,
+                               const SmplxPose& a, const SmplxPose& b, const Arguments& args) {
+#ifdef SFGS_BENCH_CUDA_KERNELS
+  at::Tensor reference;
+  std::printf("  forward blend segments: length (0: uncut) | graph frame ms | largest difference to the first\n");
+  for (int64_t length : args.blend_segments) {
+    sfgs::splat::cuda_kernels::set_blend_segment_length(length);
+    sfgs::animate::Animator animator(avatar, camera, background);
+    time_frames(animator, a, b, 3, true);  // captures
+    const double ms = median(time_frames(animator, a, b, args.frames, true));
+    const at::Tensor image = animator.render(a).clone();
+    if (!reference.defined()) reference = image;
+    std::printf("    %ld | %.3f | %.2e\n", long(length), ms, (image - reference).abs().max().item<double>());
+  }
+  sfgs::splat::cuda_kernels::set_blend_segment_length(sfgs::kBlendSegmentLength);
+#else
+  (void)avatar, (void)camera, (void)background, (void)a, (void)b, (void)args;
+#endif
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -270,6 +304,7 @@ int main(int argc, char** argv) {
                   graph_ms, 1000 / graph_ms, long(s.captures), long(s.budget_overflows), long(s.intersections),
                   long(s.budget), difference);
       print_culling_table(avatar, camera, white, a, b, args);
+      print_blend_segment_table(avatar, camera, white, a, b, args);
     }
   }
   return 0;

@@ -234,7 +234,7 @@ fi
 
 if wants animate; then
   run animate-tests 250 env OMP_NUM_THREADS="$jobs" "$tests" --gtest_color=no \
-    --gtest_filter='SkinCuda*:GatheredMlpCuda*:KinematicChainCuda*:VertexNormalsCuda*:BinningBudget.*:AnimatorCuda.*:AdamStepperCuda.*'
+    --gtest_filter='SkinCuda*:GatheredMlpCuda*:KinematicChainCuda*:AxisAngleCuda*:VertexNormalsCuda*:BinningBudget.*:AnimatorCuda.*:AdamStepperCuda.*'
   grep -E "^\[  FAILED|^\[  PASSED|^\[       OK|Failure|Expected|Which is|actual" "$out/animate-tests.log" | cut -c1-300
   run animate-sanitize 250 compute-sanitizer --tool memcheck --error-exitcode 99 "$tests" --gtest_color=no \
     --gtest_filter='*CudaSanitizer.*:BinningBudget.*:AnimatorCuda.GraphFramesEqual*:AdamStepperCuda.FusedSteps*'

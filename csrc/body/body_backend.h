@@ -10,6 +10,7 @@ namespace sfgs::body::cuda {
 bool available();
 // Each queues its kernel on the device's current stream; the arrays are validated and contiguous.
 void kinematic_chain(const KinematicChainArrays& arrays, at::Device device);
+void axis_angle_to_matrix(const AxisAngleArrays& arrays, at::Device device);
 void vertex_normals(const VertexNormalArrays& arrays, at::Device device);
 
 }  // namespace sfgs::body::cuda

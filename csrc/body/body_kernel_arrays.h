@@ -18,6 +18,14 @@ struct KinematicChainArrays {
   float* skinning_transforms;  // (batch, joints, 4, 4) out: [R_world | t_world - R_world rest_j; 0 0 0 1]
 };
 
+// axis_angle_to_matrix (rotations.h).
+struct AxisAngleArrays {
+  const float* axis_angle;  // (count, 3)
+  int64_t count;
+  float series_angle;  // kRotationSeriesAngle: below it the coefficients come from their series
+  float* matrices;     // (count, 3, 3) out, row-major
+};
+
 // vertex_normals (mesh.h).
 struct VertexNormalArrays {
   const float* vertices;  // (vertex_count, 3)

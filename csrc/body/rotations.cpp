@@ -2,10 +2,13 @@
 
 #include <iterator>
 #include <string>
+#include <vector>
 
 #include <ATen/Functions.h>
 #include <ATen/TensorOperators.h>
+#include <ATen/core/grad_mode.h>
 
+#include "body/body_backend.h"
 #include "body/tensor_checks.h"
 #include "common/constants.h"
 
@@ -32,6 +35,24 @@ at::Tensor polynomial(const at::Tensor& x, std::initializer_list<double> coeffic
 }  // namespace
 
 at::Tensor axis_angle_to_matrix(const at::Tensor& axis_angle) {
+  check_last_dims(axis_angle, "axis_angle_to_matrix", "axis_angle", {3});
+  const bool fused = axis_angle.is_cuda() && axis_angle.scalar_type() == at::kFloat &&
+                     !(axis_angle.requires_grad() && at::GradMode::is_enabled()) && cuda::available();
+  if (!fused) return axis_angle_to_matrix_reference(axis_angle);
+  const at::Tensor input = axis_angle.contiguous();
+  std::vector<int64_t> shape = axis_angle.sizes().vec();
+  shape.push_back(3);
+  at::Tensor matrices = at::empty(shape, input.options());
+  AxisAngleArrays arrays{};
+  arrays.axis_angle = input.data_ptr<float>();
+  arrays.count = input.numel() / 3;
+  arrays.series_angle = static_cast<float>(kRotationSeriesAngle);
+  arrays.matrices = matrices.data_ptr<float>();
+  cuda::axis_angle_to_matrix(arrays, input.device());
+  return matrices;
+}
+
+at::Tensor axis_angle_to_matrix_reference(const at::Tensor& axis_angle) {
   check_last_dims(axis_angle, "axis_angle_to_matrix", "axis_angle", {3});
   const at::Tensor theta2 = (axis_angle * axis_angle).sum(-1, /*keepdim=*/true).unsqueeze(-1);  // (..., 1, 1)
   // Rodrigues: R = I + a K + b K^2 with a = sin(t)/t and b = (1 - cos t)/t^2 = 0.5 (sin(t/2)/(t/2))^2, which

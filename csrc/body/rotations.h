@@ -7,8 +7,11 @@
 
 namespace sfgs::body {
 
-// (..., 3) axis-angle (axis times angle in radians, right-handed) -> (..., 3, 3) rotation matrices.
+// (..., 3) axis-angle (axis times angle in radians, right-handed) -> (..., 3, 3) rotation matrices. float32 on a
+// CUDA device without a gradient: one fused kernel (csrc/cuda/rotations.cu); otherwise, and as its reference,
+// axis_angle_to_matrix_reference, the LibTorch composition.
 at::Tensor axis_angle_to_matrix(const at::Tensor& axis_angle);
+at::Tensor axis_angle_to_matrix_reference(const at::Tensor& axis_angle);
 
 // (..., 3, 3) rotation matrices -> (..., 3) axis-angle with the angle in [0, pi].
 at::Tensor matrix_to_axis_angle(const at::Tensor& matrix);

@@ -43,6 +43,11 @@ inline constexpr double kMaxAlpha = 0.99;
 inline constexpr double kMinTransmittance = 1e-4;
 // Side of the square screen tiles (pixels). Kernels assume 16 x 16 = 256 threads per tile.
 inline constexpr int kTileSize = 16;
+// The CUDA forward blend cuts a tile's run longer than this many intersections into segments of this length, each
+// composited by its own block and joined by the tile's last segment to finish (csrc/cuda/blend_forward.cu), so that
+// the face's and hands' runs of thousands spread over many blocks. Measured on the avatars (bench_animate
+// --blend-segments, docs/performance.md): shorter is faster down to 256 (one batch of the block), 2048 gains nothing.
+inline constexpr long kBlendSegmentLength = 256;
 // Largest accepted image side (pixels); larger images are refused with a clear error.
 inline constexpr long kMaxImageSide = 16384;
 // The CPU backend refuses a render whose Gaussians' tile rectangles add up to more tiles than this (the bound on its

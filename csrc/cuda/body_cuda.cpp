@@ -14,6 +14,11 @@ void kinematic_chain(const KinematicChainArrays& arrays, at::Device device) {
   cuda_kernels::kinematic_chain_forward(arrays, at::cuda::getCurrentCUDAStream());
 }
 
+void axis_angle_to_matrix(const AxisAngleArrays& arrays, at::Device device) {
+  const c10::cuda::CUDAGuard guard(device);
+  cuda_kernels::axis_angle_to_matrix_forward(arrays, at::cuda::getCurrentCUDAStream());
+}
+
 void vertex_normals(const VertexNormalArrays& arrays, at::Device device) {
   const c10::cuda::CUDAGuard guard(device);
   cuda_kernels::vertex_normals_forward(arrays, at::cuda::getCurrentCUDAStream());

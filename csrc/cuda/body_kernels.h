@@ -3,6 +3,8 @@
 // kinematic_chain.cu: one thread per batch element walks the joints in order (every parent precedes its children),
 // composing each joint's world transform from its parent's, which it reads back from its own output: one launch
 // instead of the ~8 small launches per depth level of the LibTorch composition (KinematicTreeImpl::pose_reference).
+// rotations.cu: one thread per axis-angle rotation, one launch instead of the ~40 of the composition
+// (body::axis_angle_to_matrix_reference).
 // vertex_normals.cu: one thread per face adds its area-weighted normal to its corners, one per vertex normalises:
 // two launches instead of the 18 of the composition (body::vertex_normals_reference).
 #include <cuda_runtime_api.h>
@@ -12,6 +14,7 @@
 namespace sfgs::body::cuda_kernels {
 
 void kinematic_chain_forward(const KinematicChainArrays& arrays, cudaStream_t stream);
+void axis_angle_to_matrix_forward(const AxisAngleArrays& arrays, cudaStream_t stream);
 void vertex_normals_forward(const VertexNormalArrays& arrays, cudaStream_t stream);
 
 }  // namespace sfgs::body::cuda_kernels

@@ -49,6 +49,9 @@ bool available() { return false; }
 void kinematic_chain(const KinematicChainArrays&, at::Device) {
   TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
 }
+void axis_angle_to_matrix(const AxisAngleArrays&, at::Device) {
+  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
+}
 void vertex_normals(const VertexNormalArrays&, at::Device) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
 
 }  // namespace sfgs::body::cuda

@@ -10,6 +10,7 @@ StageObserver* g_stage_observer = nullptr;
 Binning g_binning = Binning::kAuto;
 Binning g_last_binning = Binning::kAuto;
 TileOrder g_tile_order = TileOrder::kLongestFirst;
+int64_t g_blend_segment_length = kBlendSegmentLength;
 
 }  // namespace
 
@@ -17,6 +18,7 @@ void set_stage_observer(StageObserver* observer) { g_stage_observer = observer; 
 void set_binning(Binning binning) { g_binning = binning; }
 Binning last_binning() { return g_last_binning; }
 void set_tile_order(TileOrder order) { g_tile_order = order; }
+void set_blend_segment_length(int64_t length) { g_blend_segment_length = length; }
 void set_profiler_capture(bool capture) {
   // Without a profiler attached both calls do nothing; their status is not worth failing a benchmark over.
   (void)(capture ? cudaProfilerStart() : cudaProfilerStop());
@@ -26,5 +28,6 @@ StageObserver* stage_observer() { return g_stage_observer; }
 Binning requested_binning() { return g_binning; }
 void record_binning(Binning taken) { g_last_binning = taken; }
 TileOrder tile_order() { return g_tile_order; }
+int64_t blend_segment_length() { return g_blend_segment_length; }
 
 }  // namespace sfgs::splat::cuda_kernels

@@ -1,6 +1,8 @@
 #pragma once
 // Switches and hooks of the CUDA kernels for tests and benchmarks only: they force a binning path or a tile order,
 // report the path taken, and let a benchmark time each stage. The op never uses them. Global, not thread-safe.
+#include <cstdint>
+
 #include <cuda_runtime_api.h>
 
 namespace sfgs::splat::cuda_kernels {
@@ -16,6 +18,10 @@ Binning last_binning();
 // measure what the ordering gains.
 enum class TileOrder { kLongestFirst, kRowMajor };
 void set_tile_order(TileOrder order);
+
+// The run length beyond which the forward blend cuts a tile's run into segments that several blocks composite at
+// once (default kBlendSegmentLength); 0 never cuts. For tests that compare the two and benchmarks that tune it.
+void set_blend_segment_length(int64_t length);
 
 // Benchmarks time the pipeline's stages by recording their own events when these are called; the stages are named
 // "project", "emit", "tile sort", "blend", "blend backward" and "project backward", and on the radix path

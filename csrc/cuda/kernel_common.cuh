@@ -32,6 +32,7 @@ StageObserver* stage_observer();
 Binning requested_binning();
 void record_binning(Binning taken);
 TileOrder tile_order();
+int64_t blend_segment_length();
 
 inline void check_cuda(cudaError_t status, const char* what) {
   if (status != cudaSuccess)

@@ -165,7 +165,8 @@ AvatarOutput AvatarImpl::forward_trusted_pose(const body::SmplxPose& pose, Frame
   {
     const StageScope stage("avatar: pose and hand residual");
     frame = frame_pose(pose);
-    if (hand_residual_) coarse_residual = hand_residual_->forward(frame.left_hand, frame.right_hand);
+    if (hand_residual_)
+      coarse_residual = hand_residual_->forward(frame.left_hand, frame.right_hand, frame.rotations);
   }
   FrameBody body;
   {

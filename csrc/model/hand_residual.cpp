@@ -63,13 +63,15 @@ HandResidualImpl::Hand HandResidualImpl::make_hand(const char* name, body::Side 
     betas = std::get<0>(at::linalg_lstsq(shapedirs_relative.reshape({k * 3, shape_count}),
                                          (target - template_relative).reshape({k * 3, 1}), c10::nullopt,
                                          c10::string_view("gelsd")));
-  const at::Tensor misfit = template_relative + shapedirs_relative.matmul(betas.flatten()) - target;
+  const at::Tensor fitted = template_relative + shapedirs_relative.matmul(betas.flatten());  // MANO at rest
+  const at::Tensor misfit = fitted - target;
   const double rms = misfit.pow(2).sum(1).mean().sqrt().item<double>();
   if (rms > kHandFitWarningRms)
     TORCH_WARN("HandResidual: the ", prefix, " MANO hand ('", mano.source, "') fits the subject's SMPL-X ", prefix,
                " hand only to ", rms, " m RMS: are the MANO files swapped, or meant for another body model?");
 
   Hand hand;
+  hand.side = side;
   body::ManoOptions options;
   options.num_betas = shape_count;
   options.use_pca = false;
@@ -86,14 +88,44 @@ HandResidualImpl::Hand HandResidualImpl::make_hand(const char* name, body::Side 
     hand.smplx_posedirs = register_buffer(
         prefix + "_smplx_posedirs", columns.reshape({k * 3, kHandPoseFeatureSize}).t().contiguous().to(at::kFloat));
   }
+  // The linear map: MANO's rest mesh at zero pose against the SMPL-X hand, and the two models' correctives (both in
+  // (K, 3, 135) layout, rows of the finger joints 1..15) turned into (135, 3 K).
+  hand.constant = (fitted - target).to(at::kDouble).contiguous();
+  at::Tensor directions;
+  if (mano.posedirs.defined()) directions = mano.posedirs.to(at::kDouble).reshape({k * 3, kHandPoseFeatureSize});
+  if (smplx.posedirs.defined()) {
+    const int64_t first_column = 9 * (body::smplx_hand_joint(side, 1) - 1);
+    const at::Tensor smplx_directions = smplx.posedirs.index_select(0, ids)
+                                            .narrow(2, first_column, kHandPoseFeatureSize)
+                                            .to(at::kDouble)
+                                            .reshape({k * 3, kHandPoseFeatureSize});
+    directions = directions.defined() ? directions - smplx_directions : -smplx_directions;
+  }
+  if (directions.defined()) hand.pose_directions = directions.t().contiguous();
   return hand;
 }
 
-at::Tensor HandResidualImpl::residual(const Hand& hand, const at::Tensor& pose) const {
-  const at::Tensor flat_pose = pose.reshape({1, body::kHandPoseSize});
+at::Tensor HandResidualImpl::linear_residual(const Hand& hand, const at::Tensor& pose,
+                                             const at::Tensor& joint_rotations) const {
+  const auto options = pose.options();
+  if (!hand.used_constant.defined() || hand.used_constant.device() != pose.device() ||
+      hand.used_constant.scalar_type() != pose.scalar_type()) {
+    hand.used_constant = hand.constant.to(options);
+    if (hand.pose_directions.defined()) hand.used_pose_directions = hand.pose_directions.to(options);
+  }
+  if (!hand.used_pose_directions.defined()) return hand.used_constant;
+  const at::Tensor rotations =
+      joint_rotations.defined()
+          ? joint_rotations.narrow(0, body::smplx_hand_joint(hand.side, 1), body::kHandJointCount)
+          : body::axis_angle_to_matrix(pose);
+  const at::Tensor feature = (rotations - at::eye(3, options)).reshape({1, kHandPoseFeatureSize});
+  return at::addmm(hand.used_constant.view({1, -1}), feature, hand.used_pose_directions).view_as(hand.used_constant);
+}
+
+at::Tensor HandResidualImpl::composed_residual(const Hand& hand, const at::Tensor& pose) const {
   body::ManoInput input;
   input.betas = hand.mano_betas;
-  input.hand_pose = flat_pose;
+  input.hand_pose = pose.reshape({1, body::kHandPoseSize});
   const body::ManoOutput mano = hand.mano->forward(input);
   const at::Tensor mano_relative = mano.rest_vertices[0] - mano.rest_joints[0][0];
   at::Tensor smplx_relative = hand.smplx_hand;
@@ -102,22 +134,43 @@ at::Tensor HandResidualImpl::residual(const Hand& hand, const at::Tensor& pose) 
     const at::Tensor feature = (rotations - at::eye(3, rotations.options())).reshape({1, kHandPoseFeatureSize});
     smplx_relative = smplx_relative + feature.matmul(hand.smplx_posedirs).view_as(smplx_relative);
   }
-  const at::Tensor r = mano_relative - smplx_relative;
+  return mano_relative - smplx_relative;
+}
+
+at::Tensor HandResidualImpl::refined(const Hand& hand, const at::Tensor& pose, const at::Tensor& r) const {
+  const at::Tensor flat_pose = pose.reshape({1, body::kHandPoseSize});
   return r + hand.refine->finish(hand.refine->project(0, r) + hand.refine->project(1, flat_pose));
 }
 
-at::Tensor HandResidualImpl::forward(const at::Tensor& left_pose, const at::Tensor& right_pose) const {
+template <typename Residual>
+at::Tensor HandResidualImpl::both_hands(const at::Tensor& left_pose, const at::Tensor& right_pose,
+                                        Residual&& residual) const {
   at::Tensor out;
   for (const auto& [hand, pose] : {std::pair{&hands_[0], &left_pose}, {&hands_[1], &right_pose}}) {
     if (!pose->defined()) continue;
     const at::Tensor& ids = hand->vertex_ids;
     body::check_tensor(*pose, "HandResidual: hand pose", {body::kHandJointCount, 3}, hand->mano_betas.scalar_type(),
                        ids.device());
-    const at::Tensor r = residual(*hand, *pose);
+    const at::Tensor r = refined(*hand, *pose, residual(*hand, *pose));
     if (!out.defined()) out = at::zeros({coarse_vertex_count_, 3}, r.options());
     out = out.index_copy(0, ids, r);
   }
   return out;
+}
+
+at::Tensor HandResidualImpl::forward(const at::Tensor& left_pose, const at::Tensor& right_pose,
+                                     const at::Tensor& joint_rotations) const {
+  if (joint_rotations.defined())
+    body::check_tensor(joint_rotations, "HandResidual: joint rotations", {body::kSmplxJointCount, 3, 3},
+                       hands_[0].mano_betas.scalar_type(), hands_[0].vertex_ids.device());
+  return both_hands(left_pose, right_pose, [&](const Hand& hand, const at::Tensor& pose) {
+    return linear_residual(hand, pose, joint_rotations);
+  });
+}
+
+at::Tensor HandResidualImpl::reference(const at::Tensor& left_pose, const at::Tensor& right_pose) const {
+  return both_hands(left_pose, right_pose,
+                    [this](const Hand& hand, const at::Tensor& pose) { return composed_residual(hand, pose); });
 }
 
 }  // namespace sfgs::model

@@ -6,11 +6,14 @@
 #include <ATen/Functions.h>
 #include <ATen/TensorOperators.h>
 #include <gtest/gtest.h>
+#include <torch/csrc/autograd/autograd.h>
 
 #include "body/parts.h"
 #include "body/procedural_body.h"
+#include "body/rotations.h"
 #include "body/skeleton.h"
 #include "model/avatar.h"
+#include "model/hand_residual.h"
 #include "test_avatar_utils.h"
 #include "test_body_utils.h"
 
@@ -117,6 +120,61 @@ TEST(AvatarHands, LoadsTheOfficialFileLayouts) {
   EXPECT_LT(max_abs_difference(a.colours, b.colours), 1e-6);
 
   expect_error([&] { AvatarBody::load(smplx, left, "", ids, ""); }, {"all three", "right ''"});
+}
+
+// The avatar's hand residual module.
+const model::HandResidualImpl& hand_residual_of(const Avatar& avatar) {
+  const auto module = std::dynamic_pointer_cast<model::HandResidualImpl>(avatar->named_children()["hand_residual"]);
+  if (!module) throw std::runtime_error("the avatar has no hand residual");
+  return *module;
+}
+
+// forward's linear map r = c + f D against MANO's forward pass and SMPL-X's correctives composed: the same residual
+// and the same gradient through the hand poses, at large finger angles (the pose correctives' whole range), on the
+// procedural body and the Anny stand-ins.
+void expect_linear_map_is_the_composition(const AvatarBody& body, const std::string& label) {
+  Avatar avatar(body, subject_betas(), small_config());
+  randomise_parameters(*avatar, 0.1, 36);  // a refining MLP that is not zero
+  const model::HandResidualImpl& hands = hand_residual_of(avatar);
+  // float32 (the avatar's dtype): the map is made in float64 and rounded once, the composition rounds at each step.
+  const double bound = 2e-6;
+  for (int64_t seed : {37, 38}) {
+    at::manual_seed(seed);
+    const at::Tensor left = (at::rand({15, 3}) * 3.0 - 1.5).requires_grad_(true);
+    const at::Tensor right = (at::rand({15, 3}) * 3.0 - 1.5).requires_grad_(true);
+    const at::Tensor fast = hands.forward(left, right), composed = hands.reference(left, right);
+    EXPECT_GT(composed.abs().max().item<double>(), 1e-4) << label << ": a residual worth comparing";
+    EXPECT_LT(max_abs_difference(fast, composed), bound) << label;
+    const at::Tensor weights = at::randn(fast.sizes());
+    const auto fast_grads = torch::autograd::grad({(fast * weights).sum()}, {left, right});
+    const auto composed_grads = torch::autograd::grad({(composed * weights).sum()}, {left, right});
+    for (size_t i = 0; i < 2; ++i)
+      EXPECT_LT(max_abs_difference(fast_grads[i], composed_grads[i]),
+                bound * std::max(1.0, composed_grads[i].abs().max().item<double>()))
+          << label << (i == 0 ? ": left" : ": right") << " pose gradient";
+    // The avatar's own rotations of the same pose give the same residual as the hand poses alone.
+    const at::Tensor joints = at::zeros({body::kSmplxJointCount, 3});
+    joints.narrow(0, body::smplx_hand_joint(body::Side::kLeft, 1), 15).copy_(left.detach());
+    joints.narrow(0, body::smplx_hand_joint(body::Side::kRight, 1), 15).copy_(right.detach());
+    const at::Tensor rotations = body::axis_angle_to_matrix(joints);
+    EXPECT_LT(max_abs_difference(hands.forward(left, right, rotations), fast), 1e-7) << label;
+  }
+  // One hand only: the other's vertices stay zero in both.
+  const at::Tensor left = at::rand({15, 3});
+  EXPECT_LT(max_abs_difference(hands.forward(left, {}), hands.reference(left, {})), bound) << label;
+}
+
+TEST(AvatarHands, LinearMapIsMANOComposedOnTheProceduralBody) {
+  expect_linear_map_is_the_composition(procedural_avatar_body(), "procedural");
+}
+
+TEST(AvatarHands, LinearMapIsMANOComposedOnTheAnnyStandIns) {
+  SFGS_SKIP_WITHOUT_SHARED_BODIES();
+  const std::string dir = shared_bodies_folder();
+  expect_linear_map_is_the_composition(
+      AvatarBody::load(dir + "/anny_smplx_layout.npz", dir + "/anny_mano_left.npz", dir + "/anny_mano_right.npz",
+                       dir + "/MANO_SMPLX_vertex_ids.npz", dir + "/FLAME_SMPLX_vertex_ids.npy"),
+      "Anny");
 }
 
 TEST(AvatarHands, AnnyStandInsGiveASmallHandResidual) {

@@ -202,6 +202,25 @@ TEST(KinematicChainCudaSanitizer, FusedChainMatchesTheReference) {
   }
 }
 
+// The fused axis-angle rotations against their LibTorch composition: angles from zero through the series' range
+// (below kRotationSeriesAngle) to several turns, in any batch shape; a gradient takes the composition.
+TEST(AxisAngleCudaSanitizer, FusedRotationsMatchTheReference) {
+  SKIP_WITHOUT_CUDA();
+  at::manual_seed(13);
+  const at::Tensor directions = at::randn({400, 3});
+  const at::Tensor angles = at::cat({at::zeros({1}), at::logspace(-8, 1.3, 399)});  // up to 20 rad
+  const at::Tensor axis_angle = (directions / directions.norm(2, 1, true) * angles.unsqueeze(1)).view({20, 20, 3});
+  const at::Tensor gpu = axis_angle.cuda();
+  const at::Tensor fused = body::axis_angle_to_matrix(gpu);
+  EXPECT_EQ(fused.sizes(), at::IntArrayRef({20, 20, 3, 3}));
+  EXPECT_LT(max_difference(fused, body::axis_angle_to_matrix_reference(gpu)), 5e-6);
+  EXPECT_LT(max_difference(fused, body::axis_angle_to_matrix_reference(axis_angle.to(at::kDouble))), 2e-5);
+  const at::Tensor orthogonality = at::matmul(fused, fused.transpose(-1, -2)) - at::eye(3, fused.options());
+  EXPECT_LT(orthogonality.abs().max().item<double>(), 5e-6);
+  const at::Tensor leaf = gpu.clone().requires_grad_(true);
+  EXPECT_TRUE(body::axis_angle_to_matrix(leaf).requires_grad()) << "a gradient through the pose: the composition";
+}
+
 // The fused vertex normals against their LibTorch composition on the procedural body's mesh, moved off its rest
 // shape, plus a vertex on no face (normal 0) and a degenerate face.
 TEST(VertexNormalsCudaSanitizer, FusedNormalsMatchTheReference) {

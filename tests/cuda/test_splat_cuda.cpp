@@ -122,6 +122,15 @@ class BinningGuard {
   BinningGuard& operator=(const BinningGuard&) = delete;
 };
 
+// Sets the forward blend's segment length for its lifetime (0: never cut a tile's run).
+class BlendSegmentGuard {
+ public:
+  explicit BlendSegmentGuard(int64_t length) { splat::cuda_kernels::set_blend_segment_length(length); }
+  ~BlendSegmentGuard() { splat::cuda_kernels::set_blend_segment_length(kBlendSegmentLength); }
+  BlendSegmentGuard(const BlendSegmentGuard&) = delete;
+  BlendSegmentGuard& operator=(const BlendSegmentGuard&) = delete;
+};
+
 // float64 CUDA against float64 CPU, plus float32 CUDA for finiteness; returns the CUDA float64 result.
 Rendered expect_parity(const TestScene& scene, const std::string& label, const RenderOptions& options = {},
                        LossTerms terms = {}) {
@@ -308,6 +317,37 @@ TEST(CudaBinning, EqualDepthsKeepIndexOrder) {
     const Rendered cuda = render_on(c.scene, kCuda, at::kFloat);
     expect_close(cuda, render_on(c.scene, at::kCPU, at::kFloat), Bounds{1e-4, 1e-2, false},
                  std::string(c.label) + ", float32 vs float32 CPU");
+  }
+}
+
+// Tiles cut into segments that separate blocks composite and a merge joins: the same image and gradients as the
+// serial blend (float64 parity with the CPU, whose loop is serial), and in float32 the same as the uncut blend but
+// for rounding. Lengths that are not multiples of the batch, deep opaque pixels that stop inside a segment and
+// translucent ones that run through every segment.
+TEST(CudaBlendSegments, CutRunsMatchTheSerialBlend) {
+  SKIP_WITHOUT_CUDA();
+  SceneSpec translucent;
+  translucent.count = 8000;
+  translucent.width = 64;
+  translucent.height = 48;
+  translucent.channels = 5;
+  translucent.covariances = true;
+  translucent.min_opacity = 0.005;
+  translucent.max_opacity = 0.05;
+  const std::pair<std::string, TestScene> scenes[] = {
+      {"12k on 96x80", parity_scene(ParityCase{"", 12000, 96, 80, 3, false, 1.0, false, true}, 35)},
+      {"8k translucent on 64x48, C=5", random_scene(translucent, 37)}};
+  for (const auto& [name, scene] : scenes) {
+    const Rendered uncut = [&] {
+      const BlendSegmentGuard never(0);
+      return render_on(scene, kCuda, at::kFloat);
+    }();
+    for (int64_t length : {100, 700}) {
+      const BlendSegmentGuard cut(length);
+      const std::string label = name + ", segments of " + std::to_string(length);
+      expect_parity(scene, label);
+      expect_close(render_on(scene, kCuda, at::kFloat), uncut, Bounds{1e-6, 1e-4, true}, label + ", float32 vs uncut");
+    }
   }
 }
 
@@ -505,6 +545,8 @@ TEST(CudaSanitizer, SmallScenes) {
     expect_parity(scene, label + " deterministic", deterministic);
     const BinningGuard radix_only(Binning::kRadix);
     expect_parity(scene, label + " radix binning", deterministic);
+    const BlendSegmentGuard cut(50);
+    expect_parity(scene, label + " blend segments of 50", deterministic);
   }
   expect_parity(base_scene(0), "sanitizer N = 0");
 }
