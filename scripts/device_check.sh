@@ -3,7 +3,7 @@
 # tests, compute-sanitizer memcheck and racecheck on the small CudaSanitizer.* scenes, and the benchmark.
 #
 #   bash scripts/device_check.sh [build] [test] [python] [sanitize] [bench] [profile] [avatar] [animate] [train-step]
-#                                [animate-trained] [stage-profile] [train] [ablate] [novel]
+#                                [animate-trained] [stage-profile] [train] [ablate] [novel] [fits]
 #   (no argument: the first five, in this order)
 #
 # python: the pytest suite against the module built with the machine's pip torch and pybind11 (CUDA included).
@@ -336,6 +336,45 @@ if wants ablate; then
     --iterations "${SFGS_DEVICE_ABLATE_ITERATIONS:-1500}" --force
   grep -E "^\||sfgs ablate" "$out/ablate.log"
   cp "$scene/ablation/ablation.json" "$scene/ablation/ablation.md" "$out/" 2>/dev/null
+fi
+
+# fits: issue 16's benchmark (docs/results.md, "Imperfect fits"). The Anny body swaying (SFGS_DEVICE_FITS_FRAMES,
+# default 80, at SFGS_DEVICE_FITS_SIZE, default 540x960) in the NeuMan layout with exact fits ("exact"), the same video
+# with fits corrupted at SFGS_DEVICE_FITS_NOISE (default medium; "noisy"), and the fits `sfgs fit` makes on CUDA from
+# its detector-like keypoints ("fitted"); the data are made once per machine. Each variant of
+# SFGS_DEVICE_FITS_VARIANTS (default "exact noisy refined fitted"; "refined" is noisy with pose refinement) is trained
+# for SFGS_DEVICE_FITS_ITERATIONS (default 2000) with configs/device_anny.yaml and evaluated on its test frames plainly
+# and with test-time pose fitting (SFGS_DEVICE_FITS_FIT_ITERATIONS, default 50).
+if wants fits; then
+  export SFGS_SHARED_DIR=$shared
+  scene=/tmp/sfgs-fits
+  size=${SFGS_DEVICE_FITS_SIZE:-540x960}
+  fits_synth() {  # NAME NOISE
+    [ -f "$scene/$1/sparse/images.txt" ] && return 0
+    run fits-synth 300 "$build/sfgs" synth --out "$scene/$1" --layout neuman --motions sway \
+      --body "$shared/bodies/anny_smplx_layout.npz" --texture "$shared/bodies/anny_albedo.png" \
+      --frames "${SFGS_DEVICE_FITS_FRAMES:-80}" --width "${size%x*}" --height "${size#*x}" --pose-noise "$2" --force
+  }
+  fits_synth exact none
+  fits_synth noisy "${SFGS_DEVICE_FITS_NOISE:-medium}"
+  if [ ! -f "$scene/fitted/smplx_optimized/shape_param.json.fitted" ]; then
+    rm -rf "$scene/fitted" && cp -r "$scene/noisy" "$scene/fitted" &&
+      run fits-fit 400 "$build/sfgs" fit --data "$scene/fitted" --body "$shared/bodies/anny_smplx_layout.npz" \
+        --device cuda --force --quiet &&
+      touch "$scene/fitted/smplx_optimized/shape_param.json.fitted"
+    tail -n 8 "$out/fits-fit.log"
+  fi
+  sed "s|@SHARED@|$shared|g" "$root/configs/device_anny.yaml" >"$scene/config.yaml"
+  { cat "$scene/config.yaml"; printf 'pose_refinement:\n  enabled: true\n'; } >"$scene/config-refined.yaml"
+  for variant in ${SFGS_DEVICE_FITS_VARIANTS:-exact noisy refined fitted}; do
+    data=$scene/$variant config=$scene/config.yaml
+    [ "$variant" = refined ] && data=$scene/noisy config=$scene/config-refined.yaml
+    run "fits-$variant" 400 "$build/sfgs" train --data "$data" --out "$scene/run-$variant" --config "$config" \
+      --iterations "${SFGS_DEVICE_FITS_ITERATIONS:-2000}" --force --quiet &&
+      run "fits-$variant" 300 "$build/sfgs" eval --run "$scene/run-$variant" --fit-test-poses \
+        --fit-iterations "${SFGS_DEVICE_FITS_FIT_ITERATIONS:-50}"
+    grep -E "steps|PSNR|sfgs eval" "$out/fits-$variant.log" | grep -v "fitted the pose" | tail -n 8
+  done
 fi
 
 if wants novel; then

@@ -8,6 +8,7 @@ packages=(
   libopencv-dev libglm-dev libgtest-dev
   nlohmann-json3-dev libstb-dev libzip-dev libyaml-cpp-dev python3-numpy
   libopenblas0-openmp  # an optimised BLAS for LibTorch's CPU matrix products (Debian's default is the reference BLAS)
+  chromium  # headless, for the web viewer's test (tests/python/test_web_viewer.py; WebGL2 on SwiftShader, no GPU)
 )
 sudo_cmd=()
 if [ "$(id -u)" -ne 0 ]; then sudo_cmd=(sudo); fi

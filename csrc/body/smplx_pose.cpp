@@ -46,6 +46,13 @@ SmplxPose SmplxPose::stack(const std::vector<SmplxPose>& frames) {
   return batch;
 }
 
+SmplxPose SmplxPose::frame(int64_t index) const {
+  SmplxPose p;
+  for (const Field& f : fields())
+    if ((this->*(f.member)).defined()) p.*(f.member) = (this->*(f.member)).select(0, index);
+  return p;
+}
+
 SmplxPose SmplxPose::to(const at::TensorOptions& options) const {
   SmplxPose p;
   for (const Field& f : fields())

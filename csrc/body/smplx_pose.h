@@ -35,6 +35,8 @@ struct SmplxPose {
   static SmplxPose zeros(int64_t expression_count);
   // One-frame poses as one batch (every field defined in every frame, or in none).
   static SmplxPose stack(const std::vector<SmplxPose>& frames);
+  // Frame `index` of a batch (every defined field's entry `index` along the leading dimension).
+  SmplxPose frame(int64_t index) const;
   // Every defined field converted (dtype, device).
   SmplxPose to(const at::TensorOptions& options) const;
   // The first field holding NaN or Inf, as "body_pose must be finite, got nan at index 13 (1 of 63 values are not

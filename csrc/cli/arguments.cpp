@@ -1,6 +1,9 @@
 #include "cli/arguments.h"
 
+#include <cstdio>
 #include <stdexcept>
+
+#include "common/constants.h"
 
 namespace sfgs::cli {
 
@@ -73,6 +76,18 @@ double Arguments::real(const std::string& name, double fallback, double lo, doub
     throw std::invalid_argument("--" + name + " expects a number in [" + std::to_string(lo) + ", " + std::to_string(hi) +
                                 "], got '" + v + "'");
   return x;
+}
+
+std::array<int64_t, 2> Arguments::image_size(const std::string& name) {
+  const std::string v = text(name, "");
+  if (v.empty()) return {0, 0};
+  long width = 0, height = 0;
+  char rest = 0;
+  if (std::sscanf(v.c_str(), "%ldx%ld%c", &width, &height, &rest) != 2 || width < 1 || height < 1 ||
+      width > kMaxImageSide || height > kMaxImageSide)
+    throw std::invalid_argument("--" + name + " must be WIDTHxHEIGHT (for example 540x960), each side in [1, " +
+                                std::to_string(kMaxImageSide) + "], got '" + v + "'");
+  return {width, height};
 }
 
 bool Arguments::flag(const std::string& name) {

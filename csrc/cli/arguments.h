@@ -2,6 +2,7 @@
 // Command-line options of the sfgs subcommands: `--name value` (or `--name=value`) pairs and `--flag` switches, each
 // given at most once and read once; anything unread is reported as unknown, so a typo never passes silently, and a
 // value that looks like an option (`--out --force`) is refused rather than taken as a folder name.
+#include <array>
 #include <cstdint>
 #include <map>
 #include <set>
@@ -19,6 +20,8 @@ class Arguments {
   int64_t integer(const std::string& name, int64_t fallback, int64_t lo, int64_t hi);
   double real(const std::string& name, double fallback, double lo, double hi);
   bool flag(const std::string& name);
+  // An image size written WIDTHxHEIGHT (540x960), each side in [1, kMaxImageSide]; {0, 0} when not given.
+  std::array<int64_t, 2> image_size(const std::string& name);
   bool has(const std::string& name) const { return values_.count(name) > 0 || flags_.count(name) > 0; }
   // Throws naming every option that was given but never read.
   void finish() const;

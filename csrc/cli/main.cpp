@@ -30,6 +30,14 @@ commands:
            --out DIR  --body SMPLX.npz (built-in body)  --texture PNG  --width W (256)  --height H (256)
            --motions M,M (sway)  --test-motions M,M (none: interleaved test frames)  --frames N (60 per motion)
            --fps F (30)  --light key|head (key)  --seed S (1)  --force
+           --layout sfgs|neuman (sfgs; neuman: NeuMan/ExAvatar folders with smplx_optimized/ and ground_truth/)
+           --pose-noise none|low|medium|high[,key=value] (none: exact fits; docs/fitting.md)
+           --keypoint-noise detector|none (detector: whole-body keypoints as a detector reports them)
+  fit      SMPL-X fits from whole-body keypoints (keypoints_whole_body/N.json, 133 x [x, y, score]) into
+           OUT/smplx_optimized (NeuMan/ExAvatar layout; docs/fitting.md): --data DIR  --out DIR (DIR)
+           --body SMPLX.npz (built-in body)  --device cpu|cuda  --iterations G,B,D[,S] (80,300,200,60)
+           --focal PX (the dataset's, else max(W, H))  --betas-from-data  --start-from-data (DIR/smplx_optimized
+           as the start)  --no-masks  --truth DIR (DIR/ground_truth)  --log-every N (25)  --force  --quiet
   train    train an avatar: --data DATASET --out RUN  --config FILE  --iterations N  --device cpu|cuda
            --stop-at N (pause there, resumable)  --force  --quiet
            --resume: continue RUN with its own config and dataset (--data, --config optional; only schedule and
@@ -37,6 +45,8 @@ commands:
   eval     evaluate a run on a split (ExAvatar/SFGS protocol): --run RUN  --data DATASET (the training one)
            --split test|val|train (test)  --device cpu|cuda (the run's)  --eight-bit  --save-images  --force
            --no-observation-prior (trust every Gaussian's learned colour and offsets: the ablation)
+           --fit-test-poses: also fit each frame's pose to its image with the avatar frozen (NeuMan protocol),
+           reported separately (metrics_fitted_poses.json)  --fit-iterations N (100)
   render   novel poses to PNG frames and an MP4: --run RUN --out DIR  --frames N (48; a file: all of it)
            --motion MOTION|DATASET|FILE.npz|FOLDER (overhead; motions: sway walk wave overhead bend guard turn
            sit; FILE.npz: AMASS SMPL-X or SMPL-H; FOLDER: ExAvatar smplx_params_smoothed; docs/motions.md)  --fps F (24)
@@ -45,6 +55,9 @@ commands:
            --data DATASET (the training one)  --device cpu|cuda (the run's)  --force
   export   the avatar's Gaussians: --run RUN --out FILE.ply (3DGS) | FILE.splat (web viewers)  --frame K (canonical)
            --data DATASET (the training one, for --frame)  --force
+           or the animated avatar for web browsers (DIR/index.html, WebGL2; docs/web_viewer.md): --run RUN --web DIR
+           --motion as render's (overhead)  --frames N (48; a file: all of it)  --fps F (24)  --size WxH (the
+           dataset's)  --distance M (2.8)  --height M (0)  --data DATASET  --force (replaces an earlier export)
   ablate   the paper's ablation table: --data DATASET --out DIR  --config FILE  --iterations N  --force
   bench    render the built-in Gaussian scene and print forward/backward timings
            --gaussians N (60000)  --width W (640)  --height H (480)  --repeats R (5)  --device cpu|cuda
@@ -68,8 +81,9 @@ int main(int argc, char** argv) {
   const std::map<std::string, std::pair<std::function<int(sfgs::cli::Arguments&)>, std::set<std::string>>> commands = {
       {"demo", {sfgs::cli::run_demo, {"force"}}},
       {"synth", {sfgs::cli::run_synth, {"force"}}},
+      {"fit", {sfgs::cli::run_fit, {"betas-from-data", "start-from-data", "no-masks", "force", "quiet"}}},
       {"train", {sfgs::cli::run_train, {"resume", "force", "quiet"}}},
-      {"eval", {sfgs::cli::run_eval, {"eight-bit", "save-images", "no-observation-prior", "force"}}},
+      {"eval", {sfgs::cli::run_eval, {"eight-bit", "save-images", "no-observation-prior", "fit-test-poses", "force"}}},
       {"render", {sfgs::cli::run_render, {"force"}}},
       {"export", {sfgs::cli::run_export, {"force"}}},
       {"ablate", {sfgs::cli::run_ablate, {"force"}}},

@@ -9,6 +9,7 @@
 #include <stdexcept>
 
 #include <fcntl.h>
+#include <ftw.h>
 #include <unistd.h>
 
 namespace sfgs {
@@ -26,6 +27,14 @@ void sync_folder_of(const std::string& path) {
 }
 
 bool process_runs(long pid) { return ::kill(pid_t(pid), 0) == 0 || errno == EPERM; }
+
+// Removes a folder and everything in it; false when something stayed. Not std::filesystem::remove_all: the pip
+// wheels of LibTorch 2.x export their own build of it, which the dynamic linker binds our calls to and which crashes
+// when called from code built with GCC 13.
+bool remove_tree(const std::string& path) {
+  const auto remove_entry = [](const char* entry, const struct stat*, int, struct FTW*) { return ::remove(entry); };
+  return ::nftw(path.c_str(), remove_entry, 16, FTW_DEPTH | FTW_PHYS) == 0;
+}
 
 }  // namespace
 
@@ -76,12 +85,54 @@ std::vector<std::string> remove_stale_temporaries(const std::string& folder) {
   for (const fs::directory_entry& entry : fs::directory_iterator(folder, ec)) {
     const std::string name = entry.path().filename().string();
     std::smatch m;
-    if (!entry.is_regular_file(ec) || !std::regex_match(name, m, temporary)) continue;
+    const bool folder_write = entry.is_directory(ec);
+    if (!(entry.is_regular_file(ec) || folder_write) || !std::regex_match(name, m, temporary)) continue;
     const long pid = std::stol(m[1].str());
     if (pid == long(::getpid()) || process_runs(pid)) continue;
-    if (fs::remove(entry.path(), ec)) removed.push_back(name);
+    if (folder_write ? remove_tree(entry.path().string()) : fs::remove(entry.path(), ec)) removed.push_back(name);
   }
   return removed;
+}
+
+AtomicFolder::AtomicFolder(const std::string& target) : target_(target), temporary_(temporary_path(target)) {
+  const fs::path parent = fs::path(target).has_parent_path() ? fs::path(target).parent_path() : fs::path(".");
+  if (!fs::is_directory(parent))
+    throw std::runtime_error("cannot write folder '" + target + "': folder '" + parent.string() + "' does not exist");
+  remove_tree(temporary_);  // this process's own leftover, if any
+  std::error_code ec;
+  if (!fs::create_directory(temporary_, ec))
+    throw std::runtime_error("cannot create folder '" + temporary_ + "': " + ec.message());
+}
+
+AtomicFolder::~AtomicFolder() {
+  if (!committed_) remove_tree(temporary_);
+}
+
+void AtomicFolder::add(const std::string& relative_path, const std::vector<unsigned char>& bytes) {
+  const fs::path path = fs::path(temporary_) / relative_path;
+  std::error_code ec;
+  fs::create_directories(path.parent_path(), ec);
+  if (ec) throw std::runtime_error("cannot create folder '" + path.parent_path().string() + "': " + ec.message());
+  write_file_atomically(path.string(), bytes, false);
+}
+
+void AtomicFolder::commit(bool overwrite) {
+  std::error_code ec;
+  // rename() replaces an empty folder by itself; anything else is moved aside first.
+  const bool replaces = fs::exists(target_, ec) && !(fs::is_directory(target_, ec) && fs::is_empty(target_, ec));
+  if (replaces && !overwrite)
+    throw std::runtime_error("refusing to replace existing '" + target_ + "' (pass --force to replace it)");
+  const std::string aside = temporary_path(target_, ".old");
+  if (replaces && std::rename(target_.c_str(), aside.c_str()) != 0)
+    throw std::runtime_error("cannot replace '" + target_ + "': " + std::strerror(errno));
+  if (std::rename(temporary_.c_str(), target_.c_str()) != 0) {
+    const std::string reason = std::strerror(errno);
+    if (replaces) std::rename(aside.c_str(), target_.c_str());  // the old folder back where it was
+    throw std::runtime_error("cannot write folder '" + target_ + "': " + reason);
+  }
+  committed_ = true;
+  sync_folder_of(target_);
+  if (replaces) remove_tree(aside);
 }
 
 }  // namespace sfgs

@@ -162,6 +162,11 @@ inline constexpr double kReplayReachSlack = 1e-6;
 // of 1e30, a loss weight whose product overflows float32, planes of a million texels a side), not unusual choices:
 // the defaults sit orders of magnitude inside them (learning rates 1e-3, Laplacian weights 1e5, planes 128-256).
 inline constexpr double kMaxLearningRate = 1.0;
+// Adam of the pose corrections (train/pose_refinement.h): the usual moments' decays and a denominator floor far
+// below the corrections' gradients.
+inline constexpr double kPoseAdamBeta1 = 0.9;
+inline constexpr double kPoseAdamBeta2 = 0.999;
+inline constexpr double kPoseAdamEpsilon = 1e-8;
 inline constexpr double kMaxLossWeight = 1e9;
 inline constexpr long kMaxIterations = 100000000;
 inline constexpr long kMaxPlaneChannels = 1024;
@@ -179,6 +184,125 @@ inline constexpr double kShadowBiasRadii = 0.01;
 // ---- export and plots -----------------------------------------------------------------------------------
 // Covariance eigenvalues are clamped to this before their logarithm (the exported log scale of a flat Gaussian).
 inline constexpr double kMinExportedVariance = 1e-20;
+// The web viewer (docs/web_viewer.md) skins each Gaussian with at most this many joints, its strongest, weights
+// renormalised; the per-frame mean offsets carry what the others add, so only covariances and normals see the cut.
+inline constexpr long kWebViewerInfluences = 4;
+// The web export's data scripts hold at most about this many bytes each (before base64; a file holds at least one
+// frame): a script of about 45 MB of base64 text, which browsers parse as one string literal without trouble.
+inline constexpr long kWebDataFileBytes = 32L << 20;
+// ---- whole-body keypoints, noisy fits, fitting (docs/fitting.md) ------------------------------------------
+// A landmark embedding's barycentric coordinates must sum to 1 within this (files store them in float32).
+inline constexpr double kBarycentricSumTolerance = 1e-3;
+// `sfgs synth --pose-noise medium` (low halves every number, high doubles it): RMS rotation error of each body joint
+// (degrees), of each wrist and finger joint, of the global orientation; RMS translation error across the view (cm,
+// per axis) and along it (depth, which one view measures worst); the shape error per coefficient; the share of
+// frames whose hands are exchanged (none at low). Roughly what image-based SMPL-X regressors leave on easy footage.
+inline constexpr double kPoseNoiseMediumBodyDegrees = 5.0;
+inline constexpr double kPoseNoiseMediumHandDegrees = 10.0;
+inline constexpr double kPoseNoiseMediumRootDegrees = 4.0;
+inline constexpr double kPoseNoiseMediumLateralCm = 2.0;
+inline constexpr double kPoseNoiseMediumDepthCm = 6.0;
+inline constexpr double kPoseNoiseMediumBetasSigma = 0.25;
+inline constexpr double kPoseNoiseMediumHandSwapRate = 0.02;
+// Every level: the share of each error's variance that is frame-to-frame jitter (the rest drifts), and the drift's
+// correlation time (seconds).
+inline constexpr double kPoseNoiseJitterShare = 0.3;
+inline constexpr double kPoseNoiseDriftSeconds = 1.0;
+// Seeds of a synthetic video's independent random streams (shape, fit noise, detections) lie this far apart.
+inline constexpr unsigned long long kSeedStreamStride = 0x9E3779B97F4A7C15ull;
+// Synthetic detections (data/synthetic_detections.h): pixel noise = floor + a share of the person's height (body,
+// feet) or of the face's / hand's own size in the image, so small parts are relatively noisier; hidden points get
+// this many times the noise. Scores are uniform in these ranges for visible, hidden and outlier points.
+inline constexpr double kDetectorNoiseFloorPixels = 1.5;
+inline constexpr double kDetectorNoiseBodyShare = 0.01;
+inline constexpr double kDetectorNoisePartShare = 0.04;
+inline constexpr double kDetectorHiddenNoiseFactor = 3.0;
+inline constexpr double kDetectorOutlierRate = 0.02;
+inline constexpr double kDetectorHiddenDropRate = 0.3;
+inline constexpr double kDetectorVisibleScore[2] = {0.7, 0.98};
+inline constexpr double kDetectorHiddenScore[2] = {0.1, 0.5};
+inline constexpr double kDetectorOutlierScore[2] = {0.4, 0.8};
+// A keypoint is hidden when it lies farther than this (metres) behind the rendered surface at its pixel: a surface
+// point (nose, fingertip, landmark) must be on the visible surface, a joint sits inside its limb.
+inline constexpr double kSurfaceKeypointOcclusionDepth = 0.03;
+inline constexpr double kJointKeypointOcclusionDepth = 0.1;
+
+// `sfgs fit` (csrc/fit, docs/fitting.md). Adam steps per stage (global orientation and translation; body and shape;
+// hands, jaw and expression; the silhouette stage where masks exist) and progress lines every this many steps.
+inline constexpr long kFitGlobalIterations = 80;
+inline constexpr long kFitBodyIterations = 300;
+inline constexpr long kFitDetailIterations = 200;
+inline constexpr long kFitSilhouetteIterations = 60;
+inline constexpr long kFitLogEvery = 25;
+// Shape and expression coefficients fitted (what `sfgs synth` animates and the avatar reads by default).
+inline constexpr long kFitBetas = 10;
+inline constexpr long kFitExpressions = 10;
+// Detections scoring below this are ignored (DWPose's usual visualisation threshold); scores count up to 1.
+inline constexpr double kFitMinKeypointScore = 0.3;
+// Residuals are divided by the person's size in the image (the diagonal of the confident keypoints' box, at least
+// this many pixels), so the weights below hold at any resolution.
+inline constexpr double kFitMinPersonPixels = 16.0;
+// The start: upright orientations tried per frame; the ridge on the translation's normal equations; candidates
+// placing the body nearer than this (metres) are refused; a frame with fewer torso or head detections than this
+// starts facing the camera at the depth a body of this height (metres) would have.
+inline constexpr long kFitOrientationCandidates = 12;
+inline constexpr double kFitInitialRidge = 1e-6;
+inline constexpr double kFitMinInitialDepth = 0.3;
+inline constexpr long kFitMinInitialKeypoints = 3;
+inline constexpr double kFitAssumedBodyHeight = 1.7;
+// Adam's step (radians, metres; shape and expression coefficients take this factor more), falling linearly to the
+// share at each stage's end; the silhouette stage only settles.
+inline constexpr double kFitLearningRate = 0.03;
+inline constexpr double kFitSilhouetteLearningRate = 0.005;
+inline constexpr double kFitCoefficientRateFactor = 2.0;
+inline constexpr double kFitFinalLearningRateShare = 0.1;
+// Geman-McClure scales of the keypoint residuals (shares of the person's size): wide while the body is placed,
+// then a detection farther than about 5 % of the person's size from the fit counts as an outlier.
+inline constexpr double kFitGlobalRobustSigma = 0.1;
+inline constexpr double kFitRobustSigma = 0.05;
+// Each stage starts nearly quadratic (this scale: every detection pulls, however far, and limbs start far from
+// theirs) and narrows geometrically to its own scale over this share of its steps.
+inline constexpr double kFitInitialRobustSigma = 0.2;
+inline constexpr double kFitRobustAnnealShare = 0.5;
+// Keypoint weights per group (body 1, hands 1): feet, the face's 68 landmarks in the detail stages and, for the
+// head's orientation only, in the body stage.
+inline constexpr double kFitFeetWeight = 0.5;
+inline constexpr double kFitFaceWeight = 0.3;
+inline constexpr double kFitBodyStageFaceWeight = 0.05;
+// Prior weights, against keypoint residuals squared in units of the person's size: body joints' axis-angles (with
+// hinges this many times stronger on impossible knee and elbow bends), hands towards the mean hand, shape,
+// expression and jaw towards zero.
+inline constexpr double kFitBodyPriorWeight = 3e-3;
+inline constexpr double kFitJointLimitWeight = 100.0;
+// The body prior's centre has the arms hanging, each shoulder turned this far (radians) down from the T-pose; twists
+// about a limb's own axis, which one view sees least, weigh this many times a swing; the flexion of knees and
+// elbows is free within its limits (an L2 pull would straighten them and let the hip or shoulder take the bend,
+// which one view cannot tell apart).
+inline constexpr double kFitHangingArmAngle = 1.2;
+inline constexpr double kFitTwistPriorFactor = 4.0;
+// Joints that move little in most motions weigh more in the body prior, the shoulders (the widest range) less: an
+// even prior lets the optimiser lean the spine (three joints sharing a bend) where the arm should have turned.
+inline constexpr double kFitSpinePriorFactor = 30.0;  // spine1-3, neck, collars
+inline constexpr double kFitSpineTwistPriorFactor = 3.0;  // but a spine joint's twist
+inline constexpr double kFitShoulderPriorFactor = 0.3;
+inline constexpr double kFitHandPriorWeight = 1e-4;
+inline constexpr double kFitShapePriorWeight = 1e-4;
+inline constexpr double kFitExpressionPriorWeight = 1e-4;
+inline constexpr double kFitJawPriorWeight = 1e-4;
+// Temporal smoothness: Geman-McClure of the acceleration of every keypoint and joint between consecutive frames
+// (metres per frame^2: a cut or a fast swing beyond the scale stops being smoothed).
+inline constexpr double kFitTemporalWeight = 0.1;
+inline constexpr double kFitTemporalSigma = 0.05;
+// Silhouette term (fit/silhouette.h): its weight, the masks' reduced side (pixels) for the distance transform, the
+// boundary samples per frame and their seed, and the surface vertices sampled.
+inline constexpr double kFitSilhouetteWeight = 1.0;
+inline constexpr long kFitSilhouetteSide = 160;
+inline constexpr long kFitSilhouetteBoundarySamples = 256;
+inline constexpr unsigned long long kFitSilhouetteSeed = 1;
+inline constexpr long kFitSilhouetteVertices = 800;
+// Frames per SMPL-X evaluation when measuring a fit's accuracy (bounds memory on long videos).
+inline constexpr long kFitAccuracyChunk = 32;
+
 // Spans and durations below this (seconds, or axis units of a plot) are treated as this, so nothing divides by zero
 // and tick loops include their last tick despite rounding.
 inline constexpr double kMinSpan = 1e-9;

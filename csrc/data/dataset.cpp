@@ -163,21 +163,27 @@ void Dataset::validate() const {
     for (int64_t i : indices)
       TORCH_CHECK(i >= 0 && i < size(), "dataset '", source, "': split '", split_names().at(s), "' names frame ", i,
                   " of ", size());
+  TORCH_CHECK(!true_betas.defined() || true_betas.dim() == 1, "dataset '", source,
+              "': true betas must be a 1-D tensor");
+  const auto check_pose = [&](const FrameRecord& r, const SmplxPose& pose, const char* which) {
+    for (const SmplxPose::Field& f : SmplxPose::fields()) {
+      const at::Tensor& t = pose.*(f.member);
+      TORCH_CHECK(t.defined(), "dataset '", source, "': frame '", r.name, "' lacks ", which, " parameter ", f.name);
+      const std::vector<int64_t> shape = stored_shape(f);
+      if (shape[0] != -1)
+        TORCH_CHECK(t.sizes() == at::IntArrayRef(shape), "dataset '", source, "': frame '", r.name, "' ", which, " ",
+                    f.name, " has shape ", t.sizes());
+    }
+    const std::string non_finite = pose.non_finite();
+    TORCH_CHECK(non_finite.empty(), "dataset '", source, "': frame '", r.name, "' ", which, " parameter ", non_finite);
+  };
   for (const FrameRecord& r : frames) {
     TORCH_CHECK(r.sequence >= 0 && r.sequence < int64_t(sequences.size()), "dataset '", source, "': frame '", r.name,
                 "' names sequence ", r.sequence);
     const std::string camera = camera_problem(r.camera);
     TORCH_CHECK(camera.empty(), "dataset '", source, "': frame '", r.name, "' camera: ", camera);
-    for (const SmplxPose::Field& f : SmplxPose::fields()) {
-      const at::Tensor& t = r.pose.*(f.member);
-      TORCH_CHECK(t.defined(), "dataset '", source, "': frame '", r.name, "' lacks SMPL-X parameter ", f.name);
-      const std::vector<int64_t> shape = stored_shape(f);
-      if (shape[0] != -1)
-        TORCH_CHECK(t.sizes() == at::IntArrayRef(shape), "dataset '", source, "': frame '", r.name, "' ", f.name,
-                    " has shape ", t.sizes());
-    }
-    const std::string non_finite = r.pose.non_finite();
-    TORCH_CHECK(non_finite.empty(), "dataset '", source, "': frame '", r.name, "' SMPL-X parameter ", non_finite);
+    check_pose(r, r.pose, "SMPL-X");
+    if (r.true_pose) check_pose(r, *r.true_pose, "true SMPL-X");
   }
 }
 
@@ -217,6 +223,7 @@ Dataset read_sfgs_dataset(const std::string& folder) {
   d.format = "sfgs";
   try {
     d.betas = json_numbers(j.at("betas"), {-1}, index + ": betas");
+    if (j.contains("betas_truth")) d.true_betas = json_numbers(j.at("betas_truth"), {-1}, index + ": betas_truth");
     d.sequences = j.value("sequences", std::vector<std::string>{"sequence"});
     const json& frames = j.at("frames");
     TORCH_CHECK(frames.is_array(), index, ": 'frames' must be an array");
@@ -230,6 +237,7 @@ Dataset read_sfgs_dataset(const std::string& folder) {
       r.camera = camera_from_json(f.at("camera"), where + ".camera");
       r.pose = pose_from_json(f.at("smplx"), where + ".smplx");
       r.pose_in_camera_frame = f.at("smplx").value("in_camera_frame", false);
+      if (f.contains("smplx_truth")) r.true_pose = pose_from_json(f.at("smplx_truth"), where + ".smplx_truth");
       r.image_path = resolve(folder, f.at("image").get<std::string>());
       r.mask_path = resolve(folder, f.value("mask", ""));
       r.mesh_path = resolve(folder, f.value("mesh", ""));
@@ -259,12 +267,14 @@ void write_sfgs_dataset(const Dataset& d, const std::string& folder, bool overwr
            {"image", relative_to(folder, r.image_path)}};
     if (!r.mask_path.empty()) f["mask"] = relative_to(folder, r.mask_path);
     if (!r.mesh_path.empty()) f["mesh"] = relative_to(folder, r.mesh_path);
+    if (r.true_pose) f["smplx_truth"] = pose_to_json(*r.true_pose, r.pose_in_camera_frame);
     frames.push_back(std::move(f));
   }
   json splits = json::object();
   for (const auto& [split, name] : split_names()) splits[name] = d.split(split);
-  const json j{{"format", kFormatName}, {"version", kFormatVersion}, {"sequences", d.sequences},
-               {"betas", tensor_to_json(d.betas)}, {"frames", frames}, {"splits", splits}};
+  json j{{"format", kFormatName}, {"version", kFormatVersion}, {"sequences", d.sequences},
+         {"betas", tensor_to_json(d.betas)}, {"frames", frames}, {"splits", splits}};
+  if (d.true_betas.defined()) j["betas_truth"] = tensor_to_json(d.true_betas);
   const std::string text = j.dump(1);
   write_file_atomically((fs::path(folder) / kIndexFile).string(), std::vector<unsigned char>(text.begin(), text.end()),
                         overwrite);

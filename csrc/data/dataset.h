@@ -33,6 +33,9 @@ struct FrameRecord {
   std::string eval_mask_path;  // mask of the evaluation protocol; empty = the training mask
   MaskEncoding eval_mask_encoding = MaskEncoding::kWhitePerson;
   std::string mesh_path;       // ground-truth posed vertices (.npy, float32 (V, 3)); empty if none
+  // The exact parameters when `pose` was corrupted on purpose (`sfgs synth --pose-noise`), in the same frame; none
+  // for every other dataset.
+  std::optional<SmplxPose> true_pose;
 };
 
 struct Frame {
@@ -51,6 +54,7 @@ class Dataset {
   std::vector<std::string> sequences;      // names of the sequences (takes); at least one
   std::map<Split, std::vector<int64_t>> splits;
   at::Tensor betas;                        // (B) shared shape parameters, float32
+  at::Tensor true_betas;                   // the exact shape when `betas` was corrupted on purpose; else undefined
   std::map<std::string, at::Tensor> extras;  // optional per-subject data (e.g. ExAvatar's joint_offset)
 
   int64_t size() const { return int64_t(frames.size()); }

@@ -11,11 +11,15 @@
 #include <ATen/ATen.h>
 #include <ATen/CPUGeneratorImpl.h>
 
-#include "body/procedural_body.h"
-#include "body/smplx.h"
 #include "body/parts.h"
+#include "body/procedural_body.h"
+#include "body/skeleton.h"
+#include "body/smplx.h"
+#include "body/wholebody_keypoints.h"
+#include "data/keypoint_file.h"
 #include "data/mesh_renderer.h"
 #include "data/motions.h"
+#include "data/synthetic_layouts.h"
 #include "io/npz.h"
 
 namespace sfgs::data {
@@ -197,14 +201,45 @@ void check_options(const SyntheticVideoOptions& options) {
                 "sfgs synth: motion '", m, "' is both a training and a test motion");
 }
 
+// Independent random streams of one seed: the subject's shape, the fits' noise and the detections.
+uint64_t stream_seed(uint64_t seed, uint64_t stream) { return seed + kSeedStreamStride * stream; }
+
+// The whole-body keypoints of every frame in its camera's coordinates, (B, 133, 3).
+at::Tensor camera_keypoints(const body::WholeBodyKeypointMap& map, const body::SmplxOutput& posed,
+                            const at::Tensor& rotations, const at::Tensor& translations) {
+  const at::Tensor neck = posed.joint_transforms.select(1, body::smplx_joint::kNeck).narrow(1, 0, 3).narrow(2, 0, 3);
+  const at::Tensor bins = body::contour_bins(rotations.to(neck.dtype()).matmul(neck), map.contour_bin_count());
+  const at::Tensor world = map.evaluate_on_mesh(posed.vertices, posed.joints, bins).to(at::kDouble);
+  return world.matmul(rotations.transpose(1, 2)) + translations.unsqueeze(1);
+}
+
+// Rotation (B, 3, 3) and translation (B, 3) blocks of the frames' world-to-camera matrices.
+std::pair<at::Tensor, at::Tensor> camera_blocks(const std::vector<FrameRecord>& frames) {
+  at::Tensor r = at::empty({int64_t(frames.size()), 3, 3}, at::kDouble);
+  at::Tensor t = at::empty({int64_t(frames.size()), 3}, at::kDouble);
+  for (size_t i = 0; i < frames.size(); ++i) {
+    const auto& m = frames[i].camera.world_to_camera;
+    for (int64_t row = 0; row < 3; ++row) {
+      for (int64_t col = 0; col < 3; ++col) r[int64_t(i)][row][col] = m[size_t(4 * row + col)];
+      t[int64_t(i)][row] = m[size_t(4 * row + 3)];
+    }
+  }
+  return {r, t};
+}
+
 }  // namespace
 
 Dataset write_synthetic_video(const std::string& folder, const SyntheticVideoOptions& options) {
   check_options(options);
-  for (const char* sub : {"images", "masks", "meshes"}) fs::create_directories(fs::path(folder) / sub);
+  const bool sfgs_layout = options.layout == DatasetLayout::kSfgs;
+  for (const char* sub : {"images", "masks", kKeypointFolder}) fs::create_directories(fs::path(folder) / sub);
+  if (sfgs_layout) fs::create_directories(fs::path(folder) / "meshes");
 
   const body::SmplxModelData model = synthetic_body_model(options);
   const body::Smplx smplx = synthetic_body_layer(model);
+  const body::WholeBodyKeypointMap keypoint_map = body::WholeBodyKeypointMap::build(
+      model, options.body_model.empty() ? body::LandmarkEmbedding{}
+                                        : body::read_landmark_embedding(options.body_model, model.faces.size(0)));
   at::Generator gen = at::make_generator<at::CPUGeneratorImpl>(options.seed);
   const at::Tensor betas = at::empty({smplx->options().num_betas}).normal_(0.0, 0.6, gen);
   std::vector<std::string> blocks = options.motions;
@@ -218,52 +253,87 @@ Dataset write_synthetic_video(const std::string& folder, const SyntheticVideoOpt
   body::SmplxInput input;
   input.betas = betas.unsqueeze(0).expand({total, -1}).contiguous();
   input.pose = SmplxPose::stack(poses);
-  const at::Tensor vertices = smplx->forward(input).vertices.detach().to(at::kFloat);
+  const body::SmplxOutput posed = smplx->forward(input);
+  const at::Tensor vertices = posed.vertices.detach().to(at::kFloat);
   TexturedMesh mesh = subject_mesh(smplx, options);
   const SyntheticCamera camera(vertices, options, total);
   MeshShading shading;
   if (options.key_light) shading.key_light = kKeyLight;
 
-  Dataset d;
-  d.source = folder;
-  d.format = "sfgs";
-  d.sequences = blocks;
-  d.betas = betas;
-  const at::Tensor white = at::ones({3});
-  at::Tensor seen_counts = at::zeros({vertices.size(1)}, at::kFloat);
-  int64_t training_frames = 0;
-  io::write_npy((fs::path(folder) / "meshes" / "faces.npy").string(), mesh.faces, options.overwrite);
+  SyntheticVideo video;
+  video.sequences = sfgs_layout ? blocks : std::vector<std::string>{fs::path(folder).filename().string()};
+  video.hands_mean_left = model.hands_mean_left;
+  video.hands_mean_right = model.hands_mean_right;
   for (int64_t i = 0; i < total; ++i) {
     FrameRecord r;
     char name[24];  // room for any int64 (the warning counts 19 digits and a sign)
-    std::snprintf(name, sizeof(name), "%06lld", static_cast<long long>(i));
+    std::snprintf(name, sizeof(name), sfgs_layout ? "%06lld" : "%05lld", static_cast<long long>(i));
     r.name = name;
     r.time = double(i) / options.frames_per_second;
-    r.sequence = i / options.frames;
+    r.sequence = sfgs_layout ? i / options.frames : 0;
     r.camera = camera.at(r.time);
-    r.pose = poses[size_t(i)];
-    r.image_path = (fs::path(folder) / "images" / (r.name + ".png")).string();
-    r.mask_path = (fs::path(folder) / "masks" / (r.name + ".png")).string();
-    r.mesh_path = (fs::path(folder) / "meshes" / (r.name + ".npy")).string();
+    const SyntheticFramePaths paths = synthetic_frame_paths(folder, options.layout, i);
+    r.image_path = paths.image;
+    r.mask_path = paths.mask;
+    r.mesh_path = paths.mesh;
+    video.frames.push_back(std::move(r));
+  }
+  const auto [rotations, translations] = camera_blocks(video.frames);
+  const at::Tensor keypoints = camera_keypoints(keypoint_map, posed, rotations, translations);
+
+  // The fits as written: exact, or corrupted about each frame's camera.
+  at::Tensor times = at::empty({total}, at::kDouble);
+  for (int64_t i = 0; i < total; ++i) times[i] = video.frames[size_t(i)].time;
+  const NoisyFits noisy =
+      corrupt_fits(input.pose, betas, times, rotations, options.pose_noise, stream_seed(options.seed, 1));
+  video.betas = noisy.betas;
+  video.true_rest_pelvis = posed.rest_joints.select(1, 0).detach().to(at::kDouble);
+  video.rest_pelvis = video.true_rest_pelvis;
+  if (!options.pose_noise.is_zero()) {
+    video.true_betas = betas;
+    body::SmplxInput noisy_rest;  // the written shape's pelvis, which the camera-frame fits turn about
+    noisy_rest.betas = noisy.betas.unsqueeze(0).expand({total, -1}).contiguous();
+    noisy_rest.pose.expression = input.pose.expression;
+    video.rest_pelvis = smplx->forward(noisy_rest).rest_joints.select(1, 0).detach().to(at::kDouble);
+  }
+
+  const at::Tensor white = at::ones({3});
+  at::Tensor seen_counts = at::zeros({vertices.size(1)}, at::kFloat);
+  int64_t training_frames = 0;
+  at::Generator detector = at::make_generator<at::CPUGeneratorImpl>(stream_seed(options.seed, 2));
+  const at::Tensor on_surface = keypoint_map.on_surface();
+  if (sfgs_layout)
+    io::write_npy((fs::path(folder) / "meshes" / "faces.npy").string(), mesh.faces, options.overwrite);
+  for (int64_t i = 0; i < total; ++i) {
+    FrameRecord& r = video.frames[size_t(i)];
+    r.pose = noisy.poses.frame(i);
+    if (!options.pose_noise.is_zero()) r.true_pose = poses[size_t(i)];
     mesh.vertices = vertices[i];
     const MeshImage frame = render_mesh(mesh, r.camera, white, shading);
     write_png(r.image_path, frame.image, options.overwrite);
     write_png(r.mask_path, frame.mask, options.overwrite);
-    io::write_npy(r.mesh_path, vertices[i], options.overwrite);
-    const Split split = split_of(r.sequence >= int64_t(options.motions.size()), i % options.frames,
+    if (sfgs_layout) io::write_npy(r.mesh_path, vertices[i], options.overwrite);
+    const at::Tensor detections =
+        simulate_detections(keypoints[i], r.camera, frame.depth, on_surface, options.keypoint_noise, detector);
+    write_wholebody_keypoints(synthetic_frame_paths(folder, options.layout, i).keypoints, detections,
+                              options.overwrite);
+    const Split split = split_of(i / options.frames >= int64_t(options.motions.size()), i % options.frames,
                                  options.test_motions.empty());
     if (split == Split::kTrain) {
       count_visible_vertices(frame.face, mesh.faces, seen_counts);
       ++training_frames;
     }
-    d.splits[split].push_back(i);
-    d.frames.push_back(std::move(r));
+    video.splits[split].push_back(i);
+  }
+  if (!sfgs_layout) {
+    write_neuman_layout_index(folder, video, options.overwrite);
+    return read_dataset(folder);
   }
   io::write_npy((fs::path(folder) / "meshes" / "regions.npy").string(), vertex_regions(model), options.overwrite);
   io::write_npy((fs::path(folder) / "meshes" / "observation.npy").string(),
                 seen_counts / double(std::max<int64_t>(training_frames, 1)), options.overwrite);
-  write_sfgs_dataset(d, folder, options.overwrite);
-  return d;
+  write_sfgs_layout_index(folder, video, options.overwrite);
+  return read_dataset(folder);
 }
 
 }  // namespace sfgs::data

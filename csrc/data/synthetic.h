@@ -4,14 +4,26 @@
 // (motions.h), moving body, fingers, jaw and expression, under a key light fixed in the world with self-shadowing,
 // while a hand-held-like camera drifts in front of it; each frame is rendered by the CPU triangle rasteriser
 // (mesh_renderer.h), never by Gaussians, and written in sfgs's dataset format with the posed meshes and the
-// ground truth that per-region evaluation needs (meshes/regions.npy, meshes/observation.npy).
+// ground truth that per-region evaluation needs (meshes/regions.npy, meshes/observation.npy), or in the NeuMan /
+// ExAvatar layout. Either way each frame also gets whole-body keypoints as a detector would report them
+// (keypoints_whole_body/<frame>.json, synthetic_detections.h), and the written fits may be corrupted the way pose
+// estimators err (pose_noise.h) while the images stay exact.
 #include <cstdint>
 #include <string>
 #include <vector>
 
 #include "data/dataset.h"
+#include "data/pose_noise.h"
+#include "data/synthetic_detections.h"
 
 namespace sfgs::data {
+
+enum class DatasetLayout {
+  kSfgs,    // dataset.json, images/%06d.png, masks/, meshes/ (docs/dataset_format.md)
+  // images/%05d.png, masks/%d.png, sparse/, train_split.txt, test_split.txt, smplx_optimized/ (the fits, in camera
+  // coordinates) and ground_truth/ (the exact fits, same files): what read_neuman and `sfgs fit` read
+  kNeuman,
+};
 
 struct SyntheticVideoOptions {
   std::string body_model;  // SMPL-X-layout .npz; empty: the built-in procedural body
@@ -28,11 +40,16 @@ struct SyntheticVideoOptions {
   uint64_t seed = 1;
   bool key_light = true;   // false: a head light at the camera (shading that follows the view, never the pose)
   bool overwrite = false;  // replace files of an existing dataset in the folder
+  DatasetLayout layout = DatasetLayout::kSfgs;
+  PoseNoiseLevel pose_noise;   // corruption of the written fits (and betas); none by default
+  DetectorNoise keypoint_noise;  // of the keypoint files
 };
 
-// Writes images/, masks/, meshes/ and dataset.json into `folder` (created if needed) and returns the dataset. Each
-// motion block is one sequence named after its motion; frame times run on through the whole video (one recording).
-// Splits as the options say (the interleaved one is NeuMan's 80/10/10).
+// Writes the video into `folder` (created if needed) in the chosen layout and returns the dataset as read back.
+// Each motion block is one sequence named after its motion (the NeuMan layout has one sequence); frame times run on
+// through the whole video (one recording). Splits as the options say (the interleaved one is NeuMan's 80/10/10; the
+// NeuMan layout lists train and test frames, the validation frames in neither). With pose noise the sfgs layout keeps
+// the exact fits beside the noisy ones (FrameRecord::true_pose, Dataset::true_betas).
 Dataset write_synthetic_video(const std::string& folder, const SyntheticVideoOptions& options);
 
 }  // namespace sfgs::data

@@ -194,6 +194,7 @@ AvatarOutput AvatarImpl::forward_trusted_pose(const body::SmplxPose& pose, Frame
     out.means = skinned.means;
     out.covariances = skinned.covariances;
     out.posed_vertices = skinned.posed_rest;
+    out.skinning_transforms = body.skinning_transforms;
   }
   out.opacities = opacities_;
   out.canonical_means = canonical.means;
@@ -330,9 +331,10 @@ at::Tensor AvatarImpl::appearance(const FramePose& frame, const CanonicalAttribu
         trusted(colour_offset_->forward(attributes.colour_projection, pose_embedding, out.posed_normals));
     logits = logits + out.colour_offset;
   }
-  if (!shading_) return at::sigmoid(logits);
+  out.albedo = at::sigmoid(logits);
+  if (!shading_) return out.albedo;
   out.shading = shading_->forward(out.posed_normals);
-  return at::sigmoid(logits) * out.shading;
+  return out.albedo * out.shading;
 }
 
 void AvatarImpl::cache_static_features() {
@@ -355,6 +357,8 @@ Gaussians to_gaussians(const AvatarOutput& out) {
 int64_t AvatarImpl::gaussian_count() const { return body_->point_count(); }
 const at::Tensor& AvatarImpl::part_labels() const { return body_->part_labels(); }
 const at::Tensor& AvatarImpl::faces() const { return body_->faces(); }
+const skin::SkinningWeights& AvatarImpl::skinning_weights() const { return body_->skinning_weights(); }
+at::Tensor AvatarImpl::shading_coefficients() const { return shading_ ? shading_->coefficients() : at::Tensor(); }
 const at::Tensor& AvatarImpl::hand_mean(body::Side side) const { return body_->hand_mean(side); }
 const AvatarConfig& AvatarImpl::config() const { return config_; }
 

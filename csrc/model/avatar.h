@@ -29,6 +29,7 @@
 #include "model/heads.h"
 #include "model/shading.h"
 #include "model/structure_offset.h"
+#include "skin/skin.h"
 #include "splat/splat.h"
 
 namespace sfgs::model {
@@ -93,6 +94,8 @@ struct AvatarOutput {
   at::Tensor covariances;  // (N, 6) world, packed (xx, xy, xz, yy, yz, zz)
   at::Tensor opacities;    // (N) constant ones (not learned)
   at::Tensor colours;      // (N, 3) non-negative: in [0, 1] without shading; shading may light them beyond 1
+  at::Tensor albedo;       // (N, 3) in [0, 1]: the colours before shading (the colours themselves without it)
+  at::Tensor skinning_transforms;  // (J, 4, 4) rest pose -> posed per joint: what skinned this frame's Gaussians
   // Canonical quantities (before skinning) for regularisers and export.
   at::Tensor canonical_means;   // (N, 3): this frame's rest mesh plus every offset below
   at::Tensor log_scales;        // (N) isotropic log standard deviation (after the structure offset)
@@ -141,6 +144,11 @@ class AvatarImpl : public torch::nn::Module {
   int64_t gaussian_count() const;
   const at::Tensor& part_labels() const;  // (N) uint8 body::BodyPart, on the module's device
   const at::Tensor& faces() const;        // (F, 3) int64 of the subdivided mesh (Laplacian, export), likewise
+  // Each Gaussian's joint influences: forward skins canonical means with these and skinning_transforms.
+  const skin::SkinningWeights& skinning_weights() const;
+  // (9, 3) the shading's coefficients over ShadingImpl::basis (colours = albedo x max(0, basis(n) coefficients));
+  // undefined without shading.
+  at::Tensor shading_coefficients() const;
   // (15, 3) the body model's mean hand pose, which forward adds to given hand poses unless config().flat_hand_mean.
   const at::Tensor& hand_mean(body::Side side) const;
   const AvatarConfig& config() const;

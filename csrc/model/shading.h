@@ -27,6 +27,8 @@ class ShadingImpl : public torch::nn::Module {
   // coefficients absorb the constants).
   static at::Tensor basis(const at::Tensor& normals);
 
+  const at::Tensor& coefficients() const { return coefficients_; }  // (9, 3) over the basis, per colour channel
+
  private:
   at::Tensor coefficients_;  // (9, 3)
 };

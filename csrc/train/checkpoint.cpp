@@ -81,6 +81,11 @@ void save_checkpoint(const std::string& path, const CheckpointInfo& info, const 
     archive.write("observation", observation);
     archive.write("observation_steps", at::tensor({info.observation_steps}, at::kLong));
   }
+  if (info.pose_refinement.defined()) {
+    const at::Tensor refinement = info.pose_refinement.detach().to(at::kCPU, at::kDouble).contiguous();
+    checksums["pose_refinement"] = crc32_of(refinement);
+    archive.write("pose_refinement", refinement);
+  }
   archive.write("format", string_tensor(kFormatName));
   archive.write("version", at::tensor({kFormatVersion}, at::kLong));
   archive.write("avatar", avatar_archive);
@@ -137,6 +142,12 @@ CheckpointReader::CheckpointReader(const std::string& path) : path_(path) {
                 "' is damaged: its observation record does not match the checksum written with it");
     TORCH_CHECK(info_.observation_steps > 0, "checkpoint '", path, "' has an observation record over ",
                 info_.observation_steps, " steps");
+  }
+  if (archive_.try_read("pose_refinement", info_.pose_refinement)) {
+    TORCH_CHECK(checksums_.value("pose_refinement", uint32_t(0)) == crc32_of(info_.pose_refinement), "checkpoint '",
+                path, "' is damaged: its pose refinement state does not match the checksum written with it");
+    TORCH_CHECK(info_.pose_refinement.isfinite().all().item<bool>(), "checkpoint '", path,
+                "' holds non-finite pose corrections");
   }
   if (info_.version >= 2)
     TORCH_CHECK(checksums_.value("betas", uint32_t(0)) == crc32_of(info_.betas), "checkpoint '", path,

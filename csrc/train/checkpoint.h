@@ -28,6 +28,8 @@ struct CheckpointInfo {
   // steps of how squarely each saw it (float32 (N); undefined: no record, as in runs trained before it existed).
   at::Tensor observation_sum;
   int64_t observation_steps = 0;
+  // PoseRefinement::state() of a run that refines its poses; undefined otherwise.
+  at::Tensor pose_refinement;
 };
 
 // Writes the checkpoint atomically. Refuses (std::runtime_error naming the tensor) when a parameter is not finite:

@@ -47,7 +47,7 @@ class Regularisers {
   at::Tensor neighbours_, neighbour_counts_;
 };
 
-// Sum of the terms' values into "total".
+// Sum of the terms' values (the image terms, the regularisers and the pose refinement's) into "total".
 at::Tensor total_loss(LossTerms& terms);
 
 }  // namespace sfgs::train

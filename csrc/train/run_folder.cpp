@@ -5,6 +5,7 @@
 #include <ATen/ATen.h>
 
 #include "train/checkpoint.h"
+#include "train/pose_refinement.h"
 
 namespace sfgs::train {
 namespace fs = std::filesystem;
@@ -12,6 +13,7 @@ namespace fs = std::filesystem;
 std::string RunFolder::config_file() const { return (fs::path(path) / "config.yaml").string(); }
 std::string RunFolder::checkpoint_file() const { return (fs::path(path) / "checkpoint.pt").string(); }
 std::string RunFolder::log_file() const { return (fs::path(path) / "log.jsonl").string(); }
+std::string RunFolder::refined_fits_file() const { return (fs::path(path) / "refined_fits.json").string(); }
 
 model::Avatar make_avatar(const TrainConfig& config, const at::Tensor& betas, at::Device device) {
   const BodyFiles& b = config.body;
@@ -57,6 +59,9 @@ TrainedAvatar load_trained_avatar(const RunFolder& run, at::Device device) {
   t.betas = checkpoint.info().betas;
   t.dataset = checkpoint.info().dataset;
   t.iteration = checkpoint.info().iteration;
+  t.dataset_fingerprint = checkpoint.info().dataset_fingerprint;
+  if (checkpoint.info().pose_refinement.defined() && fs::exists(run.refined_fits_file()))
+    t.refined_fits = run.refined_fits_file();
   t.avatar = make_avatar(t.config, t.betas, at::kCPU);
   checkpoint.load_avatar(t.avatar);
   t.avatar->to(device);
@@ -64,11 +69,14 @@ TrainedAvatar load_trained_avatar(const RunFolder& run, at::Device device) {
 }
 
 data::Dataset read_run_dataset(const TrainedAvatar& trained, const std::string& folder) {
-  if (!folder.empty()) return data::read_dataset(folder);
-  TORCH_CHECK(fs::is_directory(trained.dataset), "the run was trained on dataset '", trained.dataset,
+  TORCH_CHECK(!folder.empty() || fs::is_directory(trained.dataset), "the run was trained on dataset '",
+              trained.dataset,
               "', which is not there (moved, deleted, or a relative path from another working directory); give ",
               "the dataset's folder (--data; in Python, load_avatar(run, data=...))");
-  return data::read_dataset(trained.dataset);
+  data::Dataset dataset = data::read_dataset(folder.empty() ? trained.dataset : folder);
+  if (!trained.refined_fits.empty() && dataset.fingerprint() == trained.dataset_fingerprint)
+    apply_refined_fits(dataset, trained.refined_fits);
+  return dataset;
 }
 
 std::string absolute_dataset_path(const data::Dataset& dataset) {

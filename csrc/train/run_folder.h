@@ -16,6 +16,8 @@ struct RunFolder {
   std::string config_file() const;
   std::string checkpoint_file() const;
   std::string log_file() const;
+  // The training frames' refined fits of a run that refines its poses (PoseRefinement::write_fits).
+  std::string refined_fits_file() const;
 };
 
 // The avatar the config describes, for a subject with these betas, on `device`.
@@ -35,6 +37,8 @@ struct TrainedAvatar {
   at::Tensor betas;
   std::string dataset;  // the folder it was trained on (absolute, for runs trained by this version)
   int64_t iteration = 0;
+  std::string dataset_fingerprint;  // data::Dataset::fingerprint() of it (empty for runs of the first format)
+  std::string refined_fits;  // the run's refined-fits file when it refined its poses; empty otherwise
 };
 
 // Reads the run's checkpoint.pt and builds its avatar on `device`. The checkpoint is verified (checksums, finite
@@ -42,7 +46,8 @@ struct TrainedAvatar {
 TrainedAvatar load_trained_avatar(const RunFolder& run, at::Device device);
 
 // The dataset a trained avatar is evaluated or rendered with: `folder` when given (--data), else the one it was
-// trained on; when that has moved, the error says so and how to point at it.
+// trained on; when that has moved, the error says so and how to point at it. A run that refined its poses gives the
+// training frames of the dataset it was trained on (the same fingerprint, wherever it lies) their refined fits.
 data::Dataset read_run_dataset(const TrainedAvatar& trained, const std::string& folder);
 
 // The folder a dataset was read from, absolute and normalised: what a run stores so that it can be used from any

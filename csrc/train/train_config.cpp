@@ -61,6 +61,7 @@ std::vector<std::pair<std::string, Section>> sections(TrainConfig& c) {
   LossWeights& l = c.loss;
   Schedule& s = c.schedule;
   BodyFiles& b = c.body;
+  PoseRefinementConfig& p = c.pose_refinement;
   return {
       {"body", {{"smplx", field(b.smplx)}, {"mano_left", field(b.mano_left)}, {"mano_right", field(b.mano_right)},
                 {"hand_vertex_ids", field(b.hand_vertex_ids)}, {"face_vertex_ids", field(b.face_vertex_ids)}}},
@@ -86,6 +87,10 @@ std::vector<std::pair<std::string, Section>> sections(TrainConfig& c) {
                     {"decay_at", field(s.decay_at)}, {"decay_factor", field(s.decay_factor)},
                     {"learning_rate", field(s.learning_rate)}, {"colour_learning_rate", field(s.colour_learning_rate)},
                     {"adam_epsilon", field(s.adam_epsilon)}, {"fused_adam", field(s.fused_adam)}}},
+      {"pose_refinement", {{"enabled", field(p.enabled)}, {"learning_rate", field(p.learning_rate)},
+                           {"translation_learning_rate", field(p.translation_learning_rate)},
+                           {"start", field(p.start)}, {"prior", field(p.prior)},
+                           {"smoothness", field(p.smoothness)}}},
   };
 }
 
@@ -100,13 +105,13 @@ TrainConfig TrainConfig::from_yaml_text(const std::string& text, const std::stri
     TORCH_CHECK(false, "config '", source, "' is not valid YAML: ", e.what());
   }
   if (root.IsNull()) return c;
-  TORCH_CHECK(root.IsMap(), "config '", source, "' must be a mapping of sections (body, run, avatar, loss, schedule)");
+  TORCH_CHECK(root.IsMap(), "config '", source, "' must be a mapping of sections (body, run, avatar, loss, schedule, pose_refinement)");
   auto table = sections(c);
   for (const auto& kv : root) {
     const std::string section = kv.first.as<std::string>();
     auto it = std::find_if(table.begin(), table.end(), [&](const auto& s) { return s.first == section; });
     TORCH_CHECK(it != table.end(), "config '", source, "': unknown section '", section,
-                "' (expected body, run, avatar, loss or schedule)");
+                "' (expected body, run, avatar, loss, schedule or pose_refinement)");
     TORCH_CHECK(kv.second.IsMap(), "config '", source, "': section '", section, "' must be a mapping");
     for (const auto& entry : kv.second) {
       std::string key = entry.first.as<std::string>();
@@ -230,6 +235,12 @@ void TrainConfig::validate() const {
   check_count(avatar.num_betas, 0, kMaxHiddenWidth, "avatar.num_betas");
   check_count(avatar.num_expression_coeffs, 0, kMaxHiddenWidth, "avatar.num_expression_coeffs");
   check_range(avatar.time_dropout, 0, 1, "avatar.time_dropout");
+  check_positive(pose_refinement.learning_rate, kMaxLearningRate, "pose_refinement.learning_rate");
+  check_positive(pose_refinement.translation_learning_rate, kMaxLearningRate,
+                 "pose_refinement.translation_learning_rate");
+  check_range(pose_refinement.start, 0, 1, "pose_refinement.start");
+  check_range(pose_refinement.prior, 0, kMaxLossWeight, "pose_refinement.prior");
+  check_range(pose_refinement.smoothness, 0, kMaxLossWeight, "pose_refinement.smoothness");
 }
 
 std::vector<ConfigChange> config_changes(const TrainConfig& before, const TrainConfig& after) {

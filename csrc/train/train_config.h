@@ -41,6 +41,17 @@ struct Schedule {
   bool fused_adam = true;
 };
 
+// Pose refinement (train/pose_refinement.h, docs/training.md "Imperfect fits"): per training frame, a learned
+// correction of the SMPL-X fit (axis-angles of the global orientation, body, jaw and fingers; translation).
+struct PoseRefinementConfig {
+  bool enabled = false;
+  double learning_rate = 2e-3;              // rotations (radians), scaled by the schedule's factor
+  double translation_learning_rate = 1e-3;  // metres
+  double start = 0.05;        // share of the run before the corrections move (the avatar is a blur before)
+  double prior = 0.01;        // weight of the squared correction (radians, metres) of the drawn frame
+  double smoothness = 0.05;   // weight of the squared acceleration of the refined fits around the drawn frame
+};
+
 // Which body model drives the avatar: empty smplx means the built-in procedural body (with its MANO-layout hands).
 struct BodyFiles {
   std::string smplx;
@@ -52,6 +63,7 @@ struct TrainConfig {
   model::AvatarConfig avatar;
   LossWeights loss;
   Schedule schedule;
+  PoseRefinementConfig pose_refinement;
   uint64_t seed = 1;
   std::string device = "cpu";
   int64_t log_every = 10;

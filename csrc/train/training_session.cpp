@@ -82,6 +82,8 @@ TrainingSession::TrainingSession(const data::Dataset& dataset, const TrainConfig
   image_loss_ = std::make_unique<ImageLoss>(config.loss, device_);
   regularisers_ = std::make_unique<Regularisers>(config.loss, avatar_->part_labels(), avatar_->faces(), device_);
   frames_ = std::make_unique<FrameCache>(dataset);
+  if (config.pose_refinement.enabled)
+    refinement_ = std::make_unique<PoseRefinement>(dataset, config.pose_refinement, config.schedule.iterations, device_);
   observation_sum_ = at::zeros({avatar_->gaussian_count()}, at::TensorOptions().dtype(at::kFloat).device(device_));
   summary_.validation_psnr = std::nan("");
   summary_.has_validation_frames = !dataset.split(data::Split::kVal).empty();
@@ -100,6 +102,11 @@ void TrainingSession::restore(CheckpointReader& checkpoint) {
   std::istringstream(checkpoint.info().rng_state) >> rng_;
   training_seconds_ = checkpoint.info().training_seconds;
   last_checkpoint_ = checkpoint.info().iteration;
+  if (refinement_) {
+    TORCH_CHECK(checkpoint.info().pose_refinement.defined(), "checkpoint '", run_.checkpoint_file(),
+                "' holds no pose refinement state, but the run's config refines poses");
+    refinement_->restore(checkpoint.info().pose_refinement);
+  }
 }
 
 void TrainingSession::open_log() {
@@ -132,7 +139,11 @@ void TrainingSession::step(int64_t it) {
   // The time branch is a residual that new motions go without: some steps train without it (docs/avatar.md).
   std::optional<double> time = replay_clock_.time_of(record);
   if (std::uniform_real_distribution<double>(0.0, 1.0)(rng_) < config_.avatar.time_dropout) time.reset();
-  const model::AvatarOutput out = avatar_->forward(record.pose, time);
+  LossTerms terms;
+  // With pose refinement the pose is on the device (the input fit was checked when the dataset was read; a
+  // non-finite correction shows as a non-finite loss).
+  const model::AvatarOutput out = refinement_ ? avatar_->forward_trusted_pose(refinement_->pose(f, it, terms), time)
+                                              : avatar_->forward(record.pose, time);
   const Camera camera = render_camera(record);
   RenderResult r;
   {
@@ -144,7 +155,6 @@ void TrainingSession::step(int64_t it) {
     observation_sum_ += model::frame_observation(out.means, out.posed_normals, r.depth, camera);
     ++observation_steps_;
   }
-  LossTerms terms;
   {
     const StageScope stage("train: image loss");
     image_loss_->add_terms(r.image, target, terms);
@@ -166,6 +176,7 @@ void TrainingSession::step(int64_t it) {
   {
     const StageScope stage("train: optimizer");
     adam_->step();
+    if (refinement_) refinement_->step(f, it, factor);
   }
   watch_.record(it + 1, terms, {{"psnr", metrics::psnr(r.image.detach(), target)}});
 }
@@ -268,8 +279,10 @@ void TrainingSession::checkpoint(int64_t done) {
   info.betas = dataset_.betas.to(at::kFloat).cpu();
   info.observation_sum = observation_sum_;
   info.observation_steps = observation_steps_;
+  if (refinement_) info.pose_refinement = refinement_->state();
   try {
     save_checkpoint(run_.checkpoint_file(), info, avatar_, *optimizer_);
+    if (refinement_) refinement_->write_fits(run_.refined_fits_file());
   } catch (const std::runtime_error& e) {
     if (first_non_finite_tensor(*avatar_).empty()) throw;
     stop_diverged(DivergenceError(done, std::string("training diverged by iteration ") + std::to_string(done) + ": " +

@@ -9,6 +9,7 @@
 #include "train/adam_step.h"
 #include "train/checkpoint.h"
 #include "train/loss_watch.h"
+#include "train/pose_refinement.h"
 #include "train/progress.h"
 #include "train/trainer.h"
 
@@ -53,6 +54,7 @@ class TrainingSession {
   std::unique_ptr<ImageLoss> image_loss_;
   std::unique_ptr<Regularisers> regularisers_;
   std::unique_ptr<FrameCache> frames_;
+  std::unique_ptr<PoseRefinement> refinement_;  // null unless config.pose_refinement.enabled
   std::unique_ptr<JsonLinesLog> log_;
   std::unique_ptr<ProgressBar> bar_;
   LossWatch watch_;

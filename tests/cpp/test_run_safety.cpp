@@ -304,11 +304,37 @@ TEST(AtomicFiles, StaleTemporariesOfDeadProcessesAreRemoved) {
   write_bytes(dir + "/frame.png.tmp-999999998", "x");
   write_bytes(dir + "/keep.tmp-" + std::to_string(::getpid()), "x");
   write_bytes(dir + "/notes.tmp-readme", "x");
+  fs::create_directories(dir + "/web.tmp-999999997/data");  // a folder write (AtomicFolder)
+  write_bytes(dir + "/web.tmp-999999997/data/static.js", "x");
   const std::vector<std::string> removed = remove_stale_temporaries(dir);
-  EXPECT_EQ(removed.size(), 2u);
+  EXPECT_EQ(removed.size(), 3u);
+  EXPECT_FALSE(fs::exists(dir + "/web.tmp-999999997"));
   EXPECT_TRUE(fs::exists(dir + "/keep.tmp-" + std::to_string(::getpid())));
   EXPECT_TRUE(fs::exists(dir + "/notes.tmp-readme"));
   EXPECT_FALSE(fs::exists(dir + "/frame.png.tmp-999999998"));
+}
+
+TEST(AtomicFiles, AFolderAppearsWholeOrNotAtAll) {
+  TempFolder folder;
+  const std::string target = folder / "web";
+  const auto bytes = [](const std::string& text) { return std::vector<unsigned char>(text.begin(), text.end()); };
+  {
+    AtomicFolder out(target);
+    out.add("data/static.js", bytes("first"));
+    EXPECT_FALSE(fs::exists(target));
+  }  // given up (an error on the way): nothing stays
+  EXPECT_EQ(std::distance(fs::directory_iterator(folder.str()), fs::directory_iterator()), 0);
+  AtomicFolder first(target);
+  first.add("data/static.js", bytes("first"));
+  first.commit(false);
+  EXPECT_TRUE(fs::exists(target + "/data/static.js"));
+  AtomicFolder second(target);
+  second.add("index.html", bytes("second"));
+  expect_error_mentioning([&] { second.commit(false); }, "refusing to replace existing '" + target + "'");
+  second.commit(true);
+  EXPECT_TRUE(fs::exists(target + "/index.html"));
+  EXPECT_FALSE(fs::exists(target + "/data/static.js"));  // replaced as a whole, not merged
+  EXPECT_EQ(std::distance(fs::directory_iterator(folder.str()), fs::directory_iterator()), 1);
 }
 
 }  // namespace

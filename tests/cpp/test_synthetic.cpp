@@ -1,10 +1,17 @@
 // `sfgs synth` on the built-in body: the dataset it writes reads back, its masks and meshes agree with its cameras,
-// and the motion moves body, fingers, jaw and expression.
+// the motion moves body, fingers, jaw and expression, noisy fits keep the exact ones beside them, and the NeuMan
+// layout places the same bodies in each camera.
+#include <filesystem>
+
 #include <ATen/ATen.h>
 #include <gtest/gtest.h>
 
+#include "body/procedural_body.h"
+#include "body/smplx.h"
 #include "data/dataset.h"
+#include "data/image_io.h"
 #include "data/motions.h"
+#include "data/pose_noise.h"
 #include "data/synthetic.h"
 #include "io/npz.h"
 #include "test_files.h"
@@ -62,6 +69,69 @@ TEST(SyntheticVideo, BadOptionsAreClearErrors) {
   o.frames = 2;
   o.body_model = dir / "missing.npz";
   testing::expect_error_mentioning([&] { write_synthetic_video(dir.str(), o); }, "missing.npz");
+}
+
+TEST(SyntheticVideo, NoisyFitsKeepTheExactOnesBesideThemAndTheImagesExact) {
+  testing::TempFolder exact_dir, noisy_dir;
+  SyntheticVideoOptions o;
+  o.frames = 3;
+  o.width = 48;
+  o.height = 64;
+  write_synthetic_video(exact_dir.str(), o);
+  o.pose_noise = pose_noise_level("high");
+  write_synthetic_video(noisy_dir.str(), o);
+  const Dataset exact = read_dataset(exact_dir.str()), noisy = read_dataset(noisy_dir.str());
+  EXPECT_FALSE(exact.frames[0].true_pose.has_value()) << "no truth is written beside exact fits";
+  EXPECT_FALSE(exact.true_betas.defined());
+  ASSERT_TRUE(noisy.true_betas.defined());
+  EXPECT_TRUE(at::equal(noisy.true_betas, exact.betas));
+  EXPECT_FALSE(at::equal(noisy.betas, exact.betas));
+  for (int64_t i = 0; i < 3; ++i) {
+    const FrameRecord &a = exact.frames[size_t(i)], &b = noisy.frames[size_t(i)];
+    ASSERT_TRUE(b.true_pose.has_value());
+    EXPECT_TRUE(at::equal(b.true_pose->body_pose, a.pose.body_pose));
+    EXPECT_FALSE(at::equal(b.pose.body_pose, a.pose.body_pose));
+    EXPECT_TRUE(at::equal(read_image_rgb(a.image_path), read_image_rgb(b.image_path))) << "images stay exact";
+  }
+}
+
+TEST(SyntheticVideo, NeumanLayoutPlacesTheSameBodiesInEachCamera) {
+  testing::TempFolder sfgs_dir, neuman_dir;
+  SyntheticVideoOptions o;
+  o.frames = 3;
+  o.width = 48;
+  o.height = 64;
+  o.test_motions = {"wave"};
+  write_synthetic_video(sfgs_dir.str(), o);
+  o.layout = DatasetLayout::kNeuman;
+  const Dataset d = write_synthetic_video(neuman_dir.str(), o);
+  EXPECT_EQ(d.format, "neuman");
+  EXPECT_EQ(d.size(), 6);
+  EXPECT_EQ(d.split(Split::kTest), (std::vector<int64_t>{3, 4, 5}));
+  EXPECT_EQ(d.split(Split::kTrain), (std::vector<int64_t>{0, 1, 2}));
+  for (const char* f : {"keypoints_whole_body/5.json", "ground_truth/shape_param.json", "ground_truth/smplx_params/5.json",
+                        "masks/5.png", "images/00005.png"})
+    EXPECT_TRUE(std::filesystem::exists(neuman_dir / f)) << f;
+  // Camera-frame fits (hands relative to the mean) posed by SMPL-X equal the sfgs layout's meshes seen by the camera.
+  const Dataset world = read_dataset(sfgs_dir.str());
+  body::SmplxOptions options;
+  options.use_pca = false;
+  options.flat_hand_mean = false;
+  options.dtype = at::kDouble;
+  const body::Smplx layer(body::make_procedural_body().smplx, options);
+  for (int64_t i : {0, 4}) {
+    const FrameRecord& r = d.frames[size_t(i)];
+    ASSERT_TRUE(r.pose_in_camera_frame);
+    body::SmplxInput in;
+    in.pose = body::SmplxPose::stack({r.pose}).to(at::TensorOptions().dtype(at::kDouble));
+    in.betas = d.betas.to(at::kDouble).unsqueeze(0);
+    const at::Tensor posed = layer->forward(in).vertices[0];
+    const at::Tensor mesh = io::read_npy(world.frames[size_t(i)].mesh_path).to(at::kDouble);
+    const auto& m = world.frames[size_t(i)].camera.world_to_camera;
+    const at::Tensor rotation = at::tensor(std::vector<double>{m[0], m[1], m[2], m[4], m[5], m[6], m[8], m[9], m[10]}).view({3, 3});
+    const at::Tensor seen = mesh.matmul(rotation.t()) + at::tensor(std::vector<double>{m[3], m[7], m[11]});
+    EXPECT_LT((posed - seen).abs().max().item<double>(), 1e-4) << "frame " << i;
+  }
 }
 
 }  // namespace

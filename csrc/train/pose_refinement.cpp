@@ -1,0 +1,259 @@
+#include "train/pose_refinement.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdio>
+
+#include <ATen/ATen.h>
+#include <nlohmann/json.hpp>
+#include <torch/csrc/autograd/autograd.h>
+
+#include "common/atomic_file.h"
+#include "common/constants.h"
+#include "data/json_values.h"
+#include "train/run_folder.h"
+
+namespace sfgs::train {
+namespace {
+
+// Where each corrected field lies in a correction (and in the refined-fits JSON): name, first column, joints.
+struct CorrectedField {
+  const char* name;
+  at::Tensor body::SmplxPose::*member;
+  int64_t first, joints;
+};
+constexpr int64_t kTranslationColumn = 3 * kCorrectedJoints;
+const std::array<CorrectedField, 6>& corrected_fields() {
+  static const std::array<CorrectedField, 6> fields{{{"global_orient", &body::SmplxPose::global_orient, 0, 1},
+                                                     {"body_pose", &body::SmplxPose::body_pose, 3, 21},
+                                                     {"jaw_pose", &body::SmplxPose::jaw_pose, 66, 1},
+                                                     {"left_hand_pose", &body::SmplxPose::left_hand_pose, 69, 15},
+                                                     {"right_hand_pose", &body::SmplxPose::right_hand_pose, 114, 15},
+                                                     {"transl", &body::SmplxPose::transl, kTranslationColumn, 1}}};
+  return fields;
+}
+
+// The corrected fields of a fit as one row (kCorrectionWidth), float32 on the CPU; undefined fields as zeros.
+at::Tensor fit_row(const body::SmplxPose& pose) {
+  at::Tensor row = at::zeros({kCorrectionWidth});
+  for (const CorrectedField& f : corrected_fields()) {
+    const at::Tensor& value = pose.*(f.member);
+    if (value.defined()) row.narrow(0, f.first, 3 * f.joints).copy_(value.reshape({-1}).to(at::kFloat));
+  }
+  return row;
+}
+
+// The learning rate of each column of a correction.
+at::Tensor column_rates(double rotation, double translation, at::Device device) {
+  at::Tensor rates = at::full({kCorrectionWidth}, rotation, at::kFloat);
+  rates.narrow(0, kTranslationColumn, 3).fill_(translation);
+  return rates.to(device);
+}
+
+}  // namespace
+
+body::SmplxPose corrected_pose(const body::SmplxPose& base, const at::Tensor& correction) {
+  TORCH_CHECK(correction.dim() == 1 && correction.size(0) == kCorrectionWidth,
+              "corrected_pose: a correction has ", kCorrectionWidth, " values, got shape ", correction.sizes());
+  body::SmplxPose p = base;
+  const auto options = correction.options();
+  for (const CorrectedField& f : corrected_fields()) {
+    const at::Tensor& given = base.*(f.member);
+    if (!given.defined() && (f.member == &body::SmplxPose::left_hand_pose ||
+                             f.member == &body::SmplxPose::right_hand_pose))
+      continue;  // the avatar skips an absent hand: it stays absent
+    const at::Tensor delta = correction.narrow(0, f.first, 3 * f.joints);
+    const at::Tensor value = given.defined() ? given.reshape({-1}).to(options) + delta : delta;
+    p.*(f.member) = f.joints == 1 ? value : value.view({f.joints, 3});
+  }
+  return p;
+}
+
+PoseRefinement::PoseRefinement(const data::Dataset& dataset, const PoseRefinementConfig& config, int64_t iterations,
+                               at::Device device)
+    : dataset_(dataset), config_(config),
+      start_iteration_(int64_t(std::ceil(config.start * double(iterations)))),
+      row_(size_t(dataset.size()), -1) {
+  frames_ = dataset.split(data::Split::kTrain);
+  TORCH_CHECK(!frames_.empty(), "pose refinement: dataset '", dataset.source, "' has no training frames");
+  std::stable_sort(frames_.begin(), frames_.end(), [&](int64_t a, int64_t b) {
+    const data::FrameRecord &x = dataset.frames[size_t(a)], &y = dataset.frames[size_t(b)];
+    return x.sequence != y.sequence ? x.sequence < y.sequence : x.time < y.time;
+  });
+  const int64_t rows = int64_t(frames_.size());
+  std::vector<at::Tensor> fits;
+  previous_.assign(size_t(rows), -1);
+  next_.assign(size_t(rows), -1);
+  for (int64_t r = 0; r < rows; ++r) {
+    row_[size_t(frames_[size_t(r)])] = r;
+    fits.push_back(fit_row(dataset.frames[size_t(frames_[size_t(r)])].pose));
+    const bool continues = r > 0 && dataset.frames[size_t(frames_[size_t(r - 1)])].sequence ==
+                                        dataset.frames[size_t(frames_[size_t(r)])].sequence;
+    if (continues) {
+      previous_[size_t(r)] = r - 1;
+      next_[size_t(r - 1)] = r;
+    }
+  }
+  const auto options = at::TensorOptions().dtype(at::kFloat).device(device);
+  base_ = at::stack(fits).to(device);
+  corrections_ = at::zeros({rows, kCorrectionWidth}, options).requires_grad_(true);
+  exp_avg_ = at::zeros({rows, kCorrectionWidth}, options);
+  exp_avg_sq_ = at::zeros({rows, kCorrectionWidth}, options);
+  rates_ = column_rates(config.learning_rate, config.translation_learning_rate, device);
+  steps_.assign(size_t(rows), 0);
+}
+
+int64_t PoseRefinement::row_of(int64_t frame) const {
+  TORCH_CHECK(frame >= 0 && frame < int64_t(row_.size()) && row_[size_t(frame)] >= 0, "pose refinement: frame ",
+              frame, " is not a training frame");
+  return row_[size_t(frame)];
+}
+
+body::SmplxPose PoseRefinement::pose(int64_t frame, int64_t iteration, LossTerms& terms) {
+  const data::FrameRecord& record = dataset_.frames[size_t(frame)];
+  if (iteration < start_iteration_) {
+    // The same terms every step (the loss watch compares steps), zero while the corrections wait.
+    terms["pose_prior"] = terms["pose_smoothness"] = at::zeros({}, base_.options());
+    return record.pose;
+  }
+  const int64_t r = row_of(frame);
+  const at::Tensor correction = corrections_[r];
+  terms["pose_prior"] = config_.prior * correction.pow(2).sum();
+  // The acceleration of the refined fits at every triple of consecutive training frames that holds this one.
+  const auto refined = [&](int64_t row) { return base_[row] + corrections_[row]; };
+  at::Tensor smoothness = at::zeros({}, correction.options());
+  const int64_t p = previous_[size_t(r)], n = next_[size_t(r)];
+  const int64_t pp = p >= 0 ? previous_[size_t(p)] : -1, nn = n >= 0 ? next_[size_t(n)] : -1;
+  for (const auto& [a, b, c] : {std::array<int64_t, 3>{pp, p, r}, {p, r, n}, {r, n, nn}})
+    if (a >= 0 && b >= 0 && c >= 0) smoothness = smoothness + (refined(a) - 2 * refined(b) + refined(c)).pow(2).sum();
+  terms["pose_smoothness"] = config_.smoothness * smoothness;
+  return corrected_pose(record.pose, correction);
+}
+
+void PoseRefinement::step(int64_t frame, int64_t iteration, double rate_factor) {
+  if (iteration < start_iteration_) return;
+  const int64_t r = row_of(frame);
+  at::NoGradGuard no_grad;
+  at::Tensor& gradient = corrections_.mutable_grad();
+  if (!gradient.defined()) return;
+  const at::Tensor g = gradient[r];
+  const double beta1 = kPoseAdamBeta1, beta2 = kPoseAdamBeta2;
+  const int64_t t = ++steps_[size_t(r)];
+  at::Tensor m = exp_avg_[r], v = exp_avg_sq_[r];
+  m.mul_(beta1).add_(g, 1 - beta1);
+  v.mul_(beta2).addcmul_(g, g, 1 - beta2);
+  const double correction1 = 1 - std::pow(beta1, double(t)), correction2 = 1 - std::pow(beta2, double(t));
+  const at::Tensor denominator = (v / correction2).sqrt_().add_(kPoseAdamEpsilon);
+  corrections_[r].sub_(rates_ * (rate_factor / correction1) * m / denominator);
+  gradient.reset();
+}
+
+at::Tensor PoseRefinement::state() const {
+  const at::Tensor steps = at::tensor(steps_, at::kLong).to(at::kDouble).unsqueeze(1);
+  return at::cat({corrections_.detach().cpu().to(at::kDouble), exp_avg_.cpu().to(at::kDouble),
+                  exp_avg_sq_.cpu().to(at::kDouble), steps},
+                 1);
+}
+
+void PoseRefinement::restore(const at::Tensor& state) {
+  const int64_t rows = int64_t(frames_.size());
+  TORCH_CHECK(state.dim() == 2 && state.size(0) == rows && state.size(1) == 3 * kCorrectionWidth + 1,
+              "pose refinement: the checkpoint's state has shape ", state.sizes(), ", expected (", rows, ", ",
+              3 * kCorrectionWidth + 1, ") for this dataset's training frames");
+  at::NoGradGuard no_grad;
+  const auto options = exp_avg_.options();
+  corrections_.copy_(state.narrow(1, 0, kCorrectionWidth).to(options));
+  exp_avg_.copy_(state.narrow(1, kCorrectionWidth, kCorrectionWidth).to(options));
+  exp_avg_sq_.copy_(state.narrow(1, 2 * kCorrectionWidth, kCorrectionWidth).to(options));
+  const at::Tensor steps = state.select(1, 3 * kCorrectionWidth).round().to(at::kLong).contiguous();
+  for (int64_t r = 0; r < rows; ++r) steps_[size_t(r)] = steps[r].item<int64_t>();
+}
+
+void PoseRefinement::write_fits(const std::string& path) const {
+  const at::Tensor refined = (base_ + corrections_.detach()).cpu().to(at::kDouble).contiguous();
+  nlohmann::json frames = nlohmann::json::object();
+  for (size_t r = 0; r < frames_.size(); ++r) {
+    const data::FrameRecord& record = dataset_.frames[size_t(frames_[r])];
+    nlohmann::json fit;
+    for (const CorrectedField& f : corrected_fields()) {
+      const at::Tensor values = refined[int64_t(r)].narrow(0, f.first, 3 * f.joints);
+      fit[f.name] = std::vector<double>(values.data_ptr<double>(), values.data_ptr<double>() + 3 * f.joints);
+    }
+    frames[record.name] = fit;
+  }
+  const std::string text =
+      nlohmann::json{{"format", "sfgs-refined-fits"}, {"version", 1}, {"dataset", dataset_.source},
+                     {"frames", frames}}
+          .dump() +
+      "\n";
+  write_file_atomically(path, std::vector<unsigned char>(text.begin(), text.end()), true);
+}
+
+void apply_refined_fits(data::Dataset& dataset, const std::string& path) {
+  const nlohmann::json j = data::read_json_file(path);
+  TORCH_CHECK(j.is_object() && j.value("format", "") == "sfgs-refined-fits" && j.contains("frames") &&
+                  j.at("frames").is_object(),
+              "'", path, "' is not an sfgs refined-fits file (format sfgs-refined-fits with a 'frames' object)");
+  for (data::FrameRecord& record : dataset.frames) {
+    if (!j.at("frames").contains(record.name)) continue;
+    const nlohmann::json& fit = j.at("frames").at(record.name);
+    for (const CorrectedField& f : corrected_fields()) {
+      TORCH_CHECK(fit.contains(f.name), "'", path, "': frame '", record.name, "' lacks '", f.name, "'");
+      const std::string where = path + ": frame " + record.name + ": " + f.name;
+      const at::Tensor value = data::json_numbers(fit.at(f.name), {3 * f.joints}, where).to(at::kFloat);
+      TORCH_CHECK(value.isfinite().all().item<bool>(), where, " must be finite");
+      record.pose.*(f.member) = f.joints == 1 ? value : value.view({f.joints, 3});
+    }
+  }
+}
+
+data::Dataset fit_poses(const data::Dataset& dataset, data::Split split, model::Avatar& avatar,
+                        const PoseFitOptions& options, bool progress) {
+  data::Dataset fitted = dataset;
+  const std::vector<int64_t>& frames = dataset.split(split);
+  const at::Device device = avatar->part_labels().device();
+  const ImageLoss loss(options.loss, device);
+  const at::Tensor white = at::ones({3}, at::TensorOptions().device(device));
+  const at::Tensor rates = column_rates(options.learning_rate, options.translation_learning_rate, device);
+  for (size_t k = 0; k < frames.size(); ++k) {
+    const int64_t f = frames[k];
+    const data::FrameRecord& record = dataset.frames[size_t(f)];
+    const data::Frame frame = dataset.load(f);
+    const at::Tensor mask = frame.mask.to(device).unsqueeze(2);
+    const at::Tensor target = frame.image.to(device) * mask + (1 - mask);
+    const Camera camera = render_camera(record);
+    const std::optional<double> time = dataset.replay_time(f);
+    // Adam on the frame's correction alone: the avatar's parameters get no gradient.
+    at::Tensor correction = at::zeros({kCorrectionWidth}, at::TensorOptions().device(device)).requires_grad_(true);
+    at::Tensor m = at::zeros_like(correction.detach()), v = at::zeros_like(m);
+    double first_loss = 0, last_loss = 0;
+    for (int64_t it = 0; it < options.iterations; ++it) {
+      const model::AvatarOutput out = avatar->forward_trusted_pose(corrected_pose(record.pose, correction), time);
+      LossTerms terms;
+      loss.add_terms(render(to_gaussians(out), white, camera).image, target, terms);
+      const at::Tensor total = total_loss(terms);
+      const at::Tensor g = torch::autograd::grad({total}, {correction})[0];
+      at::NoGradGuard no_grad;
+      const int64_t t = it + 1;
+      m.mul_(kPoseAdamBeta1).add_(g, 1 - kPoseAdamBeta1);
+      v.mul_(kPoseAdamBeta2).addcmul_(g, g, 1 - kPoseAdamBeta2);
+      const double c1 = 1 - std::pow(kPoseAdamBeta1, double(t)), c2 = 1 - std::pow(kPoseAdamBeta2, double(t));
+      correction.sub_(rates / c1 * m / (v / c2).sqrt().add_(kPoseAdamEpsilon));
+      if (progress && (it == 0 || it + 1 == options.iterations)) (it == 0 ? first_loss : last_loss) = total.item<double>();
+    }
+    at::NoGradGuard no_grad;
+    body::SmplxPose p = corrected_pose(record.pose, correction.detach());
+    for (const CorrectedField& field : corrected_fields()) {
+      at::Tensor& value = p.*(field.member);
+      if (value.defined()) value = value.to(at::kCPU, at::kFloat);
+    }
+    fitted.frames[size_t(f)].pose = p;
+    if (progress)
+      std::printf("  fitted the pose of %s (%zu/%zu): loss %.4f -> %.4f\n", record.name.c_str(), k + 1, frames.size(),
+                  first_loss, last_loss);
+  }
+  return fitted;
+}
+
+}  // namespace sfgs::train

@@ -1,0 +1,85 @@
+#pragma once
+// Pose refinement in training and pose fitting at test time (docs/training.md, "Imperfect fits"). Fits from pose
+// estimators are off by degrees and centimetres and jitter from frame to frame; an avatar trained on them blurs to
+// cover the error, and a test frame rendered with its own bad fit misses its image by the same error.
+//
+// A pose correction adds an axis-angle to the global orientation, the 21 body joints, the jaw and the 30 finger
+// joints (kCorrectedJoints rows of 3) and a translation to a frame's fit: kCorrectionWidth numbers.
+//
+// PoseRefinement trains one correction per training frame with the avatar, through the image loss, held to the input
+// fit by an L2 prior and to a smooth motion by an acceleration penalty over each sequence's consecutive training
+// frames. A frame's correction moves only in the steps that draw the frame (row-sparse Adam): Adam's normalisation
+// would otherwise move every row at the full rate each step on the regularisers' gradients alone.
+// fit_poses fits each frame of a split with the avatar frozen (the NeuMan protocol's test-time pose fitting).
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include <ATen/core/Tensor.h>
+
+#include "data/dataset.h"
+#include "model/avatar.h"
+#include "train/losses.h"
+#include "train/train_config.h"
+
+namespace sfgs::train {
+
+inline constexpr int64_t kCorrectedJoints = 1 + 21 + 1 + 15 + 15;
+inline constexpr int64_t kCorrectionWidth = 3 * kCorrectedJoints + 3;
+
+// `base` with a correction (kCorrectionWidth) applied; the corrected fields are on the correction's device and carry
+// its gradient, the others (eyes, expression) stay as given. A base hand pose that is undefined stays undefined.
+body::SmplxPose corrected_pose(const body::SmplxPose& base, const at::Tensor& correction);
+
+class PoseRefinement {
+ public:
+  PoseRefinement(const data::Dataset& dataset, const PoseRefinementConfig& config, int64_t iterations,
+                 at::Device device);
+
+  // The pose training frame `frame` is trained with at `iteration`: its corrected fit (with a gradient to its
+  // correction) from config.start on, adding the weighted "pose_prior" and "pose_smoothness" to `terms`; the input
+  // fit (and zero terms) before.
+  body::SmplxPose pose(int64_t frame, int64_t iteration, LossTerms& terms);
+  // After the backward pass: one Adam step of the frame's correction at the schedule's learning-rate factor.
+  void step(int64_t frame, int64_t iteration, double rate_factor);
+
+  // Corrections, Adam moments and step counts as one (F, 3 kCorrectionWidth + 1) float64 tensor on the CPU, for the
+  // checkpoint; restore() takes it back (its shape is checked).
+  at::Tensor state() const;
+  void restore(const at::Tensor& state);
+  // Every training frame's refined fit, written atomically as the refined-fits JSON that apply_refined_fits reads.
+  void write_fits(const std::string& path) const;
+
+ private:
+  int64_t row_of(int64_t frame) const;
+
+  const data::Dataset& dataset_;
+  PoseRefinementConfig config_;
+  int64_t start_iteration_;
+  std::vector<int64_t> frames_;       // training frames, by sequence and time; row r corrects frames_[r]
+  std::vector<int64_t> row_;          // dataset frame -> row, -1 for frames that are not trained on
+  std::vector<int64_t> previous_, next_;  // row -> neighbouring row in its sequence, -1 at an end
+  at::Tensor base_;                   // (F, kCorrectionWidth) the input fits' corrected fields, on the device
+  at::Tensor corrections_;            // (F, kCorrectionWidth) leaf with a gradient
+  at::Tensor exp_avg_, exp_avg_sq_;   // Adam moments, (F, kCorrectionWidth)
+  at::Tensor rates_;                  // (kCorrectionWidth) learning rate per column (rotations, translation)
+  std::vector<int64_t> steps_;        // Adam steps taken per row
+};
+
+// A copy of `frames`' poses replaced by the fits of a refined-fits JSON (PoseRefinement::write_fits) for the frames
+// it names; frames it does not name keep theirs. Errors name the file, the frame and the field.
+void apply_refined_fits(data::Dataset& dataset, const std::string& path);
+
+struct PoseFitOptions {
+  int64_t iterations = 100;
+  double learning_rate = 3e-3;              // rotations (radians)
+  double translation_learning_rate = 1e-3;  // metres
+  LossWeights loss;                         // the image loss the fit minimises (regularisers are not used)
+};
+
+// `dataset` with the poses of `split` fitted to their images (person mask, white background) with the avatar
+// frozen: the same schedule for every frame, from its given fit. `progress` prints one line per frame.
+data::Dataset fit_poses(const data::Dataset& dataset, data::Split split, model::Avatar& avatar,
+                        const PoseFitOptions& options, bool progress);
+
+}  // namespace sfgs::train
