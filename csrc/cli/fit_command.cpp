@@ -47,6 +47,7 @@ int run_fit(Arguments& args) {
   o.out = args.text("out", "");
   o.body_model = args.text("body", "");
   o.device = args.text("device", o.device);
+  o.threads = args.integer("threads", o.threads, 1, 1024);
   o.truth = args.text("truth", "");
   o.focal = args.real("focal", 0.0, 0.0, 1e7);
   o.betas_from_data = args.flag("betas-from-data");

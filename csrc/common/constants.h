@@ -234,6 +234,8 @@ inline constexpr long kFitBodyIterations = 300;
 inline constexpr long kFitDetailIterations = 200;
 inline constexpr long kFitSilhouetteIterations = 60;
 inline constexpr long kFitLogEvery = 25;
+// Intra-op threads of a CPU fit (fit.h FitOptions::threads says why one).
+inline constexpr long kFitCpuThreads = 1;
 // Shape and expression coefficients fitted (what `sfgs synth` animates and the avatar reads by default).
 inline constexpr long kFitBetas = 10;
 inline constexpr long kFitExpressions = 10;

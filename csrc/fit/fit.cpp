@@ -1,6 +1,7 @@
 #include "fit/fit.h"
 
 #include <ATen/ATen.h>
+#include <ATen/Parallel.h>
 #include <torch/cuda.h>
 
 #include <chrono>
@@ -49,6 +50,7 @@ nlohmann::json report_json(const FitReport& r, const FitOptions& o) {
   nlohmann::json j{{"data", o.data},
                    {"body", o.body_model.empty() ? "procedural" : o.body_model},
                    {"device", o.device},
+                   {"threads", o.threads},
                    {"frames", r.frames},
                    {"cameras", r.camera_source},
                    {"betas_from_data", o.betas_from_data},
@@ -61,11 +63,25 @@ nlohmann::json report_json(const FitReport& r, const FitOptions& o) {
   return j;
 }
 
+// Sets LibTorch's intra-op threads for the scope and restores them after.
+class IntraOpThreads {
+ public:
+  explicit IntraOpThreads(int64_t threads) : previous_(at::get_num_threads()) { at::set_num_threads(int(threads)); }
+  ~IntraOpThreads() { at::set_num_threads(previous_); }
+  IntraOpThreads(const IntraOpThreads&) = delete;
+  IntraOpThreads& operator=(const IntraOpThreads&) = delete;
+
+ private:
+  int previous_;
+};
+
 }  // namespace
 
 FitReport run_fit(const FitOptions& options) {
   const auto start = std::chrono::steady_clock::now();
   const c10::Device device = fit_device(options.device);
+  TORCH_CHECK(options.threads >= 1, "--threads: expected at least 1, got ", options.threads);
+  const IntraOpThreads threads(options.threads);
   const std::string out = options.out.empty() ? options.data : options.out;
   const fs::path fits = fs::path(out) / kFitsFolder;
   TORCH_CHECK(options.overwrite || !fs::exists(fits), "sfgs fit: '", fits.string(),

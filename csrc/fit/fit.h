@@ -28,6 +28,9 @@ struct FitOptions {
   std::string out;             // where smplx_optimized/, fit_log.jsonl and fit_report.json go; empty: `data`
   std::string body_model;      // SMPL-X-layout .npz; empty: the built-in procedural body
   std::string device = "cpu";  // cpu or cuda
+  // LibTorch's intra-op threads for a CPU fit. Its tensors are small (a few hundred points per frame): more threads
+  // save little and, on a machine whose cores are busy, wait on each other an order of magnitude longer.
+  int64_t threads = kFitCpuThreads;
   std::string truth;  // exact fits to measure against (smplx_optimized layout); empty: <data>/ground_truth if any
   double focal = 0;   // pixels, replacing the dataset's (0: the dataset's, or max(width, height))
   bool betas_from_data = false;  // keep the dataset's shape (smplx_optimized/shape_param.json, dataset.json)

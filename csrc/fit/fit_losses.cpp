@@ -1,7 +1,5 @@
 #include "fit/fit_losses.h"
 
-#include <cstdlib>
-
 #include <ATen/ATen.h>
 
 #include <algorithm>
@@ -11,10 +9,6 @@
 #include "common/constants.h"
 
 namespace sfgs::fit {
-static double tuned(const char* name, double fallback) {  // TUNING ONLY
-  const char* v = std::getenv(name);
-  return v ? std::atof(v) : fallback;
-}
 namespace {
 
 using namespace body::smplx_joint;
@@ -62,16 +56,16 @@ at::Tensor reprojection_loss(const at::Tensor& keypoints, const KeypointObservat
 std::pair<at::Tensor, at::Tensor> body_prior_centre_and_weights(const at::TensorOptions& options) {
   at::Tensor centre = at::zeros({body::kSmplxBodyJointCount, 3}, options);
   at::Tensor weight = at::ones({body::kSmplxBodyJointCount, 3}, options);
-  centre[kLeftShoulder - 1][2] = -tuned("kFitHangingArmAngle", kFitHangingArmAngle);
-  centre[kRightShoulder - 1][2] = tuned("kFitHangingArmAngle", kFitHangingArmAngle);
+  centre[kLeftShoulder - 1][2] = -kFitHangingArmAngle;
+  centre[kRightShoulder - 1][2] = kFitHangingArmAngle;
   for (int64_t arm : {kLeftShoulder, kRightShoulder, kLeftElbow, kRightElbow, kLeftWrist, kRightWrist})
-    weight[arm - 1][0] = tuned("kFitTwistPriorFactor", kFitTwistPriorFactor);
-  for (int64_t leg : {kLeftHip, kRightHip, kLeftKnee, kRightKnee}) weight[leg - 1][1] = tuned("kFitTwistPriorFactor", kFitTwistPriorFactor);
+    weight[arm - 1][0] = kFitTwistPriorFactor;
+  for (int64_t leg : {kLeftHip, kRightHip, kLeftKnee, kRightKnee}) weight[leg - 1][1] = kFitTwistPriorFactor;
   for (int64_t stiff : {kSpine1, kSpine2, kSpine3, kNeck, kLeftCollar, kRightCollar})
-    weight[stiff - 1] *= tuned("kFitSpinePriorFactor", kFitSpinePriorFactor);
+    weight[stiff - 1] *= kFitSpinePriorFactor;
   // A twist of the spine shows in the shoulders' width and the face; a lean towards the camera hardly shows.
-  for (int64_t spine : {kSpine1, kSpine2, kSpine3}) weight[spine - 1][1] = tuned("kFitSpineTwistPriorFactor", kFitSpineTwistPriorFactor);
-  for (int64_t shoulder : {kLeftShoulder, kRightShoulder}) weight[shoulder - 1] *= tuned("kFitShoulderPriorFactor", kFitShoulderPriorFactor);
+  for (int64_t spine : {kSpine1, kSpine2, kSpine3}) weight[spine - 1][1] = kFitSpineTwistPriorFactor;
+  for (int64_t shoulder : {kLeftShoulder, kRightShoulder}) weight[shoulder - 1] *= kFitShoulderPriorFactor;
   weight[kLeftKnee - 1][0] = 0;
   weight[kRightKnee - 1][0] = 0;
   weight[kLeftElbow - 1][1] = 0;
@@ -88,7 +82,7 @@ at::Tensor body_pose_prior(const at::Tensor& body_pose) {
   limits = limits + hinge2(axis(kLeftElbow, 1)) + hinge2(-axis(kRightElbow, 1));
   for (int64_t elbow : {kLeftElbow, kRightElbow}) limits = limits + axis(elbow, 2).square();
   const auto [centre, weight] = body_prior_centre_and_weights(body_pose.options());
-  return ((body_pose - centre).square() * weight).sum({1, 2}) + tuned("kFitJointLimitWeight", kFitJointLimitWeight) * limits;
+  return ((body_pose - centre).square() * weight).sum({1, 2}) + kFitJointLimitWeight * limits;
 }
 
 at::Tensor hand_pose_prior(const at::Tensor& left_hand, const at::Tensor& right_hand) {
@@ -98,7 +92,7 @@ at::Tensor hand_pose_prior(const at::Tensor& left_hand, const at::Tensor& right_
   const at::Tensor left_curl = left_hand.narrow(1, 0, kFingerJoints).select(2, 2);
   const at::Tensor right_curl = right_hand.narrow(1, 0, kFingerJoints).select(2, 2);
   const at::Tensor limits = hinge2(left_curl).sum(1) + hinge2(-right_curl).sum(1);
-  return (left_hand.square().sum({1, 2}) + right_hand.square().sum({1, 2}) + tuned("kFitJointLimitWeight", kFitJointLimitWeight) * limits).mean();
+  return (left_hand.square().sum({1, 2}) + right_hand.square().sum({1, 2}) + kFitJointLimitWeight * limits).mean();
 }
 
 at::Tensor temporal_triples(const std::vector<int64_t>& frame_numbers) {

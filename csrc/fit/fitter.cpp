@@ -1,7 +1,5 @@
 #include "fit/fitter.h"
 
-#include <cstdlib>
-
 #include <ATen/ATen.h>
 #include <torch/optim/adam.h>
 
@@ -18,10 +16,6 @@
 #include "fit/silhouette.h"
 
 namespace sfgs::fit {
-static double tuned(const char* name, double fallback) {  // TUNING ONLY
-  const char* v = std::getenv(name);
-  return v ? std::atof(v) : fallback;
-}
 namespace {
 
 using body::KeypointGroup;
@@ -52,24 +46,24 @@ std::vector<StagePlan> stage_plans(const FitStageLengths& lengths, bool silhouet
   // The body stage sees each hand's wrist and knuckles, which the wrist's rotation alone places, and the face
   // landmarks lightly, for the head's orientation.
   at::Tensor body = group_weights({{KeypointGroup::kBody, 1.0},
-                                   {KeypointGroup::kFeet, tuned("kFitFeetWeight", kFitFeetWeight)},
-                                   {KeypointGroup::kFace, tuned("kFitBodyStageFaceWeight", kFitBodyStageFaceWeight)}},
+                                   {KeypointGroup::kFeet, kFitFeetWeight},
+                                   {KeypointGroup::kFace, kFitBodyStageFaceWeight}},
                                   options);
   for (KeypointGroup hand : {KeypointGroup::kLeftHand, KeypointGroup::kRightHand})
     for (int64_t k : {0, 1, 5, 9, 13, 17}) body[body::keypoint_range(hand).begin + k] = 1.0;
   const at::Tensor all = group_weights({{KeypointGroup::kBody, 1.0},
-                                        {KeypointGroup::kFeet, tuned("kFitFeetWeight", kFitFeetWeight)},
-                                        {KeypointGroup::kFace, tuned("kFitFaceWeight", kFitFaceWeight)},
+                                        {KeypointGroup::kFeet, kFitFeetWeight},
+                                        {KeypointGroup::kFace, kFitFaceWeight},
                                         {KeypointGroup::kLeftHand, 1.0},
                                         {KeypointGroup::kRightHand, 1.0}},
                                        options);
   std::vector<StagePlan> plans = {
-      {"global", lengths.global, tuned("kFitLearningRate", kFitLearningRate), tuned("kFitGlobalRobustSigma", kFitGlobalRobustSigma), false, false, false, torso},
-      {"body", lengths.body, tuned("kFitLearningRate", kFitLearningRate), tuned("kFitRobustSigma", kFitRobustSigma), true, false, false, body},
-      {"detail", lengths.detail, tuned("kFitLearningRate", kFitLearningRate), tuned("kFitRobustSigma", kFitRobustSigma), true, true, false, all}};
+      {"global", lengths.global, kFitLearningRate, kFitGlobalRobustSigma, false, false, false, torso},
+      {"body", lengths.body, kFitLearningRate, kFitRobustSigma, true, false, false, body},
+      {"detail", lengths.detail, kFitLearningRate, kFitRobustSigma, true, true, false, all}};
   if (silhouette)
     plans.push_back(
-        {"silhouette", lengths.silhouette, kFitSilhouetteLearningRate, tuned("kFitRobustSigma", kFitRobustSigma), true, true, true, all});
+        {"silhouette", lengths.silhouette, kFitSilhouetteLearningRate, kFitRobustSigma, true, true, true, all});
   return plans;
 }
 
@@ -97,20 +91,20 @@ class Objective {
     const at::Tensor keypoints = keypoints_of(posed);
     StageLoss l;
     l.terms["keypoints"] = reprojection_loss(keypoints, observed_, plan.keypoint_weights, robust_sigma).mean();
-    l.terms["body_prior"] = tuned("kFitBodyPriorWeight", kFitBodyPriorWeight) * body_pose_prior(p.body_pose).mean();
-    l.terms["shape_prior"] = tuned("kFitShapePriorWeight", kFitShapePriorWeight) * p.betas.square().sum();
+    l.terms["body_prior"] = kFitBodyPriorWeight * body_pose_prior(p.body_pose).mean();
+    l.terms["shape_prior"] = kFitShapePriorWeight * p.betas.square().sum();
     l.terms["temporal"] =
-        tuned("kFitTemporalWeight", kFitTemporalWeight) * temporal_loss(at::cat({keypoints, posed.joints}, 1), triples_, tuned("kFitTemporalSigma", kFitTemporalSigma));
+        kFitTemporalWeight * temporal_loss(at::cat({keypoints, posed.joints}, 1), triples_, kFitTemporalSigma);
     if (plan.moves_details) {
-      l.terms["hand_prior"] = tuned("kFitHandPriorWeight", kFitHandPriorWeight) * hand_pose_prior(p.left_hand, p.right_hand);
-      l.terms["face_prior"] = tuned("kFitExpressionPriorWeight", kFitExpressionPriorWeight) * p.expression.square().sum(1).mean() +
-                              tuned("kFitJawPriorWeight", kFitJawPriorWeight) * p.jaw_pose.square().sum(1).mean();
+      l.terms["hand_prior"] = kFitHandPriorWeight * hand_pose_prior(p.left_hand, p.right_hand);
+      l.terms["face_prior"] = kFitExpressionPriorWeight * p.expression.square().sum(1).mean() +
+                              kFitJawPriorWeight * p.jaw_pose.square().sum(1).mean();
     }
     if (plan.silhouette) {
       const at::Tensor samples = posed.points.narrow(1, keypoint_support_, posed.points.size(1) - keypoint_support_);
       l.terms["silhouette"] =
-          tuned("kFitSilhouetteWeight", kFitSilhouetteWeight) *
-          silhouette_loss(project(samples, observed_.intrinsics), silhouette_, observed_.person_size, tuned("kFitRobustSigma", kFitRobustSigma));
+          kFitSilhouetteWeight *
+          silhouette_loss(project(samples, observed_.intrinsics), silhouette_, observed_.person_size, kFitRobustSigma);
     }
     l.total = at::zeros({}, p.translation.options());
     for (const auto& [name, value] : l.terms) l.total = l.total + value;
@@ -138,12 +132,12 @@ std::vector<std::pair<at::Tensor*, double>> moving(FitParameters& p, const Stage
   std::vector<std::pair<at::Tensor*, double>> m = {{&p.root_correction, 1.0}, {&p.translation, 1.0}};
   if (plan.moves_body) {
     m.push_back({&p.body_pose, 1.0});
-    if (fit_betas) m.push_back({&p.betas, tuned("kFitCoefficientRateFactor", kFitCoefficientRateFactor)});
+    if (fit_betas) m.push_back({&p.betas, kFitCoefficientRateFactor});
   }
   if (plan.moves_details) {
     m.insert(
         m.end(),
-        {{&p.left_hand, 1.0}, {&p.right_hand, 1.0}, {&p.jaw_pose, 1.0}, {&p.expression, tuned("kFitCoefficientRateFactor", kFitCoefficientRateFactor)}});
+        {{&p.left_hand, 1.0}, {&p.right_hand, 1.0}, {&p.jaw_pose, 1.0}, {&p.expression, kFitCoefficientRateFactor}});
   }
   return m;
 }
@@ -163,14 +157,14 @@ FitStageSummary run_stage(FitParameters& p, const StagePlan& plan, const Objecti
   for (int64_t step = 0; step < plan.iterations; ++step) {
     // The step size falls linearly to a share of itself over the stage: large moves first, then settling.
     const double progress = double(step) / double(std::max<int64_t>(plan.iterations - 1, 1));
-    const double decay = 1.0 - (1.0 - tuned("kFitFinalLearningRateShare", kFitFinalLearningRateShare)) * progress;
+    const double decay = 1.0 - (1.0 - kFitFinalLearningRateShare) * progress;
     for (size_t g = 0; g < unknowns.size(); ++g)
       static_cast<torch::optim::AdamOptions&>(adam.param_groups()[g].options())
           .lr(plan.learning_rate * unknowns[g].second * decay);
     // The robust scale anneals from nearly quadratic (every detection pulls, however far: limbs start far from
     // theirs) down to the stage's scale over the first part of the stage, after which outliers stop pulling.
-    const double anneal = std::min(1.0, progress / tuned("kFitRobustAnnealShare", kFitRobustAnnealShare));
-    const double sigma = tuned("kFitInitialRobustSigma", kFitInitialRobustSigma) * std::pow(plan.robust_sigma / tuned("kFitInitialRobustSigma", kFitInitialRobustSigma), anneal);
+    const double anneal = std::min(1.0, progress / kFitRobustAnnealShare);
+    const double sigma = kFitInitialRobustSigma * std::pow(plan.robust_sigma / kFitInitialRobustSigma, anneal);
     adam.zero_grad();
     const StageLoss loss = objective(p, plan, sigma);
     loss.total.backward();
