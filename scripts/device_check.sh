@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # Checks the CUDA backend on a GPU machine: configures and builds against the machine's CUDA LibTorch, runs the CUDA
-# tests, compute-sanitizer memcheck and racecheck on the small CudaSanitizer.* scenes, and the benchmark.
+# tests, compute-sanitizer memcheck and racecheck on the small *CudaSanitizer.* cases, and the benchmark.
 #
 #   bash scripts/device_check.sh [build] [test] [python] [sanitize] [bench] [profile] [avatar] [animate] [train-step]
-#                                [animate-trained] [stage-profile] [train] [ablate] [novel] [fits]
+#                                [animate-trained] [stage-profile] [train] [ablate] [novel] [sizes] [fits]
 #   (no argument: the first five, in this order)
 #
 # python: the pytest suite against the module built with the machine's pip torch and pybind11 (CUDA included).
@@ -185,7 +185,7 @@ fi
 
 if wants sanitize; then
   for tool in memcheck racecheck; do
-    run sanitize 150 compute-sanitizer --tool "$tool" --error-exitcode 99 "$tests" --gtest_filter='CudaSanitizer.*' \
+    run sanitize 150 compute-sanitizer --tool "$tool" --error-exitcode 99 "$tests" --gtest_filter='*CudaSanitizer.*' \
       --gtest_color=no
   done
   grep -E "ERROR SUMMARY|RACECHECK SUMMARY|^\[  PASSED|^\[  FAILED|Invalid|Race reported" "$out/sanitize.log" | head -n 20
@@ -342,9 +342,10 @@ fi
 # default 80, at SFGS_DEVICE_FITS_SIZE, default 540x960) in the NeuMan layout with exact fits ("exact"), the same video
 # with fits corrupted at SFGS_DEVICE_FITS_NOISE (default medium; "noisy"), and the fits `sfgs fit` makes on CUDA from
 # its detector-like keypoints ("fitted"); the data are made once per machine. Each variant of
-# SFGS_DEVICE_FITS_VARIANTS (default "exact noisy refined fitted"; "refined" is noisy with pose refinement) is trained
-# for SFGS_DEVICE_FITS_ITERATIONS (default 2000) with configs/device_anny.yaml and evaluated on its test frames plainly
-# and with test-time pose fitting (SFGS_DEVICE_FITS_FIT_ITERATIONS, default 50).
+# SFGS_DEVICE_FITS_VARIANTS (default "exact noisy refined fitted"; "refined" is noisy with pose refinement at its
+# defaults: per-step corrections and two alignment passes of every training frame, docs/training.md) is trained for
+# SFGS_DEVICE_FITS_ITERATIONS (default 2000) with configs/device_anny.yaml and evaluated on its test frames plainly
+# and with test-time pose fitting (SFGS_DEVICE_FITS_FIT_ITERATIONS, default 100).
 if wants fits; then
   export SFGS_SHARED_DIR=$shared
   scene=/tmp/sfgs-fits
@@ -369,12 +370,24 @@ if wants fits; then
   for variant in ${SFGS_DEVICE_FITS_VARIANTS:-exact noisy refined fitted}; do
     data=$scene/$variant config=$scene/config.yaml
     [ "$variant" = refined ] && data=$scene/noisy config=$scene/config-refined.yaml
-    run "fits-$variant" 400 "$build/sfgs" train --data "$data" --out "$scene/run-$variant" --config "$config" \
+    run "fits-$variant" 600 "$build/sfgs" train --data "$data" --out "$scene/run-$variant" --config "$config" \
       --iterations "${SFGS_DEVICE_FITS_ITERATIONS:-2000}" --force --quiet &&
       run "fits-$variant" 300 "$build/sfgs" eval --run "$scene/run-$variant" --fit-test-poses \
-        --fit-iterations "${SFGS_DEVICE_FITS_FIT_ITERATIONS:-50}"
+        --fit-iterations "${SFGS_DEVICE_FITS_FIT_ITERATIONS:-100}"
     grep -E "steps|PSNR|sfgs eval" "$out/fits-$variant.log" | grep -v "fitted the pose" | tail -n 8
+    grep -h '"pose_alignment"' "$scene/run-$variant/log.jsonl" 2>/dev/null | cut -c1-200
   done
+fi
+
+# sizes: run time against error over model sizes (docs/performance.md): the novel-motion scene (new motions on test)
+# trained with each variant of SFGS_DEVICE_SIZES_VARIANTS (default: subdivision levels 0, 1, 2 and the default with
+# 16 plane channels) for SFGS_DEVICE_SIZES_ITERATIONS (default 2000), then each run's animated frame (bench_animate
+# --run, 800x1200); scripts/size_table.py prints the table (seconds to a validation PSNR, final PSNR, frames/s).
+if wants sizes; then
+  export SFGS_DEVICE_NOVEL_SCENES=novel SFGS_DEVICE_NOVEL_ABLATIONS=""
+  export SFGS_DEVICE_NOVEL_ITERATIONS=${SFGS_DEVICE_SIZES_ITERATIONS:-2000}
+  export SFGS_DEVICE_NOVEL_VARIANTS=${SFGS_DEVICE_SIZES_VARIANTS:-s0:subdivision_levels=0 s1:subdivision_levels=1 s2: s2-c16:plane_channels=16}
+  steps+=(novel)
 fi
 
 if wants novel; then
@@ -411,8 +424,16 @@ if wants novel; then
     sed "s|@SHARED@|$shared|g" "$config_source" >"$novel/$name.yaml"
     IFS=, read -ra pairs <<<"${variant#*:}"
     for pair in "${pairs[@]}"; do
-      [ -n "$pair" ] && sed -i "s|^avatar:|avatar:\n  ${pair%%=*}: ${pair#*=}|" "$novel/$name.yaml"
+      [ -z "$pair" ] && continue
+      # A key the config already sets is replaced (YAML keeps the last of duplicates), any other one added.
+      if grep -q "^  ${pair%%=*}:" "$novel/$name.yaml"; then
+        sed -i "s|^  ${pair%%=*}:.*|  ${pair%%=*}: ${pair#*=}|" "$novel/$name.yaml"
+      else
+        sed -i "s|^avatar:|avatar:\n  ${pair%%=*}: ${pair#*=}|" "$novel/$name.yaml"
+      fi
     done
+    # The size table times the climb to a PSNR: validate often.
+    wants sizes && sed -i "s|^  validate_every:.*|  validate_every: ${SFGS_DEVICE_SIZES_VALIDATE_EVERY:-100}|" "$novel/$name.yaml"
     for scene in $scenes; do
       (run "train-$name-$scene" 580 "$binary" train --data "$novel/$scene" --out "$novel/runs/$name-$scene" \
         --config "$novel/$name.yaml" --iterations "$iterations" --quiet --force &&
@@ -439,6 +460,15 @@ if wants novel; then
   "$build/sfgs" render --run "$novel/runs/default-novel" --out "$novel/render" --motion bend --frames 24 \
     --device cuda --force >"$out/novel-render.log" 2>&1
   mkdir -p "$out/renders" && cp "$novel/render/frame_0006.png" "$novel/render/frame_0018.png" "$out/renders/" 2>/dev/null
+  if wants sizes; then
+    names=()
+    for variant in $variants; do
+      names+=("${variant%%:*}")
+      run "frame-${variant%%:*}" 200 "$build/bench/bench_animate" --device cuda --run "$novel/runs/${variant%%:*}-novel" \
+        --sizes 800x1200 --frames 100
+    done
+    python3 "$root/scripts/size_table.py" "$out" "${names[@]}" | tee "$out/size-table.md"
+  fi
 fi
 
 # The device tool returns only a few files: everything travels as one archive.

@@ -18,6 +18,7 @@
 #include "common/folder_lock.h"
 #include "data/image_io.h"
 #include "train/evaluate.h"
+#include "train/pose_fit.h"
 #include "train/pose_refinement.h"
 #include "train/run_folder.h"
 

@@ -45,8 +45,9 @@ commands:
   eval     evaluate a run on a split (ExAvatar/SFGS protocol): --run RUN  --data DATASET (the training one)
            --split test|val|train (test)  --device cpu|cuda (the run's)  --eight-bit  --save-images  --force
            --no-observation-prior (trust every Gaussian's learned colour and offsets: the ablation)
-           --fit-test-poses: also fit each frame's pose to its image with the avatar frozen (NeuMan protocol),
-           reported separately (metrics_fitted_poses.json)  --fit-iterations N (100)
+           --fit-test-poses: also fit each frame's pose to its image with the avatar frozen (NeuMan protocol;
+           coarse to fine, never ending worse than the given fit on its loss), reported separately
+           (metrics_fitted_poses.json)  --fit-iterations N (100)
   render   novel poses to PNG frames and an MP4: --run RUN --out DIR  --frames N (48; a file: all of it)
            --motion MOTION|DATASET|FILE.npz|FOLDER (overhead; motions: sway walk wave overhead bend guard turn
            sit; FILE.npz: AMASS SMPL-X or SMPL-H; FOLDER: ExAvatar smplx_params_smoothed; docs/motions.md)  --fps F (24)

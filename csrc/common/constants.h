@@ -78,6 +78,10 @@ inline constexpr int kSsimWindowSize = 11;
 inline constexpr double kSsimSigma = 1.5;
 inline constexpr double kSsimK1 = 0.01;
 inline constexpr double kSsimK2 = 0.03;
+// The fused SSIM's CUDA kernels (ssim/ssim.h) filter tiles of 32 columns and this many rows of one channel in
+// shared memory; a tile reads its rows plus 10 of halo, so taller tiles re-read less, and 16 keeps a float32 block
+// within 26 KiB. float64 (the parity tests) takes half as many rows, within the 48 KiB of static shared memory.
+inline constexpr int kSsimTileRows = 16;
 // LPIPS v0.1 (richzhang/PerceptualSimilarity): the ScalingLayer's ImageNet shift and scale for R, G, B, and
 // the epsilon added outside the square root when feature vectors are unit-normalised.
 inline constexpr double kLpipsShift[3] = {-0.030, -0.088, -0.188};
@@ -130,6 +134,11 @@ inline constexpr double kPlaneInitStd = 0.1;
 // GroupNorm of the authors' head MLPs: channel groups, and the epsilon of torch.nn.GroupNorm.
 inline constexpr long kMlpGroupNormGroups = 4;
 inline constexpr double kMlpGroupNormEpsilon = 1e-5;
+// The fused GroupNorm + ReLU kernel (group_norm/group_norm.h) keeps a row in one warp's registers, at most 8 values
+// a lane: the avatar's widths (64-256) fit; wider rows take the LibTorch composition.
+inline constexpr long kGroupNormMaxChannels = 256;
+// CIELAB's f(t): the cube root above (6/29)^3, its tangent-like linear branch at and below (the standard's).
+inline constexpr double kLabLinearBelow = 216.0 / 24389.0;
 // Hidden width of the MANO hand-residual MLP (the authors' 64).
 inline constexpr long kHandResidualHiddenWidth = 64;
 // The MANO shape fitted to the subject's SMPL-X hand should match it to millimetres; beyond this RMS (metres) the
@@ -167,6 +176,30 @@ inline constexpr double kMaxLearningRate = 1.0;
 inline constexpr double kPoseAdamBeta1 = 0.9;
 inline constexpr double kPoseAdamBeta2 = 0.999;
 inline constexpr double kPoseAdamEpsilon = 1e-8;
+// Fitting a pose to an image with the avatar frozen (train/pose_fit.h): three stages, each with a cosine-decayed
+// Adam whose rates follow from how far it may move the parameters (its reach, radians and metres), whatever the
+// iteration count. Coarse (the share kPoseFitCoarseShare of the iterations): the global orientation and translation
+// at 1/4 of the resolution (a 4 px blur widens the basin to the centimetres of an estimator's depth and lateral error,
+// on 16 x fewer pixels), reaching about the medium noise level (4 deg, 6 cm; docs/fitting.md): twice these reaches
+// measured 3.4 dB worse on noisy Anny test fits (the weakly seen depth drifts further). Middle: every joint at 1/2,
+// reaching past the medium level's 5 deg body errors. Fine: every joint at full resolution, the last centimetre and
+// degrees.
+inline constexpr double kPoseFitCoarseShare = 0.3;
+inline constexpr long kPoseFitCoarseDownsample = 4;
+inline constexpr double kPoseFitCoarseRotationReach = 0.05;
+inline constexpr double kPoseFitCoarseTranslationReach = 0.07;
+inline constexpr double kPoseFitMiddleShare = 0.3;
+inline constexpr long kPoseFitMiddleDownsample = 2;
+inline constexpr double kPoseFitMiddleRotationReach = 0.1;
+inline constexpr double kPoseFitMiddleTranslationReach = 0.04;
+inline constexpr double kPoseFitFineRotationReach = 0.05;
+inline constexpr double kPoseFitFineTranslationReach = 0.02;
+// Weight of the silhouette term, the mean |alpha - person mask|, beside the image L1 of the downsampled stages: a
+// share of misplaced pixels weighs about as much as the image error over them, and it pulls where the image is flat
+// (white on white). The fine stage's is lighter: there the image inside the person decides, and the avatar's own
+// soft edges would otherwise pull an exact fit away.
+inline constexpr double kPoseFitSilhouetteWeight = 1.0;
+inline constexpr double kPoseFitFineSilhouetteWeight = 0.1;
 inline constexpr double kMaxLossWeight = 1e9;
 inline constexpr long kMaxIterations = 100000000;
 inline constexpr long kMaxPlaneChannels = 1024;
@@ -228,10 +261,13 @@ inline constexpr double kSurfaceKeypointOcclusionDepth = 0.03;
 inline constexpr double kJointKeypointOcclusionDepth = 0.1;
 
 // `sfgs fit` (csrc/fit, docs/fitting.md). Adam steps per stage (global orientation and translation; body and shape;
-// hands, jaw and expression; the silhouette stage where masks exist) and progress lines every this many steps.
+// hands, jaw and expression; the silhouette stage where masks exist) and progress lines every this many steps. The
+// body stage is still settling the limbs' depths at 300 steps: 600 body and 300 detail steps took the benchmark's
+// root-aligned MPJPE from 39.7 to 34.4 mm (sway) and 42.9 to 41.5 mm (walk) for half as much time again (60 frames:
+// 12 -> 18 s on one core; docs/fitting.md).
 inline constexpr long kFitGlobalIterations = 80;
-inline constexpr long kFitBodyIterations = 300;
-inline constexpr long kFitDetailIterations = 200;
+inline constexpr long kFitBodyIterations = 600;
+inline constexpr long kFitDetailIterations = 300;
 inline constexpr long kFitSilhouetteIterations = 60;
 inline constexpr long kFitLogEvery = 25;
 // Intra-op threads of a CPU fit (fit.h FitOptions::threads says why one).
@@ -258,10 +294,13 @@ inline constexpr double kFitLearningRate = 0.03;
 inline constexpr double kFitSilhouetteLearningRate = 0.005;
 inline constexpr double kFitCoefficientRateFactor = 2.0;
 inline constexpr double kFitFinalLearningRateShare = 0.1;
-// Geman-McClure scales of the keypoint residuals (shares of the person's size): wide while the body is placed,
-// then a detection farther than about 5 % of the person's size from the fit counts as an outlier.
+// Geman-McClure scales of the keypoint residuals (shares of the person's size): 10 % in the global, body and detail
+// stages (a detector's body noise is 1-2 % of the person's size, but a limb still on the wrong side of its depth
+// ambiguity sits farther than 5 % from its detections, and a narrower scale stops those from pulling it over), then
+// 5 % in the silhouette stage, which only settles a body already close: farther detections count as outliers.
 inline constexpr double kFitGlobalRobustSigma = 0.1;
-inline constexpr double kFitRobustSigma = 0.05;
+inline constexpr double kFitRobustSigma = 0.1;
+inline constexpr double kFitSilhouetteRobustSigma = 0.05;
 // Each stage starts nearly quadratic (this scale: every detection pulls, however far, and limbs start far from
 // theirs) and narrows geometrically to its own scale over this share of its steps.
 inline constexpr double kFitInitialRobustSigma = 0.2;
@@ -287,8 +326,14 @@ inline constexpr double kFitTwistPriorFactor = 4.0;
 inline constexpr double kFitSpinePriorFactor = 30.0;  // spine1-3, neck, collars
 inline constexpr double kFitSpineTwistPriorFactor = 3.0;  // but a spine joint's twist
 inline constexpr double kFitShoulderPriorFactor = 0.3;
+// A hip's flexion (a leg swinging forwards or backwards, along the view when the subject faces the camera) weighs
+// this share of a swing: one view sees such a swing as a small change of the leg's length in the image, and the full
+// weight held a walk's 30-degree swings halfway to rest (MPJPE 41.5 -> 37.4 mm walk, 34.4 -> 31.7 mm sway).
+inline constexpr double kFitHipFlexionPriorFactor = 0.3;
 inline constexpr double kFitHandPriorWeight = 1e-4;
-inline constexpr double kFitShapePriorWeight = 1e-4;
+// The shape prior is 10 times the other coefficient priors: one view fixes size and depth only together, and a
+// weaker pull let the fitted limbs shrink by 3-5 % (the subject nearer the camera, the limbs' depths wrong).
+inline constexpr double kFitShapePriorWeight = 1e-3;
 inline constexpr double kFitExpressionPriorWeight = 1e-4;
 inline constexpr double kFitJawPriorWeight = 1e-4;
 // Temporal smoothness: Geman-McClure of the acceleration of every keypoint and joint between consecutive frames

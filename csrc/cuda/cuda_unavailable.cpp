@@ -4,7 +4,10 @@
 
 #include "body/body_backend.h"
 #include "gathered_mlp/backend.h"
+#include "group_norm/backend.h"
+#include "pixel_loss/backend.h"
 #include "skin/backend.h"
+#include "ssim/backend.h"
 #include "splat/backend.h"
 
 namespace sfgs::splat::cuda {
@@ -55,3 +58,51 @@ void axis_angle_to_matrix(const AxisAngleArrays&, at::Device) {
 void vertex_normals(const VertexNormalArrays&, at::Device) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
 
 }  // namespace sfgs::body::cuda
+
+namespace sfgs::group_norm::cuda {
+
+bool available() { return false; }
+bool supports(int64_t, int64_t) { return false; }
+int64_t partial_rows(int64_t, at::Device) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
+void forward(const GroupNormArrays<float>&, at::Device) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
+void forward(const GroupNormArrays<double>&, at::Device) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
+void backward(const GroupNormGradientArrays<float>&, at::Device) {
+  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
+}
+void backward(const GroupNormGradientArrays<double>&, at::Device) {
+  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
+}
+
+}  // namespace sfgs::group_norm::cuda
+
+namespace sfgs::ssim::cuda {
+
+bool available() { return false; }
+int64_t partial_sums(int64_t, int64_t, int64_t, at::ScalarType) {
+  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
+}
+void forward(const SsimArrays<float>&, at::Device) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
+void forward(const SsimArrays<double>&, at::Device) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
+void backward(const SsimGradientArrays<float>&, at::Device) {
+  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
+}
+void backward(const SsimGradientArrays<double>&, at::Device) {
+  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
+}
+
+}  // namespace sfgs::ssim::cuda
+
+namespace sfgs::pixel_loss::cuda {
+
+bool available() { return false; }
+int64_t partials(int, int) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
+void forward(const PixelLossArrays<float>&, at::Device) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
+void forward(const PixelLossArrays<double>&, at::Device) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
+void backward(const PixelLossGradientArrays<float>&, at::Device) {
+  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
+}
+void backward(const PixelLossGradientArrays<double>&, at::Device) {
+  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
+}
+
+}  // namespace sfgs::pixel_loss::cuda

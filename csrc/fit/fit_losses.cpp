@@ -66,6 +66,8 @@ std::pair<at::Tensor, at::Tensor> body_prior_centre_and_weights(const at::Tensor
   // A twist of the spine shows in the shoulders' width and the face; a lean towards the camera hardly shows.
   for (int64_t spine : {kSpine1, kSpine2, kSpine3}) weight[spine - 1][1] = kFitSpineTwistPriorFactor;
   for (int64_t shoulder : {kLeftShoulder, kRightShoulder}) weight[shoulder - 1] *= kFitShoulderPriorFactor;
+  // A leg swinging towards or away from the camera changes its image little: the hips' flexion weighs less.
+  for (int64_t hip : {kLeftHip, kRightHip}) weight[hip - 1][0] = kFitHipFlexionPriorFactor;
   weight[kLeftKnee - 1][0] = 0;
   weight[kRightKnee - 1][0] = 0;
   weight[kLeftElbow - 1][1] = 0;

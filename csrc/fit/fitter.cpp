@@ -62,8 +62,8 @@ std::vector<StagePlan> stage_plans(const FitStageLengths& lengths, bool silhouet
       {"body", lengths.body, kFitLearningRate, kFitRobustSigma, true, false, false, body},
       {"detail", lengths.detail, kFitLearningRate, kFitRobustSigma, true, true, false, all}};
   if (silhouette)
-    plans.push_back(
-        {"silhouette", lengths.silhouette, kFitSilhouetteLearningRate, kFitRobustSigma, true, true, true, all});
+    plans.push_back({"silhouette", lengths.silhouette, kFitSilhouetteLearningRate, kFitSilhouetteRobustSigma, true,
+                     true, true, all});
   return plans;
 }
 
@@ -103,8 +103,8 @@ class Objective {
     if (plan.silhouette) {
       const at::Tensor samples = posed.points.narrow(1, keypoint_support_, posed.points.size(1) - keypoint_support_);
       l.terms["silhouette"] =
-          kFitSilhouetteWeight *
-          silhouette_loss(project(samples, observed_.intrinsics), silhouette_, observed_.person_size, kFitRobustSigma);
+          kFitSilhouetteWeight * silhouette_loss(project(samples, observed_.intrinsics), silhouette_,
+                                                 observed_.person_size, kFitSilhouetteRobustSigma);
     }
     l.total = at::zeros({}, p.translation.options());
     for (const auto& [name, value] : l.terms) l.total = l.total + value;

@@ -10,6 +10,7 @@
 
 #include "common/constants.h"
 #include "metrics/image_layout.h"
+#include "ssim/ssim_math.h"
 
 namespace sfgs::metrics {
 namespace detail {
@@ -45,29 +46,15 @@ at::Tensor match_batch_layout(const at::Tensor& per_image, const at::Tensor& ima
 
 namespace {
 
-
-// The normalised 1D Gaussian g[i] ~ exp(-(i - r)^2 / (2 sigma^2)), in float64 whatever the images' dtype.
-std::vector<double> gaussian_taps() {
-  const int radius = kSsimWindowSize / 2;
-  std::vector<double> taps(kSsimWindowSize);
-  double sum = 0.0;
-  for (int i = 0; i < kSsimWindowSize; ++i) {
-    taps[i] = std::exp(-double((i - radius) * (i - radius)) / (2.0 * kSsimSigma * kSsimSigma));
-    sum += taps[i];
-  }
-  for (double& t : taps) t /= sum;
-  return taps;
-}
-
 // The separable Gaussian filter of every channel, without padding (each output needs a full window). Autograd
 // records a grouped conv2d cheaply. Without gradients, eleven in-place multiply-adds per direction are faster
 // on the CPU: 1.5x in float32, 8x in float64 (which has no fast convolution), so evaluation can afford float64.
 at::Tensor filter_valid(const at::Tensor& x) {
-  const std::vector<double> taps = gaussian_taps();
+  const std::array<double, kSsimWindowSize> taps = ssim::gaussian_window();
   const int64_t channels = x.size(1);
   const int64_t height = x.size(2) - (kSsimWindowSize - 1), width = x.size(3) - (kSsimWindowSize - 1);
   if (x.requires_grad()) {
-    const at::Tensor window = at::tensor(taps, at::kDouble).to(x.options());
+    const at::Tensor window = at::tensor(at::ArrayRef<double>(taps), at::kDouble).to(x.options());
     const at::Tensor horizontal = window.view({1, 1, 1, kSsimWindowSize}).expand({channels, 1, 1, kSsimWindowSize});
     const at::Tensor vertical = window.view({1, 1, kSsimWindowSize, 1}).expand({channels, 1, kSsimWindowSize, 1});
     // Named arrays: a braced {0, 0} would also match conv2d's string padding overload.

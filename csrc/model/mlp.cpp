@@ -8,6 +8,7 @@
 #include <ATen/TensorOperators.h>
 
 #include "common/constants.h"
+#include "group_norm/group_norm.h"
 
 namespace sfgs::model {
 namespace {
@@ -19,15 +20,6 @@ at::Tensor uniform_parameter(at::IntArrayRef shape, int64_t fan_in) {
 }
 
 }  // namespace
-
-at::Tensor normalise_groups(const at::Tensor& x, GroupNormKernel kernel) {
-  const int64_t n = x.size(0), c = x.size(1);
-  const at::Tensor grouped = x.reshape({n, kMlpGroupNormGroups, c / kMlpGroupNormGroups});
-  if (kernel == GroupNormKernel::kLayerNorm)
-    return at::layer_norm(grouped, {c / kMlpGroupNormGroups}, {}, {}, kMlpGroupNormEpsilon).view({n, c});
-  const auto [variance, mean] = at::var_mean(grouped, {2}, /*unbiased=*/false, /*keepdim=*/true);
-  return ((grouped - mean) * at::rsqrt(variance + kMlpGroupNormEpsilon)).view({n, c});
-}
 
 MlpImpl::MlpImpl(MlpShape shape) : shape_(std::move(shape)) {
   TORCH_CHECK(!shape_.input_widths.empty(), "Mlp: at least one input group is needed");
@@ -88,17 +80,22 @@ at::Tensor MlpImpl::project(size_t group, const at::Tensor& input) const {
   return group == 0 ? at::linear(input, input_weights_[0], input_bias_) : at::linear(input, input_weights_[group]);
 }
 
-at::Tensor MlpImpl::activate(size_t layer, const at::Tensor& x) const {
-  if (!shape_.group_norm) return at::relu(x);
-  const GroupNormKernel kernel = x.is_cuda() ? GroupNormKernel::kMoments : GroupNormKernel::kLayerNorm;
-  return at::relu(at::addcmul(norm_biases_[layer], normalise_groups(x, kernel), norm_weights_[layer]));
+at::Tensor MlpImpl::activate(size_t layer, const at::Tensor& pre) const {
+  if (!shape_.group_norm) return at::relu(pre);
+  return group_norm::group_norm_relu(pre, {}, norm_weights_[layer], norm_biases_[layer], kMlpGroupNormGroups,
+                                     kMlpGroupNormEpsilon);
 }
 
 at::Tensor MlpImpl::finish(const at::Tensor& first_layer) const {
   if (shape_.hidden_widths.empty()) return first_layer;
   at::Tensor x = activate(0, first_layer);
-  for (size_t k = 1; k < shape_.hidden_widths.size(); ++k)
-    x = activate(k, at::linear(x, hidden_weights_[k - 1], hidden_biases_[k - 1]));
+  for (size_t k = 1; k < shape_.hidden_widths.size(); ++k) {
+    // With GroupNorm the fused layer adds the bias (its gradient summed in the same pass) and keeps no product.
+    x = shape_.group_norm ? group_norm::linear_group_norm_relu(x, hidden_weights_[k - 1], hidden_biases_[k - 1],
+                                                               norm_weights_[k], norm_biases_[k], kMlpGroupNormGroups,
+                                                               kMlpGroupNormEpsilon)
+                          : activate(k, at::linear(x, hidden_weights_[k - 1], hidden_biases_[k - 1]));
+  }
   return at::linear(x, output_weight_, output_bias_);
 }
 

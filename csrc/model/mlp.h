@@ -13,19 +13,13 @@
 
 namespace sfgs::model {
 
-// GroupNorm(kMlpGroupNormGroups) of an (N, C) input without its affine part, for many points N and few channels C,
-// a shape LibTorch's group_norm handles slowly (on a GPU at 250k points its backward took 6 ms a call, 54 of the
-// avatar's 71 ms backward). Two equivalent formulations, each the fastest on its device at 250k x 128: the groups'
-// moments written out (GPU: forward as fast as group_norm, backward 3x faster) and LayerNorm within each group (CPU:
-// training forward plus backward 1.4x faster than group_norm; the moments form is 3x slower there).
-enum class GroupNormKernel { kMoments, kLayerNorm };
-at::Tensor normalise_groups(const at::Tensor& x, GroupNormKernel kernel);
-
 struct MlpShape {
   std::vector<int64_t> input_widths;   // one per input group, in the order of the concatenation
   std::vector<int64_t> hidden_widths;  // each hidden layer: linear, GroupNorm when group_norm, ReLU
   int64_t output_width = 0;            // no hidden layers: the first layer is the (linear) output
   bool group_norm = false;             // GroupNorm(kMlpGroupNormGroups) before every ReLU, as the authors' heads
+                                       // (fused with its affine map, the ReLU and the layer's bias:
+                                       // group_norm/group_norm.h)
   bool zero_output = false;            // the output layer starts at zero, so the network starts as the constant 0
 };
 
@@ -49,7 +43,8 @@ class MlpImpl : public torch::nn::Module {
   static int64_t parameter_count(const MlpShape& shape);
 
  private:
-  at::Tensor activate(size_t layer, const at::Tensor& x) const;
+  // Hidden layer `layer`'s activation of its linear part `pre` (bias included).
+  at::Tensor activate(size_t layer, const at::Tensor& pre) const;
 
   MlpShape shape_;
   std::vector<at::Tensor> input_weights_;  // per group (first width, input width)

@@ -8,12 +8,7 @@
 #include <glm/glm.hpp>
 
 #include "common/constants.h"
-
-#if defined(__CUDACC__)
-#define SFGS_HD __host__ __device__ __forceinline__
-#else
-#define SFGS_HD inline
-#endif
+#include "common/host_device.h"
 
 namespace sfgs::splat {
 

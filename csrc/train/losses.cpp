@@ -5,6 +5,8 @@
 #include "body/mesh.h"
 #include "body/parts.h"
 #include "metrics/image_metrics.h"
+#include "pixel_loss/pixel_loss.h"
+#include "ssim/ssim.h"
 
 namespace sfgs::train {
 namespace {
@@ -15,29 +17,7 @@ at::Tensor part_weights(const at::Tensor& labels, const PartWeights& p, at::Devi
   return table.index_select(0, labels.to(at::kLong).cpu()).to(device);
 }
 
-at::Tensor srgb_to_linear(const at::Tensor& c) {
-  const at::Tensor clamped = c.clamp(0, 1);
-  return at::where(clamped <= 0.04045, clamped / 12.92, at::pow((clamped + 0.055) / 1.055, 2.4));
-}
-
-at::Tensor lab_f(const at::Tensor& t) {
-  constexpr double kEpsilon = 216.0 / 24389.0;
-  // The cube root's slope is infinite at 0; the linear branch covers t <= kEpsilon, so clamping there is exact.
-  return at::where(t > kEpsilon, at::pow(t.clamp_min(kEpsilon), 1.0 / 3.0), (24389.0 / 27.0 * t + 16.0) / 116.0);
-}
-
 }  // namespace
-
-at::Tensor rgb_to_lab(const at::Tensor& rgb) {
-  TORCH_CHECK(rgb.size(-1) == 3, "rgb_to_lab: the last axis must hold RGB, got ", rgb.sizes());
-  const at::Tensor lin = srgb_to_linear(rgb);
-  const at::Tensor r = lin.select(-1, 0), g = lin.select(-1, 1), b = lin.select(-1, 2);
-  const at::Tensor x = (0.412453 * r + 0.357580 * g + 0.180423 * b) / 0.95047;
-  const at::Tensor y = 0.212671 * r + 0.715160 * g + 0.072169 * b;
-  const at::Tensor z = (0.019334 * r + 0.119193 * g + 0.950227 * b) / 1.08883;
-  const at::Tensor fx = lab_f(x), fy = lab_f(y), fz = lab_f(z);
-  return at::stack({(116.0 * fy - 16.0) / 100.0, 500.0 * (fx - fy) / 110.0, 200.0 * (fy - fz) / 110.0}, -1);
-}
 
 ImageLoss::ImageLoss(const LossWeights& weights, at::Device device) : weights_(weights) {
   if (!weights.use_lpips) {
@@ -54,25 +34,28 @@ ImageLoss::ImageLoss(const LossWeights& weights, at::Device device) : weights_(w
   }
 }
 
-void ImageLoss::add_terms(const at::Tensor& prediction, const at::Tensor& target, LossTerms& terms) const {
+void ImageLoss::add_terms(const at::Tensor& prediction, const at::Tensor& target, LossTerms& terms,
+                          bool with_lpips) const {
   TORCH_CHECK(prediction.sizes() == target.sizes() && prediction.dim() == 3 && prediction.size(2) == 3,
               "ImageLoss: prediction and target must both be (H, W, 3), got ", prediction.sizes(), " and ",
               target.sizes());
-  const at::Tensor l1 = (prediction - target).abs().mean();
-  const at::Tensor ssim = 1 - metrics::ssim(prediction, target, metrics::SsimBorder::zero);
+  // L1, CIELAB L1 and the image gradients' L1 in one fused op (pixel_loss/pixel_loss.h): their means.
+  const at::Tensor pixel = pixel_loss::pixel_losses(prediction, target.detach());
+  const at::Tensor l1 = pixel[0];
+  // metrics::ssim's zero-border value in one fused pass each way (ssim/ssim.h), which differentiates the prediction
+  // only: the target is data.
+  const at::Tensor ssim = 1 - ssim::fused_ssim(prediction, target.detach());
   at::Tensor photometric = l1 + ssim;
   terms["l1"] = l1.detach();
   terms["ssim"] = ssim.detach();
-  if (lpips_ && std::min(prediction.size(0), prediction.size(1)) >= lpips_->min_image_side()) {
+  if (with_lpips && lpips_ && std::min(prediction.size(0), prediction.size(1)) >= lpips_->min_image_side()) {
     const at::Tensor lpips = (*lpips_)(prediction, target);
     terms["lpips"] = lpips.detach();
     photometric = photometric + lpips;
   }
   terms["image"] = weights_.image * photometric;
-  terms["lab"] = weights_.lab * (rgb_to_lab(prediction) - rgb_to_lab(target)).abs().mean();
-  const auto dx = [](const at::Tensor& t) { return t.slice(1, 1) - t.slice(1, 0, -1); };
-  const auto dy = [](const at::Tensor& t) { return t.slice(0, 1) - t.slice(0, 0, -1); };
-  terms["gradient"] = weights_.gradient * ((dx(prediction) - dx(target)).abs().mean() + (dy(prediction) - dy(target)).abs().mean());
+  terms["lab"] = weights_.lab * pixel[1];
+  terms["gradient"] = weights_.gradient * (pixel[2] + pixel[3]);
 }
 
 Regularisers::Regularisers(const LossWeights& weights, const at::Tensor& part_labels, const at::Tensor& faces,

@@ -13,10 +13,6 @@
 
 namespace sfgs::train {
 
-// CIELAB (D65) of sRGB values in [0, 1] along the last axis, with L, a, b scaled by 1/100, 1/110, 1/110 so every
-// channel spans about [-1, 1] like the RGB losses it is weighed against. Differentiable.
-at::Tensor rgb_to_lab(const at::Tensor& rgb);
-
 // Named loss terms; "total" is their weighted sum.
 using LossTerms = std::map<std::string, at::Tensor>;
 
@@ -25,8 +21,10 @@ class ImageLoss {
   // LPIPS (AlexNet) is loaded when weights.use_lpips; when its weights cannot be found `lpips_status()` says why and
   // the term is left out (the trainer logs it).
   ImageLoss(const LossWeights& weights, at::Device device);
-  // prediction and target (H, W, 3) in [0, 1]; adds "l1", "ssim", "lpips", "lab", "gradient" and "image".
-  void add_terms(const at::Tensor& prediction, const at::Tensor& target, LossTerms& terms) const;
+  // prediction and target (H, W, 3) in [0, 1]; adds "l1", "ssim", "lpips", "lab", "gradient" and "image". Without
+  // `with_lpips` the image term leaves LPIPS out, and there is no "lpips".
+  void add_terms(const at::Tensor& prediction, const at::Tensor& target, LossTerms& terms,
+                 bool with_lpips = true) const;
   const std::string& lpips_status() const { return lpips_status_; }
 
  private:

@@ -6,12 +6,13 @@
 #include <cstdio>
 
 #include <ATen/ATen.h>
-#include <nlohmann/json.hpp>
 #include <torch/csrc/autograd/autograd.h>
+#include <nlohmann/json.hpp>
 
 #include "common/atomic_file.h"
 #include "common/constants.h"
 #include "data/json_values.h"
+#include "train/pose_fit.h"
 #include "train/run_folder.h"
 
 namespace sfgs::train {
@@ -54,14 +55,14 @@ at::Tensor column_rates(double rotation, double translation, at::Device device) 
 }  // namespace
 
 body::SmplxPose corrected_pose(const body::SmplxPose& base, const at::Tensor& correction) {
-  TORCH_CHECK(correction.dim() == 1 && correction.size(0) == kCorrectionWidth,
-              "corrected_pose: a correction has ", kCorrectionWidth, " values, got shape ", correction.sizes());
+  TORCH_CHECK(correction.dim() == 1 && correction.size(0) == kCorrectionWidth, "corrected_pose: a correction has ",
+              kCorrectionWidth, " values, got shape ", correction.sizes());
   body::SmplxPose p = base;
   const auto options = correction.options();
   for (const CorrectedField& f : corrected_fields()) {
     const at::Tensor& given = base.*(f.member);
-    if (!given.defined() && (f.member == &body::SmplxPose::left_hand_pose ||
-                             f.member == &body::SmplxPose::right_hand_pose))
+    if (!given.defined() &&
+        (f.member == &body::SmplxPose::left_hand_pose || f.member == &body::SmplxPose::right_hand_pose))
       continue;  // the avatar skips an absent hand: it stays absent
     const at::Tensor delta = correction.narrow(0, f.first, 3 * f.joints);
     const at::Tensor value = given.defined() ? given.reshape({-1}).to(options) + delta : delta;
@@ -72,7 +73,8 @@ body::SmplxPose corrected_pose(const body::SmplxPose& base, const at::Tensor& co
 
 PoseRefinement::PoseRefinement(const data::Dataset& dataset, const PoseRefinementConfig& config, int64_t iterations,
                                at::Device device)
-    : dataset_(dataset), config_(config),
+    : dataset_(dataset),
+      config_(config),
       start_iteration_(int64_t(std::ceil(config.start * double(iterations)))),
       row_(size_t(dataset.size()), -1) {
   frames_ = dataset.split(data::Split::kTrain);
@@ -102,11 +104,13 @@ PoseRefinement::PoseRefinement(const data::Dataset& dataset, const PoseRefinemen
   exp_avg_sq_ = at::zeros({rows, kCorrectionWidth}, options);
   rates_ = column_rates(config.learning_rate, config.translation_learning_rate, device);
   steps_.assign(size_t(rows), 0);
+  for (const double share : config.align_at)
+    align_iterations_.push_back(int64_t(std::ceil(share * double(iterations))));
 }
 
 int64_t PoseRefinement::row_of(int64_t frame) const {
-  TORCH_CHECK(frame >= 0 && frame < int64_t(row_.size()) && row_[size_t(frame)] >= 0, "pose refinement: frame ",
-              frame, " is not a training frame");
+  TORCH_CHECK(frame >= 0 && frame < int64_t(row_.size()) && row_[size_t(frame)] >= 0, "pose refinement: frame ", frame,
+              " is not a training frame");
   return row_[size_t(frame)];
 }
 
@@ -149,6 +153,75 @@ void PoseRefinement::step(int64_t frame, int64_t iteration, double rate_factor) 
   gradient.reset();
 }
 
+nlohmann::json PoseRefinement::align(int64_t iteration, model::Avatar& avatar, const LossWeights& loss) {
+  if (std::find(align_iterations_.begin(), align_iterations_.end(), iteration) == align_iterations_.end())
+    return nlohmann::json::object();
+  PoseFitOptions options;
+  options.iterations = config_.align_iterations;
+  options.loss = loss;
+  options.global_only = true;
+  const at::Device device = corrections_.device();
+  const PoseFitter fitter(options, device);
+  // The parameters hold still meanwhile: the avatar's pose-independent features are computed once, not per step.
+  avatar->eval();
+  avatar->cache_static_features();
+  double before = 0, after = 0;
+  for (size_t r = 0; r < frames_.size(); ++r) {
+    const int64_t f = frames_[r];
+    const PoseFitResult fit = fitter.fit(avatar, dataset_.frames[size_t(f)].pose, pose_fit_target(dataset_, f, device),
+                                         corrections_[int64_t(r)].detach().clone());
+    at::NoGradGuard no_grad;
+    corrections_[int64_t(r)].copy_(fit.correction);
+    exp_avg_[int64_t(r)].zero_();
+    exp_avg_sq_[int64_t(r)].zero_();
+    steps_[r] = 0;
+    before += fit.start_loss;
+    after += fit.loss;
+  }
+  avatar->clear_cache();
+  avatar->train();
+  const double rows = double(frames_.size());
+  nlohmann::json entry{{"event", "pose_alignment"},
+                       {"iteration", iteration},
+                       {"frames", frames_.size()},
+                       {"loss_before", before / rows},
+                       {"loss_after", after / rows}};
+  const nlohmann::json error = error_against_truth();
+  if (!error.empty()) entry["pose_error"] = error;
+  return entry;
+}
+
+nlohmann::json PoseRefinement::error_against_truth() const {
+  const auto as_json = [](const PoseError& e) {
+    return nlohmann::json{
+        {"root_deg", e.root}, {"body_deg", e.body}, {"hands_deg", e.hands}, {"translation_cm", e.translation}};
+  };
+  PoseError input, refined;
+  int64_t count = 0;
+  const at::Tensor corrections = corrections_.detach().cpu();
+  for (size_t r = 0; r < frames_.size(); ++r) {
+    const data::FrameRecord& record = dataset_.frames[size_t(frames_[r])];
+    if (!record.true_pose) continue;
+    for (auto [sum, pose] : {std::pair<PoseError*, body::SmplxPose>{&input, record.pose},
+                             {&refined, corrected_pose(record.pose, corrections[int64_t(r)])}}) {
+      const PoseError e = pose_error(pose, *record.true_pose);
+      sum->root += e.root;
+      sum->body += e.body;
+      sum->hands += e.hands;
+      sum->translation += e.translation;
+    }
+    ++count;
+  }
+  if (count == 0) return nlohmann::json::object();
+  for (PoseError* e : {&input, &refined}) {
+    e->root /= double(count);
+    e->body /= double(count);
+    e->hands /= double(count);
+    e->translation /= double(count);
+  }
+  return {{"input", as_json(input)}, {"refined", as_json(refined)}};
+}
+
 at::Tensor PoseRefinement::state() const {
   const at::Tensor steps = at::tensor(steps_, at::kLong).to(at::kDouble).unsqueeze(1);
   return at::cat({corrections_.detach().cpu().to(at::kDouble), exp_avg_.cpu().to(at::kDouble),
@@ -183,8 +256,7 @@ void PoseRefinement::write_fits(const std::string& path) const {
     frames[record.name] = fit;
   }
   const std::string text =
-      nlohmann::json{{"format", "sfgs-refined-fits"}, {"version", 1}, {"dataset", dataset_.source},
-                     {"frames", frames}}
+      nlohmann::json{{"format", "sfgs-refined-fits"}, {"version", 1}, {"dataset", dataset_.source}, {"frames", frames}}
           .dump() +
       "\n";
   write_file_atomically(path, std::vector<unsigned char>(text.begin(), text.end()), true);
@@ -206,54 +278,6 @@ void apply_refined_fits(data::Dataset& dataset, const std::string& path) {
       record.pose.*(f.member) = f.joints == 1 ? value : value.view({f.joints, 3});
     }
   }
-}
-
-data::Dataset fit_poses(const data::Dataset& dataset, data::Split split, model::Avatar& avatar,
-                        const PoseFitOptions& options, bool progress) {
-  data::Dataset fitted = dataset;
-  const std::vector<int64_t>& frames = dataset.split(split);
-  const at::Device device = avatar->part_labels().device();
-  const ImageLoss loss(options.loss, device);
-  const at::Tensor white = at::ones({3}, at::TensorOptions().device(device));
-  const at::Tensor rates = column_rates(options.learning_rate, options.translation_learning_rate, device);
-  for (size_t k = 0; k < frames.size(); ++k) {
-    const int64_t f = frames[k];
-    const data::FrameRecord& record = dataset.frames[size_t(f)];
-    const data::Frame frame = dataset.load(f);
-    const at::Tensor mask = frame.mask.to(device).unsqueeze(2);
-    const at::Tensor target = frame.image.to(device) * mask + (1 - mask);
-    const Camera camera = render_camera(record);
-    const std::optional<double> time = dataset.replay_time(f);
-    // Adam on the frame's correction alone: the avatar's parameters get no gradient.
-    at::Tensor correction = at::zeros({kCorrectionWidth}, at::TensorOptions().device(device)).requires_grad_(true);
-    at::Tensor m = at::zeros_like(correction.detach()), v = at::zeros_like(m);
-    double first_loss = 0, last_loss = 0;
-    for (int64_t it = 0; it < options.iterations; ++it) {
-      const model::AvatarOutput out = avatar->forward_trusted_pose(corrected_pose(record.pose, correction), time);
-      LossTerms terms;
-      loss.add_terms(render(to_gaussians(out), white, camera).image, target, terms);
-      const at::Tensor total = total_loss(terms);
-      const at::Tensor g = torch::autograd::grad({total}, {correction})[0];
-      at::NoGradGuard no_grad;
-      const int64_t t = it + 1;
-      m.mul_(kPoseAdamBeta1).add_(g, 1 - kPoseAdamBeta1);
-      v.mul_(kPoseAdamBeta2).addcmul_(g, g, 1 - kPoseAdamBeta2);
-      const double c1 = 1 - std::pow(kPoseAdamBeta1, double(t)), c2 = 1 - std::pow(kPoseAdamBeta2, double(t));
-      correction.sub_(rates / c1 * m / (v / c2).sqrt().add_(kPoseAdamEpsilon));
-      if (progress && (it == 0 || it + 1 == options.iterations)) (it == 0 ? first_loss : last_loss) = total.item<double>();
-    }
-    at::NoGradGuard no_grad;
-    body::SmplxPose p = corrected_pose(record.pose, correction.detach());
-    for (const CorrectedField& field : corrected_fields()) {
-      at::Tensor& value = p.*(field.member);
-      if (value.defined()) value = value.to(at::kCPU, at::kFloat);
-    }
-    fitted.frames[size_t(f)].pose = p;
-    if (progress)
-      std::printf("  fitted the pose of %s (%zu/%zu): loss %.4f -> %.4f\n", record.name.c_str(), k + 1, frames.size(),
-                  first_loss, last_loss);
-  }
-  return fitted;
 }
 
 }  // namespace sfgs::train

@@ -10,12 +10,14 @@
 // fit by an L2 prior and to a smooth motion by an acceleration penalty over each sequence's consecutive training
 // frames. A frame's correction moves only in the steps that draw the frame (row-sparse Adam): Adam's normalisation
 // would otherwise move every row at the full rate each step on the regularisers' gradients alone.
-// fit_poses fits each frame of a split with the avatar frozen (the NeuMan protocol's test-time pose fitting).
+// Fitting a frame's pose to its image with the avatar frozen (test-time pose fitting, the alignment) is in
+// train/pose_fit.h.
 #include <cstdint>
 #include <string>
 #include <vector>
 
 #include <ATen/core/Tensor.h>
+#include <nlohmann/json.hpp>
 
 #include "data/dataset.h"
 #include "model/avatar.h"
@@ -42,6 +44,15 @@ class PoseRefinement {
   body::SmplxPose pose(int64_t frame, int64_t iteration, LossTerms& terms);
   // After the backward pass: one Adam step of the frame's correction at the schedule's learning-rate factor.
   void step(int64_t frame, int64_t iteration, double rate_factor);
+  // At an iteration of config.align_at (before its step): the global orientation and translation of every training
+  // frame's correction fitted to its image with `avatar` as it is (train/pose_fit.h, the run's image loss `loss`),
+  // its Adam state restarted. Returns the
+  // log entry (event "pose_alignment": the mean fitting loss before and after, the error against the exact fits
+  // where the dataset has them); an empty object at other iterations.
+  nlohmann::json align(int64_t iteration, model::Avatar& avatar, const LossWeights& loss);
+  // The mean error of the refined and of the input training fits against the exact ones (FrameRecord::true_pose,
+  // train/pose_fit.h PoseError) as {"input": ..., "refined": ...}; an empty object when the dataset has none.
+  nlohmann::json error_against_truth() const;
 
   // Corrections, Adam moments and step counts as one (F, 3 kCorrectionWidth + 1) float64 tensor on the CPU, for the
   // checkpoint; restore() takes it back (its shape is checked).
@@ -56,30 +67,19 @@ class PoseRefinement {
   const data::Dataset& dataset_;
   PoseRefinementConfig config_;
   int64_t start_iteration_;
-  std::vector<int64_t> frames_;       // training frames, by sequence and time; row r corrects frames_[r]
-  std::vector<int64_t> row_;          // dataset frame -> row, -1 for frames that are not trained on
-  std::vector<int64_t> previous_, next_;  // row -> neighbouring row in its sequence, -1 at an end
-  at::Tensor base_;                   // (F, kCorrectionWidth) the input fits' corrected fields, on the device
-  at::Tensor corrections_;            // (F, kCorrectionWidth) leaf with a gradient
-  at::Tensor exp_avg_, exp_avg_sq_;   // Adam moments, (F, kCorrectionWidth)
-  at::Tensor rates_;                  // (kCorrectionWidth) learning rate per column (rotations, translation)
-  std::vector<int64_t> steps_;        // Adam steps taken per row
+  std::vector<int64_t> align_iterations_;  // the iterations of config.align_at
+  std::vector<int64_t> frames_;            // training frames, by sequence and time; row r corrects frames_[r]
+  std::vector<int64_t> row_;               // dataset frame -> row, -1 for frames that are not trained on
+  std::vector<int64_t> previous_, next_;   // row -> neighbouring row in its sequence, -1 at an end
+  at::Tensor base_;                        // (F, kCorrectionWidth) the input fits' corrected fields, on the device
+  at::Tensor corrections_;                 // (F, kCorrectionWidth) leaf with a gradient
+  at::Tensor exp_avg_, exp_avg_sq_;        // Adam moments, (F, kCorrectionWidth)
+  at::Tensor rates_;                       // (kCorrectionWidth) learning rate per column (rotations, translation)
+  std::vector<int64_t> steps_;             // Adam steps taken per row
 };
 
 // A copy of `frames`' poses replaced by the fits of a refined-fits JSON (PoseRefinement::write_fits) for the frames
 // it names; frames it does not name keep theirs. Errors name the file, the frame and the field.
 void apply_refined_fits(data::Dataset& dataset, const std::string& path);
-
-struct PoseFitOptions {
-  int64_t iterations = 100;
-  double learning_rate = 3e-3;              // rotations (radians)
-  double translation_learning_rate = 1e-3;  // metres
-  LossWeights loss;                         // the image loss the fit minimises (regularisers are not used)
-};
-
-// `dataset` with the poses of `split` fitted to their images (person mask, white background) with the avatar
-// frozen: the same schedule for every frame, from its given fit. `progress` prints one line per frame.
-data::Dataset fit_poses(const data::Dataset& dataset, data::Split split, model::Avatar& avatar,
-                        const PoseFitOptions& options, bool progress);
 
 }  // namespace sfgs::train

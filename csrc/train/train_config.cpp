@@ -79,6 +79,7 @@ std::vector<std::pair<std::string, Section>> sections(TrainConfig& c) {
                   {"colour_offset_on_new_motions", field(a.colour_offset_on_new_motions)}, {"time_dropout", field(a.time_dropout)}}},
       {"loss", {{"image", field(l.image)}, {"lab", field(l.lab)}, {"gradient", field(l.gradient)},
                 {"use_lpips", field(l.use_lpips)}, {"lpips_weights", field(l.lpips_weights)},
+                {"lpips_every", field(l.lpips_every)},
                 {"mean_offset", field(l.mean_offset)}, {"mean_offset_parts", parts_field(l.mean_offset_parts)},
                 {"scale", field(l.scale)}, {"scale_parts", parts_field(l.scale_parts)},
                 {"laplacian_mean", field(l.laplacian_mean)}, {"laplacian_mean_parts", parts_field(l.laplacian_mean_parts)},
@@ -86,11 +87,13 @@ std::vector<std::pair<std::string, Section>> sections(TrainConfig& c) {
       {"schedule", {{"iterations", field(s.iterations)}, {"warmup_iterations", field(s.warmup_iterations)},
                     {"decay_at", field(s.decay_at)}, {"decay_factor", field(s.decay_factor)},
                     {"learning_rate", field(s.learning_rate)}, {"colour_learning_rate", field(s.colour_learning_rate)},
-                    {"adam_epsilon", field(s.adam_epsilon)}, {"fused_adam", field(s.fused_adam)}}},
+                    {"adam_epsilon", field(s.adam_epsilon)}, {"fused_adam", field(s.fused_adam)},
+                    {"tf32_matmul", field(s.tf32_matmul)}}},
       {"pose_refinement", {{"enabled", field(p.enabled)}, {"learning_rate", field(p.learning_rate)},
                            {"translation_learning_rate", field(p.translation_learning_rate)},
                            {"start", field(p.start)}, {"prior", field(p.prior)},
-                           {"smoothness", field(p.smoothness)}}},
+                           {"smoothness", field(p.smoothness)}, {"align_at", field(p.align_at)},
+                           {"align_iterations", field(p.align_iterations)}}},
   };
 }
 
@@ -217,6 +220,7 @@ void TrainConfig::validate() const {
                                    {loss.laplacian_mean, "loss.laplacian_mean"},
                                    {loss.laplacian_scale, "loss.laplacian_scale"}})
     check_range(value, 0, kMaxLossWeight, key);
+  check_count(loss.lpips_every, 1, kMaxIterations, "loss.lpips_every");
   check_parts(loss.mean_offset_parts, "loss.mean_offset_parts");
   check_parts(loss.scale_parts, "loss.scale_parts");
   check_parts(loss.laplacian_mean_parts, "loss.laplacian_mean_parts");
@@ -241,6 +245,13 @@ void TrainConfig::validate() const {
   check_range(pose_refinement.start, 0, 1, "pose_refinement.start");
   check_range(pose_refinement.prior, 0, kMaxLossWeight, "pose_refinement.prior");
   check_range(pose_refinement.smoothness, 0, kMaxLossWeight, "pose_refinement.smoothness");
+  const std::vector<double>& align_at = pose_refinement.align_at;
+  for (size_t i = 0; i < align_at.size(); ++i)
+    TORCH_CHECK(std::isfinite(align_at[i]) && align_at[i] >= pose_refinement.start && align_at[i] < 1 &&
+                    (i == 0 || align_at[i] > align_at[i - 1]),
+                "config: pose_refinement.align_at must rise strictly from pose_refinement.start (",
+                pose_refinement.start, ") to below 1, got ", align_at[i], " at position ", i);
+  check_count(pose_refinement.align_iterations, 1, kMaxIterations, "pose_refinement.align_iterations");
 }
 
 std::vector<ConfigChange> config_changes(const TrainConfig& before, const TrainConfig& after) {

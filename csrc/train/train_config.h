@@ -19,6 +19,9 @@ struct LossWeights {
   double gradient = 0.01;   // lambda_g on L1 of image gradients
   bool use_lpips = true;    // AlexNet LPIPS (the shared weights); skipped, with a log line, when unavailable
   std::string lpips_weights;  // folder holding lpips_alex.safetensors; empty: the default search
+  // LPIPS in every k-th training step only (its AlexNet forward and backward are the costliest loss); the steps
+  // between carry L1, SSIM and the rest. docs/performance.md measures what it costs the metrics.
+  int64_t lpips_every = 1;
   // Regularisers.
   double mean_offset = 1.0;
   PartWeights mean_offset_parts{10, 1, 1000};
@@ -39,6 +42,9 @@ struct Schedule {
   double adam_epsilon = 1e-15;
   // CUDA: Adam as one fused multi-tensor kernel per parameter group (train/adam_step.h); the same update.
   bool fused_adam = true;
+  // CUDA: float32 matrix products (the networks' layers) on TF32 tensor cores: float32's range, a 10-bit mantissa,
+  // several times the throughput; the losses and the splatting stay float32 (docs/performance.md measures both).
+  bool tf32_matmul = true;
 };
 
 // Pose refinement (train/pose_refinement.h, docs/training.md "Imperfect fits"): per training frame, a learned
@@ -50,6 +56,11 @@ struct PoseRefinementConfig {
   double start = 0.05;        // share of the run before the corrections move (the avatar is a blur before)
   double prior = 0.01;        // weight of the squared correction (radians, metres) of the drawn frame
   double smoothness = 0.05;   // weight of the squared acceleration of the refined fits around the drawn frame
+  // Shares of the run at which every training frame's refined fit is aligned to its image with the avatar as it is
+  // then (train/pose_fit.h, align_iterations each): centimetres the per-step corrections cannot cover. From
+  // `start` on, rising.
+  std::vector<double> align_at{0.1, 0.3};
+  int64_t align_iterations = 60;
 };
 
 // Which body model drives the avatar: empty smplx means the built-in procedural body (with its MANO-layout hands).

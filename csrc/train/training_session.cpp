@@ -70,10 +70,17 @@ torch::optim::AdamOptions& adam_options(torch::optim::Adam& optimizer, size_t gr
 
 }  // namespace
 
+Tf32MatmulScope::Tf32MatmulScope(bool allow) : previous_(at::globalContext().allowTF32CuBLAS()) {
+  at::globalContext().setAllowTF32CuBLAS(allow);
+}
+
+Tf32MatmulScope::~Tf32MatmulScope() { at::globalContext().setAllowTF32CuBLAS(previous_); }
+
 TrainingSession::TrainingSession(const data::Dataset& dataset, const TrainConfig& config, const RunFolder& run,
                                  const TrainOptions& options)
     : dataset_(dataset), config_(config), run_(run), options_(options),
-      device_(config.device == "cuda" ? at::kCUDA : at::kCPU), replay_clock_(dataset), rng_(config.seed) {
+      device_(config.device == "cuda" ? at::kCUDA : at::kCPU),
+      tf32_(config.schedule.tf32_matmul), replay_clock_(dataset), rng_(config.seed) {
   torch::manual_seed(config.seed);
   avatar_ = make_avatar(config, dataset.betas, device_);
   optimizer_ = make_optimizer(avatar_, config.schedule);
@@ -140,6 +147,10 @@ void TrainingSession::step(int64_t it) {
   std::optional<double> time = replay_clock_.time_of(record);
   if (std::uniform_real_distribution<double>(0.0, 1.0)(rng_) < config_.avatar.time_dropout) time.reset();
   LossTerms terms;
+  if (refinement_) {
+    const nlohmann::json aligned = refinement_->align(it, avatar_, config_.loss);
+    if (!aligned.empty()) log_->write(aligned);
+  }
   // With pose refinement the pose is on the device (the input fit was checked when the dataset was read; a
   // non-finite correction shows as a non-finite loss).
   const model::AvatarOutput out = refinement_ ? avatar_->forward_trusted_pose(refinement_->pose(f, it, terms), time)
@@ -157,7 +168,10 @@ void TrainingSession::step(int64_t it) {
   }
   {
     const StageScope stage("train: image loss");
-    image_loss_->add_terms(r.image, target, terms);
+    // LPIPS in every lpips_every-th step; the steps between report its last value (a resumed run measures first).
+    image_loss_->add_terms(r.image, target, terms, it % config_.loss.lpips_every == 0 || !last_lpips_.defined());
+    if (terms.count("lpips")) last_lpips_ = terms["lpips"];
+    else if (last_lpips_.defined()) terms["lpips"] = last_lpips_;
   }
   at::Tensor loss;
   {
@@ -263,6 +277,10 @@ void TrainingSession::validate(int64_t done) {
   nlohmann::json entry{{"event", "validation"}, {"iteration", done}, {"training_seconds", training_seconds_}};
   if (!std::isnan(val)) entry["val_psnr"] = val;
   if (!std::isnan(test)) entry["test_psnr"] = test;
+  if (refinement_) {
+    const nlohmann::json error = refinement_->error_against_truth();
+    if (!error.empty()) entry["pose_error"] = error;
+  }
   log_->write(entry);
 }
 

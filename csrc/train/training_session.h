@@ -17,6 +17,18 @@ namespace sfgs::train {
 
 class FrameCache;
 
+// LibTorch's choice of TF32 for CUDA float32 matrix products, set for a scope and restored after it.
+class Tf32MatmulScope {
+ public:
+  explicit Tf32MatmulScope(bool allow);
+  ~Tf32MatmulScope();
+  Tf32MatmulScope(const Tf32MatmulScope&) = delete;
+  Tf32MatmulScope& operator=(const Tf32MatmulScope&) = delete;
+
+ private:
+  bool previous_;
+};
+
 // Adam with the colour networks in their own parameter group (their own learning rate): the optimiser a run's
 // checkpoint holds the state of.
 std::unique_ptr<torch::optim::Adam> make_optimizer(const model::Avatar& avatar, const Schedule& schedule);
@@ -46,6 +58,8 @@ class TrainingSession {
   const RunFolder& run_;
   const TrainOptions& options_;
   at::Device device_;
+  Tf32MatmulScope tf32_;
+  at::Tensor last_lpips_;  // the last step's LPIPS that measured it (loss.lpips_every), detached
   data::ReplayClock replay_clock_;  // each training frame's time, asked every step
   model::Avatar avatar_{nullptr};
   std::unique_ptr<torch::optim::Adam> optimizer_;

@@ -304,35 +304,6 @@ TEST(Avatar, ExpressionIsPaddedOrTruncated) {
   EXPECT_GT(max_abs_difference(avatar->forward(pose, kTestTime).means, short_expression.means), 1e-4);
 }
 
-// The MLPs' GroupNorm (written out for speed, a formulation per device) is torch.nn.GroupNorm, gradients included.
-TEST(Avatar, MlpGroupNormIsGroupNorm) {
-  at::Generator generator = at::detail::createCPUGenerator(12);
-  const auto f64 = at::TensorOptions().dtype(at::kDouble);  // float32 would blur where a group's variance is small
-  const at::Tensor x = at::randn({64, 16}, generator, f64).requires_grad_(true);
-  const at::Tensor weights = at::randn({64, 16}, generator, f64);
-  const at::Tensor expected = at::group_norm(x, kMlpGroupNormGroups, {}, {}, kMlpGroupNormEpsilon);
-  const at::Tensor expected_grad = torch::autograd::grad({(expected * weights).sum()}, {x})[0];
-  for (const auto kernel : {model::GroupNormKernel::kMoments, model::GroupNormKernel::kLayerNorm}) {
-    const at::Tensor got = model::normalise_groups(x, kernel);
-    EXPECT_LT(max_abs_difference(got, expected), 1e-12);
-    EXPECT_LT(max_abs_difference(torch::autograd::grad({(got * weights).sum()}, {x})[0], expected_grad), 1e-10);
-  }
-  // The MLP applies it with its affine map before each ReLU.
-  model::Mlp mlp(model::MlpShape{{5, 3}, {16}, 2, /*group_norm=*/true});
-  mlp->to(at::kDouble);
-  {
-    at::NoGradGuard no_grad;
-    for (auto& p : mlp->parameters()) p.normal_(0.0, 0.5, generator);
-  }
-  const auto p = mlp->named_parameters();
-  const at::Tensor a = at::randn({64, 5}, generator, f64), b = at::randn({64, 3}, generator, f64);
-  const at::Tensor first = at::linear(at::cat({a, b}, 1), at::cat({p["input0_weight"], p["input1_weight"]}, 1),
-                                      p["input_bias"]);
-  const at::Tensor hidden =
-      at::relu(at::group_norm(first, kMlpGroupNormGroups, p["norm0_weight"], p["norm0_bias"], kMlpGroupNormEpsilon));
-  EXPECT_LT(max_abs_difference(mlp->forward({a, b}), at::linear(hidden, p["output_weight"], p["output_bias"])), 1e-12);
-}
-
 TEST(Avatar, RejectsBadInputsWithClearMessages) {
   Avatar avatar(procedural_avatar_body(), subject_betas(), small_config());
   body::SmplxPose pose = test_pose(10, 0.3, true);

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include "test_files.h"
+#include "pixel_loss/pixel_loss.h"
 #include "train/losses.h"
 #include "train/train_config.h"
 #include "train/trainer.h"
@@ -18,6 +19,8 @@ TEST(TrainConfig, YamlRoundTripAndOverrides) {
   EXPECT_EQ(c.avatar.plane_resolution, 64);
   EXPECT_EQ(c.schedule.iterations, 200);
   EXPECT_EQ(c.loss.mean_offset_parts.hands, 4);
+  EXPECT_EQ(c.loss.lpips_every, 1) << "LPIPS in every step unless configured";
+  EXPECT_TRUE(c.schedule.tf32_matmul);
   EXPECT_EQ(c.loss.image, 0.8) << "defaults are the paper's best setting";
   const TrainConfig back = TrainConfig::from_yaml_text(c.to_yaml());
   EXPECT_EQ(back.to_yaml(), c.to_yaml());
@@ -53,6 +56,7 @@ TEST(TrainConfig, NonFiniteAndOutOfRangeValuesAreRefused) {
   refused("loss: {scale_parts: {hands: .inf}}\n", "loss.scale_parts.hands must be a finite number");
   refused("avatar: {plane_resolution: 1000000}\n", "avatar.plane_resolution must be an integer in [2, 4096]");
   refused("run: {validation_frames: 0}\n", "run.validation_frames must be an integer in [1, 100000000], got 0");
+  refused("loss: {lpips_every: 0}\n", "loss.lpips_every must be an integer in [1, 100000000], got 0");
   // The defaults and the shipped configs are inside every range.
   EXPECT_NO_THROW(TrainConfig{}.validate());
 }
@@ -91,7 +95,7 @@ TEST(TrainSchedule, WarmUpThenStepDecay) {
 }
 
 TEST(TrainLosses, LabOfKnownColours) {
-  const at::Tensor lab = rgb_to_lab(at::tensor({1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0}, at::kDouble).view({3, 3}));
+  const at::Tensor lab = pixel_loss::rgb_to_lab(at::tensor({1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0}, at::kDouble).view({3, 3}));
   EXPECT_NEAR(lab[0][0].item<double>(), 1.0, 1e-4);   // white: L = 100
   EXPECT_NEAR(lab[0][1].item<double>(), 0.0, 1e-4);
   EXPECT_NEAR(lab[1][0].item<double>(), 0.0, 1e-9);   // black: L = 0
@@ -99,8 +103,31 @@ TEST(TrainLosses, LabOfKnownColours) {
   EXPECT_NEAR(lab[2][1].item<double>(), 80.09 / 110, 2e-3);
   EXPECT_NEAR(lab[2][2].item<double>(), 67.20 / 110, 2e-3);
   at::Tensor x = at::full({2, 3}, 0.0, at::kDouble).requires_grad_(true);
-  rgb_to_lab(x).sum().backward();
+  pixel_loss::rgb_to_lab(x).sum().backward();
   EXPECT_TRUE(x.grad().isfinite().all().item<bool>()) << "finite gradient at black";
+}
+
+}  // namespace
+}  // namespace sfgs::train
+
+namespace sfgs::train {
+namespace {
+
+// loss.lpips_every: a step without LPIPS leaves it out of the image term (and reports no "lpips"), the rest equal.
+TEST(TrainImageLoss, StepsWithoutLpipsLeaveItOut) {
+  const ImageLoss loss(LossWeights{}, at::kCPU);
+  if (loss.lpips_status().find("skipped") != std::string::npos) GTEST_SKIP() << loss.lpips_status();
+  at::Generator g = at::detail::createCPUGenerator(4);
+  const at::Tensor prediction = at::rand({64, 64, 3}, g), target = at::rand({64, 64, 3}, g);
+  LossTerms with, without;
+  loss.add_terms(prediction, target, with, true);
+  loss.add_terms(prediction, target, without, false);
+  ASSERT_TRUE(with.count("lpips"));
+  EXPECT_FALSE(without.count("lpips"));
+  EXPECT_NEAR((with["image"] - without["image"]).item<double>(), LossWeights{}.image * with["lpips"].item<double>(),
+              1e-6);
+  for (const char* same : {"l1", "ssim", "lab", "gradient"})
+    EXPECT_EQ(with[same].item<double>(), without[same].item<double>()) << same;
 }
 
 }  // namespace

@@ -1,0 +1,80 @@
+#pragma once
+// Fitting a frame's pose to its image with the avatar frozen (docs/training.md, "Imperfect fits"): the NeuMan
+// protocol's test-time pose fitting (fit_poses) and the alignment of the training frames' fits in pose refinement
+// (PoseRefinement::align). Only the pose correction (train/pose_refinement.h) moves.
+//
+// Three stages, each from a fresh Adam whose rate decays to zero over the stage (a cosine), so the fit settles
+// instead of jittering every parameter by the rate; the rates follow from how far each stage may reach
+// (kPoseFit*Reach, common/constants.h), whatever the number of iterations:
+//  1. coarse: the global orientation and the translation alone, against the image and the person mask at
+//     1/kPoseFitCoarseDownsample of the resolution (a wide basin: centimetres of depth and lateral error);
+//  2. middle: every corrected field at 1/kPoseFitMiddleDownsample, the same loss;
+//  3. fine: every corrected field at full resolution, against the run's image loss inside the person (the
+//     evaluation protocol's view) plus a lighter silhouette term.
+// Each stage keeps its best iterate, and the fit returns its start when nothing beat it on the fine loss: a fit is
+// never worse than its start on the loss it minimises.
+#include <cstdint>
+#include <optional>
+#include <string>
+
+#include <ATen/core/Tensor.h>
+
+#include "data/dataset.h"
+#include "model/avatar.h"
+#include "splat/splat.h"
+#include "train/losses.h"
+#include "train/pose_refinement.h"
+#include "train/train_config.h"
+
+namespace sfgs::train {
+
+struct PoseFitOptions {
+  int64_t iterations = 100;  // per frame, over the three stages
+  LossWeights loss;          // the image loss of the fine stage (regularisers are not used)
+  // Only the global orientation and translation move in every stage (the alignment of training fits: an avatar
+  // still learning is sharp enough to place the body, not to pose its joints).
+  bool global_only = false;
+};
+
+// What a frame's pose is fitted to: its image on white outside the person, the person mask, its render camera and
+// its time on the avatar's time axis, on the avatar's device.
+struct PoseFitTarget {
+  at::Tensor image;  // (H, W, 3)
+  at::Tensor mask;   // (H, W)
+  Camera camera;
+  std::optional<double> time;
+};
+PoseFitTarget pose_fit_target(const data::Dataset& dataset, int64_t frame, at::Device device);
+
+struct PoseFitResult {
+  at::Tensor correction;            // (kCorrectionWidth), detached
+  double start_loss = 0, loss = 0;  // the fine loss at the start and at the result (never above start_loss)
+};
+
+// Fits the correction of `pose` (from `start`, a (kCorrectionWidth) correction on the avatar's device) to `target`.
+// `loss` must be built from options.loss on the avatar's device (LPIPS loads once for many frames).
+class PoseFitter {
+ public:
+  PoseFitter(const PoseFitOptions& options, at::Device device);
+  PoseFitResult fit(model::Avatar& avatar, const body::SmplxPose& pose, const PoseFitTarget& target,
+                    const at::Tensor& start) const;
+
+ private:
+  PoseFitOptions options_;
+  ImageLoss loss_;
+};
+
+// How far a fit lies from the truth: the mean geodesic angle (degrees) of the global orientation, of the 21 body
+// joints and of the 30 finger joints (when both fits have hands), and the translation's distance (centimetres).
+struct PoseError {
+  double root = 0, body = 0, hands = 0, translation = 0;
+};
+PoseError pose_error(const body::SmplxPose& fit, const body::SmplxPose& truth);
+std::string to_string(const PoseError& e);
+
+// `dataset` with the poses of `split` fitted to their images with the avatar frozen: the same schedule for every
+// frame, from its given fit. `progress` prints one line per frame.
+data::Dataset fit_poses(const data::Dataset& dataset, data::Split split, model::Avatar& avatar,
+                        const PoseFitOptions& options, bool progress);
+
+}  // namespace sfgs::train
