@@ -75,6 +75,14 @@ Dataset read_neuman(const std::string& folder) {
     const fs::path p = params / (std::string(extra) + ".json");
     if (fs::exists(p)) d.extras[extra] = json_numbers(read_json_file(p.string()), {-1}, p.string());
   }
+  // Exact fits beside corrupted ones (`sfgs synth --layout neuman --pose-noise`): ground_truth/ holds the files of
+  // smplx_optimized/, read as the frames' true poses and the true shape (what refinement is measured against).
+  const fs::path truth = root / "ground_truth";
+  const bool has_truth = fs::is_directory(truth);
+  if (has_truth) {
+    const std::string truth_shape = (truth / "shape_param.json").string();
+    d.true_betas = json_numbers(read_json_file(truth_shape), {-1}, truth_shape);
+  }
   const std::set<std::string> train = split_names((root / "train_split.txt").string());
   const std::set<std::string> test = split_names((root / "test_split.txt").string());
   TORCH_CHECK(!train.empty() || !test.empty(), "NeuMan folder '", folder,
@@ -113,6 +121,8 @@ Dataset read_neuman(const std::string& folder) {
     }
     r.pose = read_exavatar_pose((params / "smplx_params" / (std::to_string(number) + ".json")).string());
     r.pose_in_camera_frame = true;  // ExAvatar fits each frame in its camera's coordinates
+    if (has_truth)
+      r.true_pose = read_exavatar_pose((truth / "smplx_params" / (std::to_string(number) + ".json")).string());
     const int64_t index = d.size();
     if (train.count(image.name)) d.splits[Split::kTrain].push_back(index);
     if (test.count(image.name)) d.splits[Split::kTest].push_back(index);

@@ -95,6 +95,28 @@ TEST(SyntheticVideo, NoisyFitsKeepTheExactOnesBesideThemAndTheImagesExact) {
   }
 }
 
+// Noisy fits in the NeuMan layout: the reader takes ground_truth/ as the frames' true poses and the true shape.
+TEST(SyntheticVideo, NeumanLayoutKeepsTheExactFitsBesideNoisyOnes) {
+  testing::TempFolder exact_dir, noisy_dir;
+  SyntheticVideoOptions o;
+  o.frames = 3;
+  o.width = 48;
+  o.height = 64;
+  o.layout = DatasetLayout::kNeuman;
+  const Dataset exact = write_synthetic_video(exact_dir.str(), o);
+  o.pose_noise = pose_noise_level("medium");
+  const Dataset noisy = write_synthetic_video(noisy_dir.str(), o);
+  ASSERT_TRUE(noisy.true_betas.defined());
+  EXPECT_TRUE(noisy.true_betas.allclose(exact.betas));
+  EXPECT_FALSE(noisy.betas.allclose(exact.betas)) << "the shape is corrupted too";
+  for (size_t i = 0; i < noisy.frames.size(); ++i) {
+    ASSERT_TRUE(noisy.frames[i].true_pose.has_value()) << i;
+    EXPECT_TRUE(noisy.frames[i].true_pose->body_pose.allclose(exact.frames[i].pose.body_pose)) << i;
+    EXPECT_TRUE(noisy.frames[i].true_pose->transl.allclose(exact.frames[i].pose.transl)) << i;
+    EXPECT_FALSE(noisy.frames[i].pose.body_pose.allclose(exact.frames[i].pose.body_pose)) << i;
+  }
+}
+
 TEST(SyntheticVideo, NeumanLayoutPlacesTheSameBodiesInEachCamera) {
   testing::TempFolder sfgs_dir, neuman_dir;
   SyntheticVideoOptions o;
