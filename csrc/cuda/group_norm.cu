@@ -43,11 +43,9 @@ __device__ __forceinline__ void load_row(const T* rows, int64_t row, int channel
   for (int k = 0; k < K; ++k) values[k] = r[lane + 32 * k];
 }
 
-template <typename T, int K>
-__global__ void __launch_bounds__(kThreads, kBlocksPerSm) forward_kernel(const GroupNormArrays<T> a) {
-  const int lane = threadIdx.x & 31, slabs = K / a.groups;
-  const T size = T(a.channels / a.groups);
-  T gamma[K], beta[K], bias[K];
+// A lane's channels of the layer's gamma, beta and bias (0 without a bias), for both kernels' arrays.
+template <typename Arrays, typename T, int K>
+__device__ __forceinline__ void load_affine(const Arrays& a, int lane, T (&gamma)[K], T (&beta)[K], T (&bias)[K]) {
 #pragma unroll
   for (int k = 0; k < K; ++k) {
     const int c = lane + 32 * k;
@@ -55,6 +53,14 @@ __global__ void __launch_bounds__(kThreads, kBlocksPerSm) forward_kernel(const G
     beta[k] = a.beta[c];
     bias[k] = a.bias ? a.bias[c] : T(0);
   }
+}
+
+template <typename T, int K>
+__global__ void __launch_bounds__(kThreads, kBlocksPerSm) forward_kernel(const GroupNormArrays<T> a) {
+  const int lane = threadIdx.x & 31, slabs = K / a.groups;
+  const T size = T(a.channels / a.groups);
+  T gamma[K], beta[K], bias[K];
+  load_affine(a, lane, gamma, beta, bias);
   const int64_t stride = (int64_t(gridDim.x) * blockDim.x) >> 5;
   int64_t row = (int64_t(blockIdx.x) * blockDim.x + threadIdx.x) >> 5;
   // The next row is loaded while this one is reduced: a warp has two rows' loads in flight.
@@ -96,15 +102,8 @@ __global__ void __launch_bounds__(kThreads, kBlocksPerSm) backward_kernel(const 
 
   const int lane = threadIdx.x & 31, slabs = K / a.groups;
   const T size = T(a.channels / a.groups);
-  T gamma[K], beta[K], bias[K], grad_gamma[K], grad_beta[K], grad_bias[K];
-#pragma unroll
-  for (int k = 0; k < K; ++k) {
-    const int c = lane + 32 * k;
-    gamma[k] = a.gamma[c];
-    beta[k] = a.beta[c];
-    bias[k] = a.bias ? a.bias[c] : T(0);
-    grad_gamma[k] = grad_beta[k] = grad_bias[k] = T(0);
-  }
+  T gamma[K], beta[K], bias[K], grad_gamma[K] = {}, grad_beta[K] = {}, grad_bias[K] = {};
+  load_affine(a, lane, gamma, beta, bias);
   const int64_t stride = (int64_t(gridDim.x) * blockDim.x) >> 5;
   int64_t row = (int64_t(blockIdx.x) * blockDim.x + threadIdx.x) >> 5;
   T next_pre[K], next_grad[K];  // the next row's, loaded while this one is reduced

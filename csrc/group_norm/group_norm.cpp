@@ -131,25 +131,35 @@ class LinearGroupNormReluFunction : public torch::autograd::Function<LinearGroup
   }
 };
 
-void check_vector(const at::Tensor& t, const char* name, const at::Tensor& pre) {
-  TORCH_CHECK(t.defined() && t.dim() == 1 && t.size(0) == pre.size(1) && t.scalar_type() == pre.scalar_type() &&
-                  t.device() == pre.device(),
-              "group_norm_relu: ", name, " must be a ", pre.scalar_type(), " (", pre.size(1), ") tensor on ",
-              pre.device(), ", got ", describe(t));
+// A layer of `channels` channels on `like`'s dtype and device: its bias (optional), gamma, beta and GroupNorm.
+void check_layer(const at::Tensor& like, int64_t channels, const at::Tensor& bias, const at::Tensor& gamma,
+                 const at::Tensor& beta, int64_t groups, double epsilon) {
+  TORCH_CHECK(groups > 0 && channels > 0 && channels % groups == 0, "group_norm_relu: the ", channels,
+              " channels must split into the ", groups, " groups");
+  TORCH_CHECK(epsilon > 0, "group_norm_relu: epsilon must be positive, got ", epsilon);
+  TORCH_CHECK(like.is_cpu() || like.is_cuda(), "group_norm_relu: tensors must be on the CPU or a CUDA device, got ",
+              describe(like));
+  const auto check_vector = [&](const at::Tensor& t, const char* name) {
+    TORCH_CHECK(t.defined() && t.dim() == 1 && t.size(0) == channels && t.scalar_type() == like.scalar_type() &&
+                    t.device() == like.device(),
+                "group_norm_relu: ", name, " must be a ", like.scalar_type(), " (", channels, ") tensor on ",
+                like.device(), ", got ", describe(t));
+  };
+  if (bias.defined()) check_vector(bias, "bias");
+  check_vector(gamma, "gamma");
+  check_vector(beta, "beta");
 }
 
 void check_inputs(const at::Tensor& pre, const at::Tensor& bias, const at::Tensor& gamma, const at::Tensor& beta,
                   int64_t groups, double epsilon) {
   TORCH_CHECK(pre.defined() && pre.dim() == 2 && (pre.scalar_type() == at::kFloat || pre.scalar_type() == at::kDouble),
               "group_norm_relu: pre must be a float32 or float64 (N, C) tensor, got ", describe(pre));
-  TORCH_CHECK(groups > 0 && pre.size(1) > 0 && pre.size(1) % groups == 0, "group_norm_relu: the ", pre.size(1),
-              " channels must split into the ", groups, " groups");
-  TORCH_CHECK(epsilon > 0, "group_norm_relu: epsilon must be positive, got ", epsilon);
-  TORCH_CHECK(pre.is_cpu() || pre.is_cuda(), "group_norm_relu: tensors must be on the CPU or a CUDA device, got ",
-              describe(pre));
-  if (bias.defined()) check_vector(bias, "bias", pre);
-  check_vector(gamma, "gamma", pre);
-  check_vector(beta, "beta", pre);
+  check_layer(pre, pre.size(1), bias, gamma, beta, groups, epsilon);
+}
+
+bool fuses_layer(at::Device device, int64_t channels, int64_t groups) {
+  if (device.is_cpu()) return true;
+  return device.is_cuda() && cuda::available() && cuda::supports(channels, groups);
 }
 
 }  // namespace
@@ -165,10 +175,7 @@ at::Tensor group_norm_relu_reference(const at::Tensor& pre, const at::Tensor& bi
   return at::relu(at::addcmul(beta, normalised, gamma));
 }
 
-bool fuses(const at::Tensor& pre, int64_t groups) {
-  if (pre.is_cpu()) return true;
-  return pre.is_cuda() && cuda::available() && cuda::supports(pre.size(1), groups);
-}
+bool fuses(const at::Tensor& pre, int64_t groups) { return fuses_layer(pre.device(), pre.size(1), groups); }
 
 at::Tensor group_norm_relu(const at::Tensor& pre, const at::Tensor& bias, const at::Tensor& gamma,
                            const at::Tensor& beta, int64_t groups, double epsilon) {
@@ -187,9 +194,8 @@ at::Tensor linear_group_norm_relu(const at::Tensor& x, const at::Tensor& weight,
                   weight.scalar_type() == x.scalar_type() && weight.device() == x.device(),
               "linear_group_norm_relu: weight must be a ", x.scalar_type(), " (C, ", x.size(1), ") tensor on ",
               x.device(), ", got ", describe(weight));
-  const at::Tensor shape_of_pre = at::empty({0, weight.size(0)}, x.options());
-  check_inputs(shape_of_pre, bias, gamma, beta, groups, epsilon);
-  if (!fuses(shape_of_pre, groups))
+  check_layer(x, weight.size(0), bias, gamma, beta, groups, epsilon);
+  if (!fuses_layer(x.device(), weight.size(0), groups))
     return group_norm_relu_reference(at::mm(x, weight.t()), bias, gamma, beta, groups, epsilon);
   const at::Tensor bias_or_empty = bias.defined() ? bias.contiguous() : at::empty({0}, x.options());
   return LinearGroupNormReluFunction::apply(x.contiguous(), weight.contiguous(), bias_or_empty, gamma.contiguous(),
