@@ -50,6 +50,22 @@ body::Smplx camera_frame_layer(const body::SmplxModelData& model) {
   return body::Smplx(model, o);
 }
 
+// The whole-body keypoints (pixels, float64) of camera-frame fits seen by the test camera.
+at::Tensor keypoint_pixels(const body::SmplxModelData& model, const body::WholeBodyKeypointMap& map,
+                           const body::SmplxPose& poses, const at::Tensor& betas) {
+  const int64_t frames = poses.transl.size(0);
+  body::SmplxInput in;
+  in.pose = poses.to(at::TensorOptions().dtype(at::kDouble));
+  in.betas = betas.to(at::kDouble).unsqueeze(0).expand({frames, -1});
+  const body::SmplxOutput out = camera_frame_layer(model)->forward(in);
+  const at::Tensor neck = out.joint_transforms.select(1, body::smplx_joint::kNeck).narrow(1, 0, 3).narrow(2, 0, 3);
+  const at::Tensor points =
+      map.evaluate_on_mesh(out.vertices, out.joints, body::contour_bins(neck, map.contour_bin_count()));
+  const at::Tensor intrinsics =
+      at::tensor({kFocal, kFocal, kWidth / 2.0, kHeight / 2.0}, at::kDouble).expand({frames, 4});
+  return project(points, intrinsics);
+}
+
 KnownVideo known_video(const body::SmplxModelData& model, const body::WholeBodyKeypointMap& map, int64_t frames) {
   KnownVideo v;
   std::vector<body::SmplxPose> poses;
@@ -65,16 +81,7 @@ KnownVideo known_video(const body::SmplxModelData& model, const body::WholeBodyK
   }
   v.poses = body::SmplxPose::stack(poses);
   v.betas = at::linspace(-0.5, 0.5, kFitBetas, at::kFloat);
-  body::SmplxInput in;
-  in.pose = v.poses.to(at::TensorOptions().dtype(at::kDouble));
-  in.betas = v.betas.to(at::kDouble).unsqueeze(0).expand({frames, -1});
-  const body::SmplxOutput out = camera_frame_layer(model)->forward(in);
-  const at::Tensor neck = out.joint_transforms.select(1, body::smplx_joint::kNeck).narrow(1, 0, 3).narrow(2, 0, 3);
-  const at::Tensor points =
-      map.evaluate_on_mesh(out.vertices, out.joints, body::contour_bins(neck, map.contour_bin_count()));
-  const at::Tensor intrinsics =
-      at::tensor({kFocal, kFocal, kWidth / 2.0, kHeight / 2.0}, at::kDouble).expand({frames, 4});
-  const at::Tensor pixels = project(points, intrinsics);
+  const at::Tensor pixels = keypoint_pixels(model, map, v.poses, v.betas);
   v.input.keypoints =
       at::cat({pixels, at::ones({frames, body::kWholeBodyKeypointCount, 1}, at::kDouble)}, 2).to(at::kFloat);
   for (int64_t i = 0; i < frames; ++i) {
@@ -124,17 +131,7 @@ std::map<int64_t, body::SmplxPose> by_frame(const body::SmplxPose& poses) {
 // Mean distance (pixels) between the keypoints of camera-frame fits and the video's exact keypoints.
 double reprojection_pixels(const body::SmplxModelData& model, const body::WholeBodyKeypointMap& map,
                            const KnownVideo& v, const body::SmplxPose& poses, const at::Tensor& betas) {
-  const int64_t frames = poses.transl.size(0);
-  body::SmplxInput in;
-  in.pose = poses.to(at::TensorOptions().dtype(at::kDouble));
-  in.betas = betas.to(at::kDouble).unsqueeze(0).expand({frames, -1});
-  const body::SmplxOutput out = camera_frame_layer(model)->forward(in);
-  const at::Tensor neck = out.joint_transforms.select(1, body::smplx_joint::kNeck).narrow(1, 0, 3).narrow(2, 0, 3);
-  const at::Tensor points =
-      map.evaluate_on_mesh(out.vertices, out.joints, body::contour_bins(neck, map.contour_bin_count()));
-  const at::Tensor intrinsics =
-      at::tensor({kFocal, kFocal, kWidth / 2.0, kHeight / 2.0}, at::kDouble).expand({frames, 4});
-  return (project(points, intrinsics) - v.input.keypoints.narrow(2, 0, 2).to(at::kDouble))
+  return (keypoint_pixels(model, map, poses, betas) - v.input.keypoints.narrow(2, 0, 2).to(at::kDouble))
       .norm(2, -1)
       .mean()
       .item<double>();
