@@ -1,6 +1,7 @@
 // Training-step benchmark: `steps` iterations of the real trainer (train::train_avatar) on a dataset folder with a
-// config, after `warmup` iterations, with the per-stage split of a step (StageClock, device synchronised per stage)
-// and the peak GPU memory. The step time without the recorder is the trainer's own training_seconds.
+// config, after `warmup` iterations: the mean step and the peak GPU memory of a plain run (the trainer's own
+// training_seconds; CUDA graphs as the config says), then the per-stage split of a step (StageClock, device
+// synchronised per stage, which makes those steps eager).
 // Usage: bench_train_step --data DIR --config FILE [--warmup N] [--steps N] [--out DIR] [--profile 1]
 //   --profile 1: for Nsight Compute (`ncu --profile-from-start off --nvtx`): only the step after the warm-up is
 //   profiled, its stages as NVTX ranges (profiled_range.h); no timing.
@@ -115,22 +116,19 @@ int main(int argc, char** argv) {
     std::printf("profiled training step %ld\n", long(args.warmup + 1));
     return 0;
   }
-  // Plain run: the trainer's own step time.
+  // Plain run: the trainer's own step time, and its peak memory.
+#if defined(SFGS_WITH_CUDA)
+  if (cuda) {
+    at::empty({1}, at::kCUDA);  // the allocator's statistics exist from the first allocation on
+    c10::cuda::CUDACachingAllocator::resetPeakStats(0);
+  }
+#endif
   const sfgs::train::TrainSummary plain =
       sfgs::train::train_avatar(dataset, config, sfgs::train::RunFolder{args.out + "/plain"}, options);
-#if defined(SFGS_WITH_CUDA)
-  if (cuda) c10::cuda::CUDACachingAllocator::resetPeakStats(0);
-#endif
-  sfgs::bench::StageClock clock(cuda);
-  SteadyStateClock steady(clock, args.warmup);
-  {
-    const sfgs::ScopedStageRecorder recording(&steady);
-    sfgs::train::train_avatar(dataset, config, sfgs::train::RunFolder{args.out + "/staged"}, options);
-  }
   std::printf("sfgs training-step benchmark: %s, %s, %ld steps after %ld warm-up\n", args.data.c_str(),
               config.device.c_str(), long(args.steps), long(args.warmup));
-  std::printf("  mean step (trainer's training_seconds, warm-up included): %.2f ms\n",
-              1000 * plain.training_seconds / double(total));
+  std::printf("  mean step (trainer's training_seconds, warm-up included, CUDA graphs %s): %.2f ms\n",
+              cuda && config.schedule.cuda_graphs ? "on" : "off", 1000 * plain.training_seconds / double(total));
 #if defined(SFGS_WITH_CUDA)
   if (cuda) {
     const auto stats = c10::cuda::CUDACachingAllocator::getDeviceStats(0);
@@ -139,7 +137,13 @@ int main(int argc, char** argv) {
                 double(stats.allocated_bytes[aggregate].peak) / 1e9, double(stats.reserved_bytes[aggregate].peak) / 1e9);
   }
 #endif
-  std::printf("  stages of a step (synchronised per stage):\n");
+  sfgs::bench::StageClock clock(cuda);
+  SteadyStateClock steady(clock, args.warmup);
+  {
+    const sfgs::ScopedStageRecorder recording(&steady);
+    sfgs::train::train_avatar(dataset, config, sfgs::train::RunFolder{args.out + "/staged"}, options);
+  }
+  std::printf("  stages of an eager step (synchronised per stage):\n");
   clock.print(args.steps, SteadyStateClock::kStep);
   return 0;
 }

@@ -1,9 +1,11 @@
 #!/usr/bin/env bash
 # Checks the CUDA backend on a GPU machine: configures and builds against the machine's CUDA LibTorch, runs the CUDA
-# tests, compute-sanitizer memcheck and racecheck on the small *CudaSanitizer.* cases, and the benchmark.
+# tests, compute-sanitizer memcheck and racecheck on the small *CudaSanitizer.* cases (and memcheck on the recorded
+# training steps, StepGraphsCuda.*), and the benchmark.
 #
 #   bash scripts/device_check.sh [build] [test] [python] [sanitize] [bench] [profile] [avatar] [animate] [train-step]
-#                                [animate-trained] [stage-profile] [train] [ablate] [novel] [sizes] [fits]
+#                                [animate-trained] [stage-profile] [step-profile] [train] [ablate] [novel] [sizes]
+#                                [fits]
 #   (no argument: the first five, in this order)
 #
 # python: the pytest suite against the module built with the machine's pip torch and pybind11 (CUDA included).
@@ -28,7 +30,7 @@
 # stage-profile: Nsight Compute over one eager and one graph frame (bench_animate --profile 1, Anny, 800x1200; the
 # trained avatar of animate-trained when that step ran) and one
 # training step (bench_train_step --profile 1, the train-step scene): every kernel's GPU time and DRAM bytes, summed
-# per stage (scripts/kernel_profile_summary.py).
+# per stage (scripts/kernel_profile_summary.py). step-profile: the training step's part alone.
 # train: synthesise the Anny scene (SFGS_DEVICE_TRAIN_SIZE, default 800x1200; SFGS_DEVICE_TRAIN_FRAMES, default
 # 100) and train, evaluate (with LPIPS) and render it on CUDA with configs/device_anny.yaml
 # (SFGS_DEVICE_TRAIN_ITERATIONS overrides its iterations).
@@ -188,6 +190,9 @@ if wants sanitize; then
     run sanitize 150 compute-sanitizer --tool "$tool" --error-exitcode 99 "$tests" --gtest_filter='*CudaSanitizer.*' \
       --gtest_color=no
   done
+  # Recorded training steps (capture, replay, a step beyond the budget) under memcheck.
+  run sanitize 200 compute-sanitizer --tool memcheck --error-exitcode 99 "$tests" --gtest_filter='StepGraphsCuda.*' \
+    --gtest_color=no
   grep -E "ERROR SUMMARY|RACECHECK SUMMARY|^\[  PASSED|^\[  FAILED|Invalid|Race reported" "$out/sanitize.log" | head -n 20
 fi
 
@@ -280,7 +285,7 @@ if wants animate-trained; then
   cat "$out/animate-trained.log"
 fi
 
-if wants stage-profile; then
+if wants stage-profile || wants step-profile; then
   export SFGS_SHARED_DIR=$shared
   ncu=$(command -v ncu || echo /usr/local/cuda/bin/ncu)
   metrics=gpu__time_duration.sum,dram__bytes_read.sum,dram__bytes_write.sum
@@ -296,8 +301,8 @@ if wants stage-profile; then
   # The trained avatar of animate-trained when that step ran, else the untrained Anny avatar.
   avatar_args=(--shared "$root/.device/shared")
   [ -f "$trained/run/checkpoint.pt" ] && avatar_args=(--run "$trained/run")
-  profile_stages frame-profile "$build/bench/bench_animate" --device cuda "${avatar_args[@]}" --sizes 800x1200 \
-    --profile 1
+  wants stage-profile && profile_stages frame-profile "$build/bench/bench_animate" --device cuda "${avatar_args[@]}" \
+    --sizes 800x1200 --profile 1
   scene=/tmp/sfgs-anny-step
   [ -d "$scene/data" ] || anny_scene step-synth "$scene" "${SFGS_DEVICE_STEP_SIZE:-800x1200}" 40
   profile_stages step-profile "$build/bench/bench_train_step" --data "$scene/data" --config "$scene/config.yaml" \

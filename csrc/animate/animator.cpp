@@ -2,31 +2,20 @@
 
 #include <algorithm>
 #include <cmath>
-#include <sstream>
 #include <utility>
 #include <vector>
 
 #include <ATen/ATen.h>
 #include <torch/csrc/autograd/grad_mode.h>
 
-#include "animate/frame_graph.h"
 #include "animate/visibility.h"
 #include "common/constants.h"
+#include "common/device_graph.h"
 #include "common/stage_timer.h"
 #include "common/tensor_description.h"
 
 namespace sfgs::animate {
 namespace {
-
-// "numel,numel,...": which pose fields a frame gives and their sizes (-1: not given). A graph holds one layout.
-std::string layout_of(const body::SmplxPose& pose) {
-  std::ostringstream key;
-  for (const body::SmplxPose::Field& f : body::SmplxPose::fields()) {
-    const at::Tensor& t = pose.*(f.member);
-    key << (t.defined() ? t.numel() : -1) << ',';
-  }
-  return key.str();
-}
 
 void check_host_pose(const body::SmplxPose& pose) {
   for (const body::SmplxPose::Field& f : body::SmplxPose::fields()) {
@@ -82,7 +71,7 @@ at::Tensor Animator::splat(const model::AvatarOutput& out) {
 at::Tensor Animator::render(const body::SmplxPose& pose, model::FrameTime time) {
   check_host_pose(pose);
   ++stats_.frames;
-  const bool graphs = options_.use_graph && device_.is_cuda() && frame_graphs_available();
+  const bool graphs = options_.use_graph && device_.is_cuda() && device_graphs_available();
   return graphs && !time ? render_with_graph(pose) : render_eagerly(pose, time);
 }
 
@@ -92,26 +81,15 @@ at::Tensor Animator::render_eagerly(const body::SmplxPose& pose, model::FrameTim
 }
 
 void Animator::stage_pose(const body::SmplxPose& pose) {
-  const std::string layout = layout_of(pose);
-  std::vector<at::Tensor> values;
-  for (const body::SmplxPose::Field& f : body::SmplxPose::fields()) {
-    const at::Tensor& t = pose.*(f.member);
-    if (t.defined()) values.push_back(t.detach().flatten().to(at::kFloat));
-  }
-  const at::Tensor packed = values.empty() ? at::zeros({0}) : at::cat(values);
+  // A graph holds one layout of pose fields.
+  const std::string layout = pose.layout();
+  const at::Tensor packed = pose.packed();
   if (layout != layout_) {
     // A new layout: new device fields (views of one buffer, each with the caller's shape) and a new graph.
     graph_.reset();
     layout_ = layout;
     staged_values_ = at::empty({packed.size(0)}, at::TensorOptions(device_).dtype(at::kFloat));
-    staged_pose_ = body::SmplxPose();
-    int64_t offset = 0;
-    for (const body::SmplxPose::Field& f : body::SmplxPose::fields()) {
-      const at::Tensor& t = pose.*(f.member);
-      if (!t.defined()) continue;
-      staged_pose_.*(f.member) = staged_values_.narrow(0, offset, t.numel()).view(t.sizes());
-      offset += t.numel();
-    }
+    staged_pose_ = pose.views_of(staged_values_);
   }
   staged_values_.copy_(packed);  // one upload per frame
 }
@@ -137,7 +115,7 @@ void Animator::capture() {
   if (intersection_budget_ == 0) {
     // The first frame of this avatar: eager passes (which also make every lazy one-time allocation outside the
     // graph) find a budget that fits, starting from a guess and growing it.
-    intersection_budget_ = std::max<int64_t>(1, avatar_->gaussian_count() * kAnimatorInitialIntersectionsPerGaussian);
+    intersection_budget_ = std::max<int64_t>(1, avatar_->gaussian_count() * kGraphInitialIntersectionsPerGaussian);
     tile_budget_ = intersection_budget_;
     for (;;) {
       frame();
@@ -147,7 +125,7 @@ void Animator::capture() {
       if (fitted) break;
     }
   }
-  graph_ = capture_frame_graph(frame);
+  graph_ = capture_device_graph(frame);
   ++stats_.captures;
   stats_.budget = intersection_budget_;
 }

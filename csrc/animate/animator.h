@@ -17,15 +17,17 @@
 #include "model/avatar.h"
 #include "splat/splat.h"
 
-namespace sfgs::animate {
+namespace sfgs {
+class DeviceGraph;
+}  // namespace sfgs
 
-class FrameGraph;
+namespace sfgs::animate {
 
 struct AnimatorOptions {
   bool use_graph = true;  // CUDA: one graph replay per frame (false: every frame runs eagerly)
   // Headroom of the splatting budget over the counts of the frame it was taken from (>= 1): a new pose or camera
   // may touch more tiles; a frame beyond the budget is recorded and replayed again, once.
-  double budget_slack = kAnimatorBudgetSlack;
+  double budget_slack = kGraphBudgetSlack;
   // Gaussians facing away from the camera by more than this cosine are not splatted (animate/visibility.h);
   // >= 1 (the default) splats every Gaussian, as the exact render does; kAnimatorFastBackFacingCosine trades
   // accuracy for speed (docs/performance.md).
@@ -86,7 +88,7 @@ class Animator {
   int64_t intersection_budget_ = 0, tile_budget_ = 0;
   at::Tensor counts_;
   at::Tensor image_;
-  std::unique_ptr<FrameGraph> graph_;
+  std::unique_ptr<DeviceGraph> graph_;
 };
 
 }  // namespace sfgs::animate

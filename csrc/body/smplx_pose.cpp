@@ -1,6 +1,7 @@
 #include "body/smplx_pose.h"
 
 #include <sstream>
+#include <vector>
 
 #include <ATen/ATen.h>
 
@@ -51,6 +52,38 @@ SmplxPose SmplxPose::frame(int64_t index) const {
   for (const Field& f : fields())
     if ((this->*(f.member)).defined()) p.*(f.member) = (this->*(f.member)).select(0, index);
   return p;
+}
+
+std::string SmplxPose::layout() const {
+  std::ostringstream key;
+  for (const Field& f : fields()) {
+    const at::Tensor& t = this->*(f.member);
+    key << (t.defined() ? t.numel() : -1) << ',';
+  }
+  return key.str();
+}
+
+at::Tensor SmplxPose::packed() const {
+  std::vector<at::Tensor> values;
+  for (const Field& f : fields()) {
+    const at::Tensor& t = this->*(f.member);
+    if (t.defined()) values.push_back(t.detach().flatten().to(at::kCPU, at::kFloat));
+  }
+  return values.empty() ? at::zeros({0}) : at::cat(values);
+}
+
+SmplxPose SmplxPose::views_of(const at::Tensor& buffer) const {
+  SmplxPose views;
+  int64_t offset = 0;
+  for (const Field& f : fields()) {
+    const at::Tensor& t = this->*(f.member);
+    if (!t.defined()) continue;
+    views.*(f.member) = buffer.narrow(0, offset, t.numel()).view(t.sizes());
+    offset += t.numel();
+  }
+  TORCH_CHECK(buffer.dim() == 1 && buffer.size(0) == offset, "SmplxPose::views_of: the buffer must hold the ", offset,
+              " values of the pose's layout, got ", buffer.sizes());
+  return views;
 }
 
 SmplxPose SmplxPose::to(const at::TensorOptions& options) const {

@@ -39,6 +39,13 @@ struct SmplxPose {
   SmplxPose frame(int64_t index) const;
   // Every defined field converted (dtype, device).
   SmplxPose to(const at::TensorOptions& options) const;
+  // "numel,numel,...": which fields the pose gives and their sizes (-1: not given). Poses of one layout pack alike.
+  std::string layout() const;
+  // Every defined field's values, flattened in fields() order, as one float32 vector on the CPU: one upload.
+  at::Tensor packed() const;
+  // A pose of this one's layout whose fields are views of `buffer` (as packed() lays the values out): a device copy
+  // that one upload of packed() fills.
+  SmplxPose views_of(const at::Tensor& buffer) const;
   // The first field holding NaN or Inf, as "body_pose must be finite, got nan at index 13 (1 of 63 values are not
   // finite)"; empty when every value is finite. Fields on the CPU are checked where they lie, device ones in one
   // reduction (a single synchronisation).

@@ -57,10 +57,11 @@ inline constexpr long kMaxImageSide = 16384;
 inline constexpr long kCpuMaxTilePairs = 1L << 25;
 
 // ---- animation (csrc/animate, docs/performance.md) ---------------------------------------------------------
-// A graph frame's splatting buffers are sized from a budget: the first guess per Gaussian, and the slack over the
-// counts of a pass that fitted (a new pose may touch more tiles than the one the budget was taken from).
-inline constexpr long kAnimatorInitialIntersectionsPerGaussian = 4;
-inline constexpr double kAnimatorBudgetSlack = 1.5;
+// A recorded frame's or training step's splatting buffers are sized from a budget: the first guess per Gaussian, and
+// the slack over the counts of a pass that fitted (a new pose may touch more tiles than the one the budget was taken
+// from).
+inline constexpr long kGraphInitialIntersectionsPerGaussian = 4;
+inline constexpr double kGraphBudgetSlack = 1.5;
 // The Animator can cull Gaussians whose posed normal faces away from the camera by more than a cosine (between the
 // normal and the view ray; animate/visibility.h). Off by default (1): on a trained avatar it is lossy (0.3: the
 // frame 9 % faster, but 38-42 dB against the exact render; docs/performance.md), because small Gaussians' opacity
@@ -122,6 +123,9 @@ inline constexpr double kMinHandPoseBasisNorm = 1e-6;
 inline constexpr double kMinCheekPuffRadialLength = 1e-9;
 
 // ---- avatar model (docs/avatar.md) ------------------------------------------------------------------------
+// The planes' backward (plane_sampling/plane_sampling.h) sums the reads of one texel in chunks of at most this many,
+// one warp each: a texel thousands of points read does not hold up the kernel (the last warp) behind it.
+inline constexpr long kPlaneReadChunk = 32;
 // The feature planes are read at the points' positions in SFGS's star ("big") pose: both hips rotated this far
 // (radians) about the forward axis, so the inner thighs no longer share plane texels.
 inline constexpr double kStarPoseHipAngle = 1.0;

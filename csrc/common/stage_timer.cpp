@@ -5,6 +5,8 @@ namespace {
 thread_local StageRecorder* installed_recorder = nullptr;
 }  // namespace
 
+bool stage_recorder_installed() { return installed_recorder != nullptr; }
+
 ScopedStageRecorder::ScopedStageRecorder(StageRecorder* recorder) : previous_(installed_recorder) {
   installed_recorder = recorder;
 }

@@ -13,6 +13,10 @@ class StageRecorder {
   ~StageRecorder() = default;
 };
 
+// Whether a recorder is installed on this thread (work that must not synchronise, such as the capture of a CUDA
+// graph, runs without one).
+bool stage_recorder_installed();
+
 // Installs `recorder` on this thread for the scope's lifetime (null installs none).
 class ScopedStageRecorder {
  public:

@@ -6,6 +6,7 @@
 #include "gathered_mlp/backend.h"
 #include "group_norm/backend.h"
 #include "pixel_loss/backend.h"
+#include "plane_sampling/backend.h"
 #include "skin/backend.h"
 #include "ssim/backend.h"
 #include "splat/backend.h"
@@ -106,3 +107,12 @@ void backward(const PixelLossGradientArrays<double>&, at::Device) {
 }
 
 }  // namespace sfgs::pixel_loss::cuda
+
+namespace sfgs::plane_sampling::cuda {
+
+void gradient(const PlaneGradientArrays<float>&, at::Device) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
+void gradient(const PlaneGradientArrays<double>&, at::Device) {
+  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
+}
+
+}  // namespace sfgs::plane_sampling::cuda

@@ -16,6 +16,10 @@
 namespace sfgs::metrics {
 namespace {
 
+// (1, 3, 1, 1) per-channel constants of the scaling layer.
+at::Tensor scaling_constant(const double (&values)[3], const at::TensorOptions& options) {
+  return at::tensor(std::vector<double>(values, values + 3), at::kDouble).to(options).view({1, 3, 1, 1});
+}
 
 struct ConvShape {
   std::string name;  // without ".weight" / ".bias"
@@ -115,6 +119,10 @@ Lpips::Lpips(LpipsNet net, std::map<std::string, at::Tensor> weights) : net_(net
     TORCH_CHECK(expected.count(name), "LPIPS (", lpips_net_name(net), ") weights: unexpected tensor '", name,
                 "' (is this the ", lpips_net_name(net), " file?)");
   }
+  // The scaling layer's constants, kept beside the weights: made per call they would be a host upload each time,
+  // which a CUDA graph cannot record.
+  shift_ = scaling_constant(kLpipsShift, weights_.begin()->second.options());
+  scale_ = scaling_constant(kLpipsScale, weights_.begin()->second.options());
 }
 
 at::Device Lpips::device() const { return weights_.begin()->second.device(); }
@@ -148,13 +156,12 @@ at::Tensor Lpips::fire(const at::Tensor& x, int index) const {
 }
 
 LpipsFeatures Lpips::backbone(const at::Tensor& images_nchw) const {
-  const auto channel_constant = [&](const double(&values)[3]) {
-    return at::tensor(std::vector<double>(values, values + 3), at::kDouble)
-        .to(images_nchw.options())
-        .view({1, 3, 1, 1});
-  };
   // ScalingLayer applied to 2v - 1: the images arrive in [0, 1].
-  at::Tensor x = (images_nchw * 2.0 - 1.0 - channel_constant(kLpipsShift)) / channel_constant(kLpipsScale);
+  const auto options = images_nchw.options();
+  const bool kept = shift_.dtype() == options.dtype() && shift_.device() == options.device();
+  const at::Tensor shift = kept ? shift_ : scaling_constant(kLpipsShift, options);
+  const at::Tensor scale = kept ? scale_ : scaling_constant(kLpipsScale, options);
+  at::Tensor x = (images_nchw * 2.0 - 1.0 - shift) / scale;
 
   LpipsFeatures f;
   if (net_ == LpipsNet::alex) {

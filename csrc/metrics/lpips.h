@@ -67,6 +67,7 @@ class Lpips {
 
   LpipsNet net_;
   std::map<std::string, at::Tensor> weights_;
+  at::Tensor shift_, scale_;  // (1, 3, 1, 1) the scaling layer's, in the weights' dtype and device
 };
 
 }  // namespace sfgs::metrics

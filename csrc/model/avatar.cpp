@@ -158,6 +158,24 @@ AvatarOutput AvatarImpl::forward(const body::SmplxPose& pose, FrameTime time) {
 AvatarOutput AvatarImpl::forward_trusted_pose(const body::SmplxPose& pose, FrameTime time) {
   TORCH_CHECK(!time || (std::isfinite(*time) && *time >= -1.0 && *time <= 1.0),
               "Avatar: time must be normalised to [-1, 1] (once per sequence), got ", *time);
+  return posed(pose, time, at::Tensor());
+}
+
+AvatarOutput AvatarImpl::forward_trusted_pose(const body::SmplxPose& pose, const at::Tensor& device_time) {
+  const at::Tensor& reference = body_->vertices();
+  TORCH_CHECK(!device_time.defined() || (device_time.dim() == 0 &&
+                                         device_time.scalar_type() == reference.scalar_type() &&
+                                         device_time.device() == reference.device()),
+              "Avatar: a device time must be a 0-dim ", reference.scalar_type(), " tensor on ", reference.device(),
+              ", got ", describe(device_time));
+  TORCH_CHECK(!cache_, "Avatar: a device time is for training; the inference cache keys on host times (call "
+                       "clear_cache() first)");
+  return posed(pose, std::nullopt, device_time);
+}
+
+// One of host_time and device_time at most; device_time bypasses the cache.
+AvatarOutput AvatarImpl::posed(const body::SmplxPose& pose, FrameTime host_time, const at::Tensor& device_time) {
+  const bool has_time = host_time.has_value() || device_time.defined();
   if (confidence_.defined() && confidence_.device() != body_->vertices().device())
     confidence_ = confidence_.to(body_->vertices().device());
   FramePose frame;
@@ -176,7 +194,8 @@ AvatarOutput AvatarImpl::forward_trusted_pose(const body::SmplxPose& pose, Frame
   CanonicalAttributes attributes;
   {
     const StageScope stage("avatar: canonical attributes (planes, heads)");
-    attributes = attributes_at(time);
+    attributes = device_time.defined() ? compute_attributes(feature_field_->static_features(), device_time)
+                                       : attributes_at(host_time);
   }
   CanonicalGaussians canonical;
   {
@@ -210,7 +229,7 @@ AvatarOutput AvatarImpl::forward_trusted_pose(const body::SmplxPose& pose, Frame
     out.posed_normals = body::vertex_normals(out.posed_vertices.detach(), body_->faces());
   }
   const StageScope stage("avatar: appearance");
-  out.colours = appearance(frame, attributes, time.has_value(), out);
+  out.colours = appearance(frame, attributes, has_time, out);
   return out;
 }
 
@@ -247,7 +266,7 @@ AvatarImpl::FramePose AvatarImpl::frame_pose(const body::SmplxPose& pose) const 
   return frame;
 }
 
-CanonicalAttributes AvatarImpl::compute_attributes(const StaticFeatures& features, FrameTime time) const {
+CanonicalAttributes AvatarImpl::compute_attributes(const StaticFeatures& features, const at::Tensor& time) const {
   const at::Tensor fused = feature_field_->fuse(features, time);
   const CanonicalHeadOutput heads = heads_->forward(fused);
   CanonicalAttributes a;
@@ -290,13 +309,14 @@ void AvatarImpl::set_observation(const at::Tensor& observed_fraction) {
 }
 
 CanonicalAttributes AvatarImpl::attributes_at(FrameTime time) {
-  if (!cache_) return compute_attributes(feature_field_->static_features(), time);
+  const auto time_value = [&] { return time ? at::full({}, *time, body_->vertices().options()) : at::Tensor(); };
+  if (!cache_) return compute_attributes(feature_field_->static_features(), time_value());
   TORCH_CHECK(!is_training(),
               "Avatar: the static-feature cache is for inference; call clear_cache() before training (or eval())");
   TORCH_CHECK(cache_->device() == body_->vertices().device(), "Avatar: the cache was made on ", cache_->device(),
               " but the module is on ", body_->vertices().device(), "; call cache_static_features() again");
   if (const CanonicalAttributes* kept = cache_->attributes(time)) return *kept;
-  const CanonicalAttributes computed = compute_attributes(cache_->features(), time);
+  const CanonicalAttributes computed = compute_attributes(cache_->features(), time_value());
   cache_->keep(computed, time);
   return computed;
 }
@@ -340,7 +360,7 @@ at::Tensor AvatarImpl::appearance(const FramePose& frame, const CanonicalAttribu
 void AvatarImpl::cache_static_features() {
   at::NoGradGuard no_grad;
   cache_ = std::make_unique<InferenceCache>(feature_field_->static_features(), config_.use_hexplane);
-  cache_->keep(compute_attributes(cache_->features(), std::nullopt), std::nullopt);
+  cache_->keep(compute_attributes(cache_->features(), at::Tensor()), std::nullopt);
 }
 
 void AvatarImpl::clear_cache() { cache_.reset(); }

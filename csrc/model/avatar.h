@@ -127,6 +127,10 @@ class AvatarImpl : public torch::nn::Module {
   // moving it to the device (Animator: the check of device tensors is a host synchronisation a CUDA graph cannot
   // hold). A non-finite pose gives non-finite Gaussians.
   AvatarOutput forward_trusted_pose(const body::SmplxPose& pose, FrameTime time);
+  // forward_trusted_pose with the time as a 0-dim tensor of the avatar's dtype and device (undefined: none), not checked
+  // against [-1, 1]: for a caller that records the work as a CUDA graph and writes each replay's time into that
+  // tensor (train/step_graphs.h). Training mode only (the inference cache keys on host times).
+  AvatarOutput forward_trusted_pose(const body::SmplxPose& pose, const at::Tensor& device_time);
 
   // The observation record of training (observation_prior.h): per Gaussian, the share of training steps that saw it
   // front-facing, (N) on any device; undefined clears it. In eval mode an avatar with a record trusts each
@@ -156,8 +160,10 @@ class AvatarImpl : public torch::nn::Module {
  private:
   struct FramePose;
   FramePose frame_pose(const body::SmplxPose& pose) const;
+  AvatarOutput posed(const body::SmplxPose& pose, FrameTime time, const at::Tensor& device_time);
   CanonicalAttributes attributes_at(FrameTime time);
-  CanonicalAttributes compute_attributes(const StaticFeatures& features, FrameTime time) const;
+  // time: 0-dim on the module's device, or undefined for none.
+  CanonicalAttributes compute_attributes(const StaticFeatures& features, const at::Tensor& time) const;
   bool trusts_observation() const { return confidence_.defined() && !is_training(); }
   CanonicalAttributes with_observation_prior(CanonicalAttributes attributes) const;
   at::Tensor trusted(const at::Tensor& learned) const;  // scaled by the confidence when trusts_observation()

@@ -1,7 +1,5 @@
 #include "model/feature_field.h"
 
-#include <cmath>
-
 #include <ATen/Functions.h>
 #include <ATen/TensorOperators.h>
 
@@ -95,13 +93,11 @@ StaticFeatures FeatureFieldImpl::static_features() const {
   return features;
 }
 
-at::Tensor FeatureFieldImpl::fuse(const StaticFeatures& features, FrameTime time) const {
+at::Tensor FeatureFieldImpl::fuse(const StaticFeatures& features, const at::Tensor& time) const {
   if (!options_.use_hexplane) return features.triplane;
   at::Tensor aligned = features.hexplane_space;
-  if (time) {
-    const double t = *time;
-    TORCH_CHECK(std::isfinite(t) && t >= -1.0 && t <= 1.0,
-                "FeatureField: time must be normalised to [-1, 1] (once per sequence), got ", t);
+  if (time.defined()) {
+    const at::Tensor& t = time;
     const at::Tensor time_features = split_face_ ? merge(hexplane_time_->sample(coordinates_, t),
                                                          face_hexplane_time_->sample(face_coordinates_, t))
                                                  : hexplane_time_->sample(coordinates_, t);

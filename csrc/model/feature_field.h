@@ -11,7 +11,6 @@
 #include <torch/nn/module.h>
 #include <torch/nn/pimpl.h>
 
-#include "model/frame_time.h"
 #include "model/mlp.h"
 #include "model/planes.h"
 
@@ -43,10 +42,11 @@ class FeatureFieldImpl : public torch::nn::Module {
   int64_t width() const { return 3 * options_.channels; }  // of the fused feature
   static int64_t parameter_count(const FeatureFieldOptions& options);
   StaticFeatures static_features() const;
-  // The fused feature (N, 3 C) at normalised time t in [-1, 1]; without the hexplane, the triplane feature.
-  // Without a time the time planes' share of f_hex' is left out (a residual that training also leaves out at
-  // times, AvatarConfig::time_dropout), so f_hex' is its spatial half.
-  at::Tensor fuse(const StaticFeatures& features, FrameTime time) const;
+  // The fused feature (N, 3 C) at normalised time t in [-1, 1] (a 0-dim tensor on the field's device, checked by
+  // the caller); without the hexplane, the triplane feature. Without a time (undefined) the time planes' share of
+  // f_hex' is left out (a residual that training also leaves out at times, AvatarConfig::time_dropout), so f_hex' is
+  // its spatial half.
+  at::Tensor fuse(const StaticFeatures& features, const at::Tensor& time) const;
 
  private:
   static MlpShape hexplane_to_triplane_shape(int64_t channels);

@@ -20,10 +20,15 @@ at::Tensor frame_observation(const at::Tensor& means, const at::Tensor& normals,
   at::NoGradGuard no_grad;
   const auto options = means.options();
   const auto& m = camera.world_to_camera;
-  const at::Tensor view = at::tensor(std::vector<double>(m.begin(), m.end()), at::kDouble).view({4, 4}).to(options);
-  const at::Tensor rotation = view.slice(0, 0, 3).slice(1, 0, 3);
-  const at::Tensor p = means.detach().matmul(rotation.t()) + view.slice(0, 0, 3).select(1, 3);
-  const at::Tensor n = normals.detach().matmul(rotation.t());
+  // A camera at the origin (points given in its frame, as a training step gives them) needs no transform, and no
+  // upload of one.
+  at::Tensor p = means.detach(), n = normals.detach();
+  if (!camera_at_origin(camera)) {
+    const at::Tensor view = at::tensor(std::vector<double>(m.begin(), m.end()), at::kDouble).view({4, 4}).to(options);
+    const at::Tensor rotation = view.slice(0, 0, 3).slice(1, 0, 3);
+    p = p.matmul(rotation.t()) + view.slice(0, 0, 3).select(1, 3);
+    n = n.matmul(rotation.t());
+  }
   const at::Tensor z = p.select(1, 2);
   // The cosine between the normal and the direction to the camera (at the origin).
   const at::Tensor facing = -(n * p).sum(1) / p.norm(2, 1).clamp_min(kMinNormalLength);

@@ -2,6 +2,7 @@
 
 #include <ATen/Functions.h>
 #include <ATen/TensorOperators.h>
+#include <ATen/core/grad_mode.h>
 
 #include "body/tensor_checks.h"
 #include "common/constants.h"
@@ -31,6 +32,19 @@ void check_coordinates(const at::Tensor& coordinates, const at::Tensor& planes, 
 
 }  // namespace
 
+const plane_sampling::PlaneReads& FixedReadsCache::reads(const at::Tensor& coordinates,
+                                                         const std::function<plane_sampling::PlaneReads()>& make) {
+  const bool kept = coordinates_.defined() && coordinates_.is_same(coordinates) && data_ == coordinates.data_ptr() &&
+                    version_ == int64_t(coordinates._version());
+  if (!kept) {
+    reads_ = make();
+    coordinates_ = coordinates;
+    data_ = coordinates.data_ptr();
+    version_ = int64_t(coordinates._version());
+  }
+  return reads_;
+}
+
 TriplaneImpl::TriplaneImpl(int64_t channels, int64_t resolution) {
   TORCH_CHECK(channels > 0 && resolution > 1, "Triplane: channels must be positive and resolution at least 2, got ",
               channels, " and ", resolution);
@@ -41,7 +55,11 @@ at::Tensor TriplaneImpl::sample(const at::Tensor& coordinates) const {
   check_coordinates(coordinates, planes_, "Triplane::sample");
   const at::Tensor x = coordinates.select(1, 0), y = coordinates.select(1, 1), z = coordinates.select(1, 2);
   const at::Tensor grid = at::stack({at::stack({x, y}, 1), at::stack({x, z}, 1), at::stack({y, z}, 1)});
-  return sample_planes(planes_, grid);
+  if (!planes_.requires_grad() || !at::GradMode::is_enabled() || coordinates.requires_grad())
+    return sample_planes(planes_, grid);
+  const plane_sampling::PlaneReads& reads =
+      reads_.reads(coordinates, [&] { return plane_sampling::plane_reads(grid, planes_.size(2), planes_.size(3)); });
+  return plane_sampling::sample_fixed_planes(planes_, grid, reads);
 }
 
 TimePlanesImpl::TimePlanesImpl(int64_t channels, int64_t resolution, int64_t time_resolution) {
@@ -51,11 +69,22 @@ TimePlanesImpl::TimePlanesImpl(int64_t channels, int64_t resolution, int64_t tim
   planes_ = register_parameter("planes", random_planes({3, channels, time_resolution, resolution}));
 }
 
-at::Tensor TimePlanesImpl::sample(const at::Tensor& coordinates, double time) const {
+at::Tensor TimePlanesImpl::sample(const at::Tensor& coordinates, const at::Tensor& time) const {
   check_coordinates(coordinates, planes_, "TimePlanes::sample");
-  const at::Tensor space = coordinates.t().unsqueeze(-1);  // (3, N, 1)
-  const at::Tensor grid = at::cat({space, at::full_like(space, time)}, -1);
-  return sample_planes(planes_, grid);
+  TORCH_CHECK(time.defined() && time.dim() == 0 && time.scalar_type() == planes_.scalar_type() &&
+                  time.device() == planes_.device(),
+              "TimePlanes::sample: the time must be a 0-dim ", planes_.scalar_type(), " tensor on ", planes_.device(),
+              ", got ", describe(time));
+  const at::Tensor positions = coordinates.t();  // (3, N): x, y, z, each along its plane's width
+  if (!planes_.requires_grad() || !at::GradMode::is_enabled() || coordinates.requires_grad()) {
+    const at::Tensor space = positions.unsqueeze(-1);
+    return sample_planes(planes_, at::cat({space, time.expand_as(space)}, -1));
+  }
+  const plane_sampling::PlaneReads& reads = reads_.reads(coordinates, [&] {
+    const at::Tensor line = at::stack({positions, at::full_like(positions, -1)}, -1);  // v plays no part
+    return plane_sampling::plane_reads(line, 1, planes_.size(3));
+  });
+  return plane_sampling::sample_fixed_planes_at_time(planes_, positions, time, reads);
 }
 
 }  // namespace sfgs::model

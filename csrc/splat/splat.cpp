@@ -63,6 +63,10 @@ std::array<double, 3> camera_centre(const Camera& camera) {
   return centre;
 }
 
+bool camera_at_origin(const Camera& camera) {
+  return camera.world_to_camera == std::array<double, 16>{1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+}
+
 std::string camera_problem(const Camera& c) {
   std::ostringstream why;
   const auto& m = c.world_to_camera;

@@ -34,6 +34,8 @@ std::string camera_problem(const Camera& camera);
 
 // The camera's centre in world coordinates: -R^T t of world_to_camera = [R | t].
 std::array<double, 3> camera_centre(const Camera& camera);
+// Whether world_to_camera is exactly the identity: the world is the camera's frame.
+bool camera_at_origin(const Camera& camera);
 
 // One parameterisation of the 3D covariance must be given: scales (N,3) with rotations (N,4; quaternions
 // w,x,y,z, normalised inside), or covariances (N,6: xx, xy, xz, yy, yz, zz).

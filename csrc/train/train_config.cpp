@@ -88,7 +88,7 @@ std::vector<std::pair<std::string, Section>> sections(TrainConfig& c) {
                     {"decay_at", field(s.decay_at)}, {"decay_factor", field(s.decay_factor)},
                     {"learning_rate", field(s.learning_rate)}, {"colour_learning_rate", field(s.colour_learning_rate)},
                     {"adam_epsilon", field(s.adam_epsilon)}, {"fused_adam", field(s.fused_adam)},
-                    {"tf32_matmul", field(s.tf32_matmul)}}},
+                    {"tf32_matmul", field(s.tf32_matmul)}, {"cuda_graphs", field(s.cuda_graphs)}}},
       {"pose_refinement", {{"enabled", field(p.enabled)}, {"learning_rate", field(p.learning_rate)},
                            {"translation_learning_rate", field(p.translation_learning_rate)},
                            {"start", field(p.start)}, {"prior", field(p.prior)},

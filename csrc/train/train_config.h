@@ -45,6 +45,9 @@ struct Schedule {
   // CUDA: float32 matrix products (the networks' layers) on TF32 tensor cores: float32's range, a 10-bit mantissa,
   // several times the throughput; the losses and the splatting stay float32 (docs/performance.md measures both).
   bool tf32_matmul = true;
+  // CUDA: each kind of step recorded once as a CUDA graph and replayed (train/step_graphs.h): the same kernels
+  // without the host launching them one by one. Pose refinement's steps run eagerly either way.
+  bool cuda_graphs = true;
 };
 
 // Pose refinement (train/pose_refinement.h, docs/training.md "Imperfect fits"): per training frame, a learned

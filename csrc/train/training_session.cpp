@@ -8,45 +8,11 @@
 #include <ATen/ATen.h>
 #include <nlohmann/json.hpp>
 
+#include "common/device_graph.h"
 #include "common/stage_timer.h"
 #include "metrics/image_metrics.h"
-#include "model/observation_prior.h"
 
 namespace sfgs::train {
-
-// Frames kept decoded in memory (8-bit) up to this many bytes; beyond it they are read from disk when drawn.
-constexpr int64_t kFrameCacheBytes = int64_t(2) << 30;
-
-// Training frames as 8-bit tensors (image and mask in one (H, W, 4)), decoded once.
-class FrameCache {
- public:
-  explicit FrameCache(const data::Dataset& dataset) : dataset_(dataset) {}
-  std::pair<at::Tensor, at::Tensor> get(int64_t index, at::Device device) {
-    auto it = frames_.find(index);
-    at::Tensor packed;
-    if (it != frames_.end()) {
-      packed = it->second;
-    } else {
-      const data::Frame f = dataset_.load(index);
-      packed = at::cat({f.image, f.mask.unsqueeze(2)}, 2).mul(kEightBitMax).round().to(at::kByte);
-      if (bytes_ + packed.numel() <= kFrameCacheBytes) {
-        // Kept page-locked for a CUDA run: its later uploads are then asynchronous, not a host synchronisation
-        // every step (a kept frame is never written again, so the copy in flight reads it safely).
-        if (device.is_cuda()) packed = packed.pin_memory();
-        bytes_ += packed.numel();
-        frames_[index] = packed;
-      }
-    }
-    const at::Tensor uploaded = packed.to(device, packed.scalar_type(), /*non_blocking=*/packed.is_pinned());
-    const at::Tensor values = uploaded.to(at::kFloat).div_(float(kEightBitMax));
-    return {values.slice(2, 0, 3), values.select(2, 3)};
-  }
-
- private:
-  const data::Dataset& dataset_;
-  std::map<int64_t, at::Tensor> frames_;
-  int64_t bytes_ = 0;
-};
 
 std::unique_ptr<torch::optim::Adam> make_optimizer(const model::Avatar& avatar, const Schedule& schedule) {
   std::vector<at::Tensor> colour, other;
@@ -88,9 +54,15 @@ TrainingSession::TrainingSession(const data::Dataset& dataset, const TrainConfig
   for (size_t g = 0; g < optimizer_->param_groups().size(); ++g) base_rates_.push_back(adam_options(*optimizer_, g).lr());
   image_loss_ = std::make_unique<ImageLoss>(config.loss, device_);
   regularisers_ = std::make_unique<Regularisers>(config.loss, avatar_->part_labels(), avatar_->faces(), device_);
-  frames_ = std::make_unique<FrameCache>(dataset);
+  frames_ = std::make_unique<FrameCache>(dataset, dataset.split(data::Split::kTrain), device_.is_cuda());
+  step_ = std::make_unique<TrainingStep>(avatar_, *image_loss_, *regularisers_);
   if (config.pose_refinement.enabled)
     refinement_ = std::make_unique<PoseRefinement>(dataset, config.pose_refinement, config.schedule.iterations, device_);
+  // A benchmark's stage recorder times stages by synchronising, which a graph cannot hold; pose refinement's
+  // per-frame corrections and alignment passes are host-driven.
+  if (device_.is_cuda() && config.schedule.cuda_graphs && device_graphs_available() && !refinement_ &&
+      !stage_recorder_installed())
+    graphs_ = std::make_unique<StepGraphs>(avatar_, device_);
   observation_sum_ = at::zeros({avatar_->gaussian_count()}, at::TensorOptions().dtype(at::kFloat).device(device_));
   summary_.validation_psnr = std::nan("");
   summary_.has_validation_frames = !dataset.split(data::Split::kVal).empty();
@@ -130,69 +102,56 @@ void TrainingSession::step(int64_t it) {
   std::uniform_int_distribution<size_t> pick(0, train_frames.size() - 1);
   std::uniform_real_distribution<float> colour(0.0f, 1.0f);
   const int64_t f = train_frames[pick(rng_)];
-  const float bg_values[3] = {colour(rng_), colour(rng_), colour(rng_)};
-  at::Tensor background, target;
+  const data::FrameRecord& record = dataset_.frames[size_t(f)];
+  StepData data;
+  data.background = {colour(rng_), colour(rng_), colour(rng_)};
+  data.pose = record.pose;
+  data.camera = render_camera(record);
+  // The time branch is a residual that new motions go without: some steps train without it (docs/avatar.md).
+  data.time = replay_clock_.time_of(record);
+  if (std::uniform_real_distribution<double>(0.0, 1.0)(rng_) < config_.avatar.time_dropout) data.time.reset();
+  // LPIPS in every lpips_every-th step; the steps between report its last value (a resumed run measures first).
+  data.lpips = it % config_.loss.lpips_every == 0 || !last_lpips_.defined();
   {
-    const StageScope stage("train: frame upload and target");
-    const auto [image, mask] = frames_->get(f, device_);
-    // Filled on the device from scalars: a host tensor's upload would wait for the queued GPU work.
-    background = at::empty({3}, at::TensorOptions(device_).dtype(at::kFloat));
-    for (int64_t k = 0; k < 3; ++k) background.select(0, k).fill_(bg_values[k]);
-    const at::Tensor m = mask.unsqueeze(2);
-    target = image * m + background * (1 - m);
+    const StageScope stage("train: frame upload");
+    data.frame = frames_->get(f);
   }
 
-  const data::FrameRecord& record = dataset_.frames[size_t(f)];
-  // The time branch is a residual that new motions go without: some steps train without it (docs/avatar.md).
-  std::optional<double> time = replay_clock_.time_of(record);
-  if (std::uniform_real_distribution<double>(0.0, 1.0)(rng_) < config_.avatar.time_dropout) time.reset();
-  LossTerms terms;
-  if (refinement_) {
-    const nlohmann::json aligned = refinement_->align(it, avatar_, config_.loss);
-    if (!aligned.empty()) log_->write(aligned);
+  StepOutputs outputs;
+  if (graphs_) {
+    try {
+      outputs = graphs_->run(data, [&](const StepInputs& in) { return step_->run(in, in.pose, data.lpips); });
+    } catch (const c10::Error& e) {
+      // A step the graphs cannot hold is still a step: the run goes on eagerly, and the log says why.
+      log_->write({{"event", "graphs_off"}, {"iteration", it}, {"message", e.what_without_backtrace()}});
+      graphs_.reset();
+    }
   }
-  // With pose refinement the pose is on the device (the input fit was checked when the dataset was read; a
-  // non-finite correction shows as a non-finite loss).
-  const model::AvatarOutput out = refinement_ ? avatar_->forward_trusted_pose(refinement_->pose(f, it, terms), time)
-                                              : avatar_->forward(record.pose, time);
-  const Camera camera = render_camera(record);
-  RenderResult r;
-  {
-    const StageScope stage("train: render");
-    r = render(to_gaussians(out), background, camera);
-  }
-  {
-    const StageScope stage("train: observation record");
-    observation_sum_ += model::frame_observation(out.means, out.posed_normals, r.depth, camera);
-    ++observation_steps_;
-  }
-  {
-    const StageScope stage("train: image loss");
-    // LPIPS in every lpips_every-th step; the steps between report its last value (a resumed run measures first).
-    image_loss_->add_terms(r.image, target, terms, it % config_.loss.lpips_every == 0 || !last_lpips_.defined());
-    if (terms.count("lpips")) last_lpips_ = terms["lpips"];
-    else if (last_lpips_.defined()) terms["lpips"] = last_lpips_;
-  }
-  at::Tensor loss;
-  {
-    const StageScope stage("train: regularisers");
-    regularisers_->add_terms(out, terms);
-    loss = total_loss(terms);
-  }
-  {
-    const StageScope stage("train: backward");
-    // Gradients are dropped, not zeroed: a parameter a step does not reach (the time planes in a step without
-    // time) then has none and Adam leaves it alone, in a resumed run (whose parameters start without gradients)
-    // exactly as in an uninterrupted one; LibTorch versions differ in what zero_grad() does.
-    for (at::Tensor& p : avatar_->parameters()) p.mutable_grad().reset();
-    loss.backward();
+  if (!graphs_) {
+    LossTerms terms;
+    if (refinement_) {
+      const nlohmann::json aligned = refinement_->align(it, avatar_, config_.loss);
+      if (!aligned.empty()) log_->write(aligned);
+    }
+    StepInputs inputs(data, device_);
+    inputs.upload(data);
+    // With pose refinement the pose is the refined fit, with its gradient (a non-finite correction shows as a
+    // non-finite loss).
+    const body::SmplxPose pose = refinement_ ? refinement_->pose(f, it, terms) : inputs.pose;
+    outputs = step_->run(inputs, pose, data.lpips, std::move(terms));
   }
   {
     const StageScope stage("train: optimizer");
     adam_->step();
     if (refinement_) refinement_->step(f, it, factor);
   }
-  watch_.record(it + 1, terms, {{"psnr", metrics::psnr(r.image.detach(), target)}});
+  observation_sum_ += outputs.observation;
+  ++observation_steps_;
+  LossTerms& terms = outputs.terms;
+  // A copy: a recorded step rewrites its outputs at every replay.
+  if (terms.count("lpips")) last_lpips_ = terms["lpips"].clone();
+  else if (last_lpips_.defined()) terms["lpips"] = last_lpips_;
+  watch_.record(it + 1, terms, {{"psnr", outputs.psnr}});
 }
 
 TrainSummary TrainingSession::run(int64_t start, int64_t end) {
@@ -219,6 +178,11 @@ TrainSummary TrainingSession::run(int64_t start, int64_t end) {
   summary_.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();
   nlohmann::json entry{{"event", "end"}, {"iteration", summary_.iterations}, {"seconds", summary_.seconds},
                        {"training_seconds", training_seconds_}};
+  if (graphs_) {
+    const StepGraphStats& g = graphs_->stats();
+    entry["step_graphs"] = {{"captures", g.captures}, {"replays", g.replays}, {"eager_steps", g.eager_steps},
+                            {"budget_overflows", g.budget_overflows}, {"intersection_budget", g.intersection_budget}};
+  }
   if (!std::isnan(summary_.validation_psnr)) entry["val_psnr"] = summary_.validation_psnr;
   log_->write(entry);
   return summary_;

@@ -8,14 +8,15 @@
 
 #include "train/adam_step.h"
 #include "train/checkpoint.h"
+#include "train/frame_cache.h"
 #include "train/loss_watch.h"
 #include "train/pose_refinement.h"
 #include "train/progress.h"
+#include "train/step_graphs.h"
+#include "train/training_step.h"
 #include "train/trainer.h"
 
 namespace sfgs::train {
-
-class FrameCache;
 
 // LibTorch's choice of TF32 for CUDA float32 matrix products, set for a scope and restored after it.
 class Tf32MatmulScope {
@@ -68,6 +69,8 @@ class TrainingSession {
   std::unique_ptr<ImageLoss> image_loss_;
   std::unique_ptr<Regularisers> regularisers_;
   std::unique_ptr<FrameCache> frames_;
+  std::unique_ptr<TrainingStep> step_;
+  std::unique_ptr<StepGraphs> graphs_;  // null: steps run eagerly (CPU, pose refinement, schedule.cuda_graphs off)
   std::unique_ptr<PoseRefinement> refinement_;  // null unless config.pose_refinement.enabled
   std::unique_ptr<JsonLinesLog> log_;
   std::unique_ptr<ProgressBar> bar_;

@@ -21,6 +21,7 @@ TEST(TrainConfig, YamlRoundTripAndOverrides) {
   EXPECT_EQ(c.loss.mean_offset_parts.hands, 4);
   EXPECT_EQ(c.loss.lpips_every, 1) << "LPIPS in every step unless configured";
   EXPECT_TRUE(c.schedule.tf32_matmul);
+  EXPECT_TRUE(c.schedule.cuda_graphs);
   EXPECT_EQ(c.loss.image, 0.8) << "defaults are the paper's best setting";
   const TrainConfig back = TrainConfig::from_yaml_text(c.to_yaml());
   EXPECT_EQ(back.to_yaml(), c.to_yaml());

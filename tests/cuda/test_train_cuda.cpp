@@ -1,6 +1,9 @@
 // The training step's GPU parts: the fused Adam step (train/adam_step.h) against LibTorch's own Adam::step over
 // several steps, two parameter groups with their own learning rates, weight decay, and a parameter that a step leaves
-// without a gradient. Skips without a CUDA device.
+// without a gradient; training steps recorded as CUDA graphs (train/step_graphs.h) against the same steps run
+// eagerly (outputs and gradients, with and without the time branch, a moving camera, a step beyond the splatting
+// budget), and a whole training run with graphs against one without. Skips without a CUDA device.
+#include <algorithm>
 #include <vector>
 
 #include <ATen/ATen.h>
@@ -9,8 +12,11 @@
 #include <torch/optim/adam.h>
 
 #include "test_avatar_utils.h"
+#include "test_trainer_utils.h"
 #include "train/adam_step.h"
+#include "train/step_graphs.h"
 #include "train/training_session.h"
+#include "train/training_step.h"
 
 namespace sfgs::testing {
 namespace {
@@ -93,6 +99,136 @@ TEST(AdamStepperCuda, AvatarStepsEqualLibTorchAdam) {
       EXPECT_LT((p.value() - other).abs().max().item<double>(), 1e-5) << p.key() << " after step " << step;
     }
   }
+}
+
+// An avatar on the GPU with the trainer's losses (LPIPS when its weights are found) and its step.
+struct GpuStep {
+  explicit GpuStep(const model::Avatar& like) : avatar(procedural_avatar_body(), subject_betas(), small_config()) {
+    copy_parameters(*like, *avatar);
+    avatar->to(at::kCUDA);
+    avatar->train();
+    image_loss = std::make_unique<train::ImageLoss>(train::LossWeights{}, at::kCUDA);
+    regularisers = std::make_unique<train::Regularisers>(train::LossWeights{}, avatar->part_labels(), avatar->faces(),
+                                                         at::kCUDA);
+    step = std::make_unique<train::TrainingStep>(avatar, *image_loss, *regularisers);
+  }
+  train::StepOutputs eager(const train::StepData& data) {
+    train::StepInputs in(data, at::kCUDA);
+    in.upload(data);
+    return step->run(in, in.pose, data.lpips);
+  }
+  model::Avatar avatar;
+  std::unique_ptr<train::ImageLoss> image_loss;
+  std::unique_ptr<train::Regularisers> regularisers;
+  std::unique_ptr<train::TrainingStep> step;
+};
+
+// Step `k` of a short run: frames of 64 x 48, a camera that turns a little each step (one kind of step per time
+// branch), the time left out every other step. `closer` moves the camera towards the avatar (more intersections).
+train::StepData drawn_step(int64_t k, double closer = 0) {
+  train::StepData d;
+  at::manual_seed(100 + k);
+  d.frame = at::randint(0, 256, {64, 48, 4}, at::kByte).pin_memory();
+  d.pose = test_pose(k, 0.3, true);
+  d.camera = Camera::looking_forward(70.0, 48, 64);
+  const double angle = 0.1 * double(k), cs = std::cos(angle), sn = std::sin(angle);
+  d.camera.world_to_camera = {cs, 0, -sn, 0, 0, -1, 0, 0.3, -sn, 0, -cs, 3.0 - closer, 0, 0, 0, 1};
+  d.background = {0.2f, 0.5f, float(k % 3) / 3.0f};
+  if (k % 2 == 0) d.time = 0.5 - 0.1 * double(k);
+  return d;
+}
+
+// The recorded step's outputs and gradients are the eager step's (the splatting's backward adds in a varying
+// order: float32 rounding apart).
+void expect_same_step(const train::StepOutputs& recorded, const model::Avatar& recorded_avatar,
+                      const train::StepOutputs& eager, const model::Avatar& eager_avatar, int64_t k) {
+  for (const auto& [name, value] : eager.terms) {
+    ASSERT_TRUE(recorded.terms.count(name)) << name << ", step " << k;
+    EXPECT_NEAR(recorded.terms.at(name).item<double>(), value.item<double>(), 1e-5 * (1 + std::abs(value.item<double>())))
+        << name << ", step " << k;
+  }
+  EXPECT_NEAR(recorded.psnr.item<double>(), eager.psnr.item<double>(), 1e-3) << "step " << k;
+  EXPECT_LT(max_abs_difference(recorded.observation, eager.observation), 1e-5) << "step " << k;
+  const auto eager_parameters = eager_avatar->named_parameters();
+  for (const auto& p : recorded_avatar->named_parameters()) {
+    const at::Tensor& other = eager_parameters[p.key()].grad();
+    ASSERT_EQ(p.value().grad().defined(), other.defined()) << p.key() << ", step " << k;
+    if (!other.defined()) continue;
+    const double scale = std::max(other.abs().max().item<double>(), 1e-12);
+    EXPECT_LT(max_abs_difference(p.value().grad(), other), 1e-3 * scale) << p.key() << ", step " << k;
+  }
+}
+
+TEST(StepGraphsCuda, RecordedStepsEqualEagerStepsWithAndWithoutTime) {
+  if (!torch::cuda::is_available()) GTEST_SKIP() << "no CUDA device";
+  model::Avatar initial(procedural_avatar_body(), subject_betas(), small_config());
+  randomise_parameters(*initial, 0.1, 8);
+  GpuStep recorded(initial), eager(initial);
+  train::StepGraphs graphs(recorded.avatar, at::kCUDA);
+  const int64_t steps = 6;
+  for (int64_t k = 0; k < steps; ++k) {
+    const train::StepData data = drawn_step(k);
+    const train::StepOutputs r =
+        graphs.run(data, [&](const train::StepInputs& in) { return recorded.step->run(in, in.pose, data.lpips); });
+    const train::StepOutputs e = eager.eager(data);
+    expect_same_step(r, recorded.avatar, e, eager.avatar, k);
+    // Both move on from the same parameters: the next step compares recording, not Adam's rounding.
+    at::NoGradGuard no_grad;
+    for (at::Tensor& p : recorded.avatar->parameters())
+      if (p.grad().defined()) p.add_(p.grad().sign(), 1e-3);
+    copy_parameters(*recorded.avatar, *eager.avatar);
+  }
+  const train::StepGraphStats& stats = graphs.stats();
+  EXPECT_EQ(stats.eager_steps, 1) << "the first step measures the splatting";
+  EXPECT_EQ(stats.captures, 2) << "one graph with the time branch, one without";
+  EXPECT_EQ(stats.replays, steps - 1);
+  EXPECT_EQ(stats.budget_overflows, 0);
+}
+
+TEST(StepGraphsCuda, AStepBeyondTheBudgetGrowsItAndRunsWhole) {
+  if (!torch::cuda::is_available()) GTEST_SKIP() << "no CUDA device";
+  model::Avatar initial(procedural_avatar_body(), subject_betas(), small_config());
+  randomise_parameters(*initial, 0.1, 9);
+  GpuStep recorded(initial), eager(initial);
+  train::StepGraphs graphs(recorded.avatar, at::kCUDA, /*budget_slack=*/1.0);
+  // The budget is taken from the far steps; the camera then comes closer: more intersections than the budget.
+  const std::vector<double> closer{0, 0, 0, 1.2, 1.2};
+  for (size_t k = 0; k < closer.size(); ++k) {
+    train::StepData data = drawn_step(int64_t(k % 2 == 0 ? 0 : 2), closer[k]);  // all with a time: one kind
+    const train::StepOutputs r =
+        graphs.run(data, [&](const train::StepInputs& in) { return recorded.step->run(in, in.pose, data.lpips); });
+    const train::StepOutputs e = eager.eager(data);
+    expect_same_step(r, recorded.avatar, e, eager.avatar, int64_t(k));
+  }
+  EXPECT_GE(graphs.stats().budget_overflows, 1);
+  EXPECT_GE(graphs.stats().captures, 2) << "recorded again with the grown budget";
+}
+
+TEST(StepGraphsCuda, TrainingWithGraphsMatchesTrainingWithout) {
+  if (!torch::cuda::is_available()) GTEST_SKIP() << "no CUDA device";
+  TempFolder folder;
+  const data::Dataset video = tiny_video(folder, 6, 48);
+  train::TrainConfig config = tiny_train_config();
+  config.device = "cuda";
+  config.schedule.iterations = 20;
+  config.log_every = 20;
+  config.validate_every = 20;
+  std::vector<double> final_loss;
+  for (bool graphs : {true, false}) {
+    config.schedule.cuda_graphs = graphs;
+    const train::RunFolder run{folder / (graphs ? "graphs" : "eager")};
+    const train::TrainSummary summary = train::train_avatar(video, config, run, quiet());
+    final_loss.push_back(summary.final_loss);
+    bool recorded = false;
+    for (const nlohmann::json& entry : log_entries(run)) {
+      EXPECT_NE(entry["event"], "graphs_off") << entry.dump();
+      if (entry["event"] == "end" && entry.contains("step_graphs"))
+        recorded = entry["step_graphs"]["captures"].get<int64_t>() > 0 &&
+                   entry["step_graphs"]["replays"].get<int64_t>() > 0;
+    }
+    EXPECT_EQ(recorded, graphs);
+  }
+  EXPECT_NEAR(final_loss[0], final_loss[1], 0.02 * std::abs(final_loss[1]));
 }
 
 }  // namespace
