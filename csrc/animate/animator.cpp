@@ -46,7 +46,7 @@ Animator::Animator(model::Avatar avatar, const Camera& camera, const at::Tensor&
   set_camera(camera_);
   avatar_->eval();
   avatar_->cache_static_features();
-  if (device_.is_cuda()) counts_ = at::zeros({BinningBudget::kCounts}, at::TensorOptions(device_).dtype(at::kLong));
+  if (device_.is_cuda()) budget_ = std::make_unique<GrowingBudget>(device_, options_.budget_slack, "Animator");
 }
 
 Animator::~Animator() = default;
@@ -94,40 +94,26 @@ void Animator::stage_pose(const body::SmplxPose& pose) {
   staged_values_.copy_(packed);  // one upload per frame
 }
 
-std::array<int64_t, 3> Animator::read_counts() {
-  const at::Tensor host = counts_.cpu();  // waits for the frame
-  const int64_t* v = host.data_ptr<int64_t>();
-  return {v[0], v[1], v[2]};
-}
-
-void Animator::grow_budget(const std::array<int64_t, 3>& counts) {
-  TORCH_CHECK(counts[2] == 0, "Animator: ", counts[2], " opacities of the posed avatar are not finite or outside [0, 1]");
-  intersection_budget_ = std::max<int64_t>(1, std::llround(double(counts[0]) * options_.budget_slack));
-  tile_budget_ = std::max<int64_t>(1, std::llround(double(counts[1]) * options_.budget_slack));
-}
-
 void Animator::capture() {
   const auto frame = [this] {
     at::NoGradGuard no_grad;
-    const ScopedBinningBudget budget(BinningBudget{intersection_budget_, tile_budget_, counts_});
+    const ScopedBinningBudget budget(budget_->budget(avatar_->gaussian_count()));
     image_ = splat(avatar_->forward_trusted_pose(staged_pose_, std::nullopt));
   };
-  if (intersection_budget_ == 0) {
+  if (!budget_->measured()) {
     // The first frame of this avatar: eager passes (which also make every lazy one-time allocation outside the
     // graph) find a budget that fits, starting from a guess and growing it.
-    intersection_budget_ = std::max<int64_t>(1, avatar_->gaussian_count() * kGraphInitialIntersectionsPerGaussian);
-    tile_budget_ = intersection_budget_;
     for (;;) {
       frame();
-      const std::array<int64_t, 3> counts = read_counts();
-      const bool fitted = counts[0] <= intersection_budget_;
-      grow_budget(counts);
+      const BinningCounts counts = budget_->read();
+      const bool fitted = budget_->fits(counts);
+      budget_->grow(counts);
       if (fitted) break;
     }
   }
   graph_ = capture_device_graph(frame);
   ++stats_.captures;
-  stats_.budget = intersection_budget_;
+  stats_.budget = budget_->intersections();
 }
 
 at::Tensor Animator::render_with_graph(const body::SmplxPose& pose) {
@@ -135,12 +121,12 @@ at::Tensor Animator::render_with_graph(const body::SmplxPose& pose) {
   for (;;) {
     if (!graph_) capture();
     graph_->replay();
-    const std::array<int64_t, 3> counts = read_counts();
-    stats_.intersections = counts[0];
-    if (counts[0] <= intersection_budget_ && counts[1] <= tile_budget_ && counts[2] == 0) break;
+    const BinningCounts counts = budget_->read();
+    stats_.intersections = counts.intersections;
+    if (budget_->fits(counts)) break;
     // The pass was emptied on the device: grow the budget, record again, and replay the same frame.
     ++stats_.budget_overflows;
-    grow_budget(counts);
+    budget_->grow(counts);
     graph_.reset();
   }
   ++stats_.graph_frames;

@@ -15,6 +15,7 @@
 #include "body/smplx_pose.h"
 #include "common/constants.h"
 #include "model/avatar.h"
+#include "splat/growing_budget.h"
 #include "splat/splat.h"
 
 namespace sfgs {
@@ -69,9 +70,6 @@ class Animator {
   at::Tensor render_with_graph(const body::SmplxPose& pose);
   void stage_pose(const body::SmplxPose& pose);
   void capture();
-  // The splatting counts of the latest pass (intersections, longest tile, invalid opacities); waits for it.
-  std::array<int64_t, 3> read_counts();
-  void grow_budget(const std::array<int64_t, 3>& counts);
 
   model::Avatar avatar_;
   Camera camera_;
@@ -81,12 +79,11 @@ class Animator {
   at::Device device_;
   AnimatorStats stats_;
   // Graph state: the pose's device copy (one flat buffer and the fields as its views), the layout it was made for,
-  // the splatting budget and counts, and the graph's output.
+  // the splatting budget (CUDA only), and the graph's output.
   std::string layout_;
   at::Tensor staged_values_;
   body::SmplxPose staged_pose_;
-  int64_t intersection_budget_ = 0, tile_budget_ = 0;
-  at::Tensor counts_;
+  std::unique_ptr<GrowingBudget> budget_;
   at::Tensor image_;
   std::unique_ptr<DeviceGraph> graph_;
 };

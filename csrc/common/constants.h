@@ -171,6 +171,9 @@ inline constexpr long kObservationSmoothingPasses = 16;
 inline constexpr double kReplayReachSlack = 1e-6;
 
 // ---- training configuration (docs/training.md) ----------------------------------------------------------------
+// Training frames kept decoded in memory (8-bit) up to this many bytes (train/frame_cache.h); beyond it they are
+// read from disk when drawn.
+inline constexpr long kFrameCacheBytes = 2L << 30;
 // Ranges a config's values must lie in. They refuse values that can only diverge or exhaust memory (a learning rate
 // of 1e30, a loss weight whose product overflows float32, planes of a million texels a side), not unusual choices:
 // the defaults sit orders of magnitude inside them (learning rates 1e-3, Laplacian weights 1e5, planes 128-256).

@@ -22,9 +22,8 @@ bool device_graphs_available();
 // in device tensors it reads). Tensors it allocates come from the graph's private memory pool and keep their
 // addresses across replays. The allocator's unused cached blocks are returned to the driver before each run.
 //
-// `share_pool_with` (optional) records into that graph's pool, on its stream and without the eager run (the work's
-// lazy one-time allocations must have happened already), so graphs that never run at the same time reuse each
-// other's intermediates. Safe only while every tensor a graph's replays write that outlives its capture (its
+// `share_pool_with` (optional) records into that graph's pool, on its stream, so graphs that never run at the same
+// time reuse each other's intermediates. Safe only while every tensor a graph's replays write that outlives its capture (its
 // outputs) is kept alive as long as the graph: the pool never hands out a live block, but it does hand out a block
 // a graph wrote if that graph's reference to it was dropped.
 std::unique_ptr<DeviceGraph> capture_device_graph(const std::function<void()>& work,

@@ -27,9 +27,9 @@ bool device_graphs_available() { return true; }
 
 std::unique_ptr<DeviceGraph> capture_device_graph(const std::function<void()>& work, DeviceGraph* share_pool_with) {
   CudaDeviceGraph* shared = static_cast<CudaDeviceGraph*>(share_pool_with);
-  // Capture cannot happen on the legacy default stream; the work queued before it must be done first. A new side
-  // stream gets one eager run first, which makes the per-stream one-time allocations (cuBLAS workspaces) outside the
-  // graph; a graph that shares another's pool is recorded on that graph's stream, prepared already.
+  // Capture cannot happen on the legacy default stream; the work queued before it must be done first. One eager run
+  // on the side stream first makes every lazy one-time allocation (cuBLAS workspaces, the work's own caches) outside
+  // the graph. A graph that shares another's pool is recorded on that graph's stream.
   const c10::cuda::CUDAStream side = shared ? shared->stream() : c10::cuda::getStreamFromPool();
   auto recorded = std::make_unique<CudaDeviceGraph>(side);
   const at::cuda::MempoolId_t pool = shared ? shared->graph().pool() : at::cuda::MempoolId_t{0, 0};
@@ -39,11 +39,9 @@ std::unique_ptr<DeviceGraph> capture_device_graph(const std::function<void()>& w
   c10::cuda::CUDACachingAllocator::emptyCache();
   {
     const c10::cuda::CUDAStreamGuard on_side(side);
-    if (!shared) {
-      work();
-      side.synchronize();
-      c10::cuda::CUDACachingAllocator::emptyCache();
-    }
+    work();
+    side.synchronize();
+    c10::cuda::CUDACachingAllocator::emptyCache();
     recorded->graph().capture_begin(pool);
     try {
       work();

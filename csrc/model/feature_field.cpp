@@ -97,10 +97,9 @@ at::Tensor FeatureFieldImpl::fuse(const StaticFeatures& features, const at::Tens
   if (!options_.use_hexplane) return features.triplane;
   at::Tensor aligned = features.hexplane_space;
   if (time.defined()) {
-    const at::Tensor& t = time;
-    const at::Tensor time_features = split_face_ ? merge(hexplane_time_->sample(coordinates_, t),
-                                                         face_hexplane_time_->sample(face_coordinates_, t))
-                                                 : hexplane_time_->sample(coordinates_, t);
+    const at::Tensor time_features = split_face_ ? merge(hexplane_time_->sample(coordinates_, time),
+                                                         face_hexplane_time_->sample(face_coordinates_, time))
+                                                 : hexplane_time_->sample(coordinates_, time);
     aligned = aligned + hexplane_to_triplane_->project(1, time_features);
   }
   const at::Tensor alpha = at::sigmoid(gate_->finish(features.gate_triplane + gate_->project(1, aligned)));

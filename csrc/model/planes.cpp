@@ -10,18 +10,9 @@
 namespace sfgs::model {
 namespace {
 
-// at::grid_sampler's integer modes (torch.nn.functional.grid_sample's 'bilinear' and 'border').
-constexpr int64_t kBilinear = 0;
-constexpr int64_t kBorderPadding = 1;
+using plane_sampling::sample_planes;
 
 at::Tensor random_planes(at::IntArrayRef shape) { return at::empty(shape).normal_(0.0, kPlaneInitStd); }
-
-// planes (P, C, H, W) read at grid (P, N, 2) of (u along W, v along H) -> (N, P C), plane-major.
-at::Tensor sample_planes(const at::Tensor& planes, const at::Tensor& grid) {
-  const at::Tensor sampled = at::grid_sampler(planes, grid.unsqueeze(1), kBilinear, kBorderPadding,
-                                              /*align_corners=*/true);  // (P, C, 1, N)
-  return sampled.squeeze(2).permute({2, 0, 1}).reshape({grid.size(1), -1});
-}
 
 void check_coordinates(const at::Tensor& coordinates, const at::Tensor& planes, const char* what) {
   TORCH_CHECK(coordinates.defined() && coordinates.dim() == 2 && coordinates.size(1) == 3 &&
@@ -77,8 +68,7 @@ at::Tensor TimePlanesImpl::sample(const at::Tensor& coordinates, const at::Tenso
               ", got ", describe(time));
   const at::Tensor positions = coordinates.t();  // (3, N): x, y, z, each along its plane's width
   if (!planes_.requires_grad() || !at::GradMode::is_enabled() || coordinates.requires_grad()) {
-    const at::Tensor space = positions.unsqueeze(-1);
-    return sample_planes(planes_, at::cat({space, time.expand_as(space)}, -1));
+    return sample_planes(planes_, plane_sampling::time_grid(positions, time));
   }
   const plane_sampling::PlaneReads& reads = reads_.reads(coordinates, [&] {
     const at::Tensor line = at::stack({positions, at::full_like(positions, -1)}, -1);  // v plays no part

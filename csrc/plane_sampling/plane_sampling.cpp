@@ -26,6 +26,12 @@ at::Tensor pixel_position(const at::Tensor& coordinate, int64_t size) {
   return ((coordinate + 1) / 2 * double(size - 1)).clamp(0, double(size - 1));
 }
 
+void check_planes(const at::Tensor& planes, const char* what) {
+  TORCH_CHECK(planes.defined() && planes.dim() == 4 &&
+                  (planes.scalar_type() == at::kFloat || planes.scalar_type() == at::kDouble),
+              what, ": planes must be a float32 or float64 (P, C, H, W) tensor, got ", describe(planes));
+}
+
 template <typename T>
 void gradient_as(const PlaneReads& r, const at::Tensor& grad_features, const at::Tensor& grad_planes) {
   PlaneGradientArrays<T> a{};
@@ -76,9 +82,7 @@ class SampleFixedPlanes : public torch::autograd::Function<SampleFixedPlanes> {
     ctx->save_for_backward(SavedReads::list(reads));
     ctx->saved_data["shape"] =
         std::vector<int64_t>{planes.size(0), planes.size(1), planes.size(2), planes.size(3), reads.count};
-    const at::Tensor sampled = at::grid_sampler(planes, grid.unsqueeze(1), kBilinear, kBorderPadding,
-                                                /*align_corners=*/true);  // (P, C, 1, N)
-    return sampled.squeeze(2).permute({2, 0, 1}).reshape({grid.size(1), -1});
+    return sample_planes(planes, grid);
   }
 
   static variable_list backward(AutogradContext* ctx, variable_list grads) {
@@ -99,11 +103,7 @@ class SampleFixedPlanesAtTime : public torch::autograd::Function<SampleFixedPlan
     ctx->save_for_backward(saved);
     ctx->saved_data["shape"] =
         std::vector<int64_t>{planes.size(0), planes.size(1), planes.size(2), planes.size(3), reads.count};
-    const at::Tensor space = positions.unsqueeze(-1);  // (P, N, 1)
-    const at::Tensor grid = at::cat({space, time.expand_as(space)}, -1);
-    const at::Tensor sampled = at::grid_sampler(planes, grid.unsqueeze(1), kBilinear, kBorderPadding,
-                                                /*align_corners=*/true);  // (P, C, 1, N)
-    return sampled.squeeze(2).permute({2, 0, 1}).reshape({positions.size(1), -1});
+    return sample_planes(planes, time_grid(positions, time));
   }
 
   static variable_list backward(AutogradContext* ctx, variable_list grads) {
@@ -125,6 +125,17 @@ class SampleFixedPlanesAtTime : public torch::autograd::Function<SampleFixedPlan
 };
 
 }  // namespace
+
+at::Tensor sample_planes(const at::Tensor& planes, const at::Tensor& grid) {
+  const at::Tensor sampled = at::grid_sampler(planes, grid.unsqueeze(1), kBilinear, kBorderPadding,
+                                              /*align_corners=*/true);  // (P, C, 1, N)
+  return sampled.squeeze(2).permute({2, 0, 1}).reshape({grid.size(1), -1});
+}
+
+at::Tensor time_grid(const at::Tensor& positions, const at::Tensor& time) {
+  const at::Tensor space = positions.unsqueeze(-1);  // (P, N, 1)
+  return at::cat({space, time.expand_as(space)}, -1);
+}
 
 PlaneReads plane_reads(const at::Tensor& grid, int64_t height, int64_t width) {
   TORCH_CHECK(grid.defined() && grid.dim() == 3 && grid.size(2) == 2 &&
@@ -172,9 +183,7 @@ PlaneReads plane_reads(const at::Tensor& grid, int64_t height, int64_t width) {
 }
 
 at::Tensor sample_fixed_planes(const at::Tensor& planes, const at::Tensor& grid, const PlaneReads& reads) {
-  TORCH_CHECK(planes.defined() && planes.dim() == 4 &&
-                  (planes.scalar_type() == at::kFloat || planes.scalar_type() == at::kDouble),
-              "sample_fixed_planes: planes must be a float32 or float64 (P, C, H, W) tensor, got ", describe(planes));
+  check_planes(planes, "sample_fixed_planes");
   TORCH_CHECK(grid.defined() && grid.dim() == 3 && grid.size(0) == planes.size(0) && grid.size(2) == 2 &&
                   grid.scalar_type() == planes.scalar_type() && grid.device() == planes.device(),
               "sample_fixed_planes: the grid must be a ", planes.scalar_type(), " (", planes.size(0),
@@ -191,10 +200,7 @@ at::Tensor sample_fixed_planes(const at::Tensor& planes, const at::Tensor& grid,
 
 at::Tensor sample_fixed_planes_at_time(const at::Tensor& planes, const at::Tensor& positions, const at::Tensor& time,
                                        const PlaneReads& reads) {
-  TORCH_CHECK(planes.defined() && planes.dim() == 4 &&
-                  (planes.scalar_type() == at::kFloat || planes.scalar_type() == at::kDouble),
-              "sample_fixed_planes_at_time: planes must be a float32 or float64 (P, C, T, W) tensor, got ",
-              describe(planes));
+  check_planes(planes, "sample_fixed_planes_at_time");
   TORCH_CHECK(positions.defined() && positions.dim() == 2 && positions.size(0) == planes.size(0) &&
                   positions.scalar_type() == planes.scalar_type() && positions.device() == planes.device() &&
                   !positions.requires_grad(),

@@ -11,6 +11,12 @@
 
 namespace sfgs::plane_sampling {
 
+// planes (P, C, H, W) read at grid (P, N, 2) of (u along W, v along H) in [-1, 1] -> (N, P C), plane-major:
+// grid_sample with mode 'bilinear', padding 'border' and align_corners true, differentiated by LibTorch's backward.
+at::Tensor sample_planes(const at::Tensor& planes, const at::Tensor& grid);
+// The grid of time planes (P, C, T, W) read at positions (P, N) along W at one time (0-dim) along T: (P, N, 2).
+at::Tensor time_grid(const at::Tensor& positions, const at::Tensor& time);
+
 // Which texels each point reads, sorted by texel and cut into chunks of at most kPlaneReadChunk reads of one texel
 // (a texel many points read is summed by several workers). Made on the grid's device.
 struct PlaneReads {

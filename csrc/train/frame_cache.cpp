@@ -6,9 +6,6 @@
 
 namespace sfgs::train {
 
-// Frames kept decoded in memory (8-bit) up to this many bytes; beyond it they are read from disk when drawn.
-constexpr int64_t kFrameCacheBytes = int64_t(2) << 30;
-
 FrameCache::FrameCache(const data::Dataset& dataset, std::vector<int64_t> ahead, bool page_locked)
     : dataset_(dataset), ahead_(std::move(ahead)), page_locked_(page_locked) {
   if (!ahead_.empty()) worker_ = std::thread([this] { decode_ahead(); });
@@ -21,29 +18,38 @@ FrameCache::~FrameCache() {
 
 at::Tensor FrameCache::decode(int64_t index) const {
   const data::Frame f = dataset_.load(index);
-  const at::Tensor packed = at::cat({f.image, f.mask.unsqueeze(2)}, 2).mul(kEightBitMax).round().to(at::kByte);
-  // A kept frame is never written again, so an upload in flight reads it safely.
-  return page_locked_ ? packed.pin_memory() : packed;
+  return at::cat({f.image, f.mask.unsqueeze(2)}, 2).mul(kEightBitMax).round().to(at::kByte);
 }
 
-at::Tensor FrameCache::keep(int64_t index, at::Tensor packed) {
+bool FrameCache::keep(int64_t index, const at::Tensor& packed) {
   const std::lock_guard<std::mutex> lock(mutex_);
-  const auto it = frames_.find(index);
-  if (it != frames_.end()) return it->second;
-  if (bytes_ + packed.numel() <= kFrameCacheBytes) {
-    bytes_ += packed.numel();
-    frames_[index] = packed;
-  }
-  return packed;
+  if (frames_.count(index)) return true;
+  if (bytes_ + packed.numel() > kFrameCacheBytes) return false;
+  bytes_ += packed.numel();
+  frames_[index] = packed;
+  return true;
+}
+
+int64_t FrameCache::kept() const {
+  const std::lock_guard<std::mutex> lock(mutex_);
+  return int64_t(frames_.size());
 }
 
 at::Tensor FrameCache::get(int64_t index) {
   {
     const std::lock_guard<std::mutex> lock(mutex_);
     const auto it = frames_.find(index);
-    if (it != frames_.end()) return it->second;
+    if (it != frames_.end()) {
+      // Page-locked here, on the caller's thread, the first time it is asked for: the decoding thread makes no CUDA
+      // call, which a CUDA graph being recorded meanwhile would not allow. A kept frame is never written again, so
+      // an upload in flight reads it safely.
+      if (page_locked_ && !it->second.is_pinned()) it->second = it->second.pin_memory();
+      return it->second;
+    }
   }
-  return keep(index, decode(index));
+  const at::Tensor packed = decode(index);
+  if (!keep(index, packed)) return page_locked_ ? packed.pin_memory() : packed;
+  return get(index);
 }
 
 void FrameCache::decode_ahead() {
@@ -51,11 +57,10 @@ void FrameCache::decode_ahead() {
     if (stop_) return;
     {
       const std::lock_guard<std::mutex> lock(mutex_);
-      if (bytes_ >= kFrameCacheBytes) return;
       if (frames_.count(index)) continue;
     }
     try {
-      keep(index, decode(index));
+      if (!keep(index, decode(index))) return;  // the cache is full
     } catch (const std::exception&) {
       return;  // get() reads the frame again and tells its error
     }

@@ -2,7 +2,7 @@
 // The training frames as 8-bit host tensors (image and mask in one (H, W, 4)), decoded once and kept up to
 // kFrameCacheBytes (page-locked for a CUDA run, so each upload is asynchronous). A background thread decodes the
 // training frames ahead of the steps, so a step rarely waits for a PNG: with recorded steps (train/step_graphs.h) the
-// host would otherwise decode while the GPU idles.
+// host would otherwise decode while the GPU idles. The thread makes no CUDA call.
 #include <atomic>
 #include <cstdint>
 #include <map>
@@ -27,17 +27,19 @@ class FrameCache {
   // Frame `index`: kept, or decoded now (and kept while the cache has room). A file the background thread could not
   // read is read here again, so its error reaches the caller.
   at::Tensor get(int64_t index);
+  // Frames kept so far (decoded ahead or asked for).
+  int64_t kept() const;
 
  private:
   at::Tensor decode(int64_t index) const;
-  // Keeps `packed` if there is room (and no other thread kept the frame first); returns the kept tensor or `packed`.
-  at::Tensor keep(int64_t index, at::Tensor packed);
+  // Keeps `packed` unless the frame is kept already or there is no room; false: no room.
+  bool keep(int64_t index, const at::Tensor& packed);
   void decode_ahead();
 
   const data::Dataset& dataset_;
   const std::vector<int64_t> ahead_;
   const bool page_locked_;
-  std::mutex mutex_;  // guards frames_ and bytes_
+  mutable std::mutex mutex_;  // guards frames_ and bytes_
   std::map<int64_t, at::Tensor> frames_;
   int64_t bytes_ = 0;
   std::atomic<bool> stop_{false};

@@ -5,14 +5,19 @@
 // each graph keeps its outputs and the parameters' gradients, which the trainer reads after a replay (the optimiser
 // runs outside the graphs, so learning rates and step counts stay host values).
 //
-// The splatting's intersection buffers are sized from a budget (splat.h, BinningBudget) instead of the count read
+// The splatting's intersection buffers are sized from a budget (splat/growing_budget.h) instead of the count read
 // that a graph cannot hold. Each replay's true counts are read back once the step is done (the step's one host
 // synchronisation, before the optimiser): a step beyond the budget grows it, records the graphs again and runs
 // again, so no step ever trains on an incomplete image. While no budget is known, steps run eagerly with a guess.
-#include <array>
+//
+// Contract: a step's outputs (and the gradients it leaves on the parameters) are valid until the next run(); the
+// graphs share one pool, so another kind's replay may overwrite them: copy what must last (the trainer does: the
+// loss watch stacks the terms, LPIPS is cloned). The avatar must stay as it was (parameters are updated in place; the
+// planes' reads and every buffer a graph reads keep their addresses); moving it needs a new StepGraphs.
 #include <functional>
 #include <map>
 #include <memory>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -21,9 +26,17 @@
 #include "common/constants.h"
 #include "common/device_graph.h"
 #include "model/avatar.h"
+#include "splat/growing_budget.h"
 #include "train/training_step.h"
 
 namespace sfgs::train {
+
+// A step could not be recorded (it synchronises with the host, or reads host memory): the caller runs it, and the
+// rest, eagerly.
+class StepRecordingError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
 
 struct StepGraphStats {
   int64_t captures = 0;          // graphs recorded (a new kind of step, or a grown budget)
@@ -44,7 +57,8 @@ class StepGraphs {
 
   // One step on `data`: `work` (the step's device work on the inputs it is given, TrainingStep::run) replayed from
   // the graph of the data's kind, recorded first if there is none. On return the parameters' gradients are the
-  // step's and the outputs are on the device; they stay valid until the next run().
+  // step's and the outputs are on the device; they stay valid until the next run(). Throws StepRecordingError when
+  // the work cannot be recorded (the step has not run), and the work's own errors as they come.
   StepOutputs run(const StepData& data, const std::function<StepOutputs(const StepInputs&)>& work);
   const StepGraphStats& stats() const { return stats_; }
 
@@ -58,17 +72,11 @@ class StepGraphs {
   StepOutputs run_budgeted(Kind& kind, const std::function<StepOutputs(const StepInputs&)>& work);
   void capture(Kind& kind, const std::function<StepOutputs(const StepInputs&)>& work);
   void drop_graphs();
-  std::array<int64_t, 3> read_counts() const;
-  bool fits(const std::array<int64_t, 3>& counts) const;
-  void grow_budget(const std::array<int64_t, 3>& counts);
 
   model::Avatar avatar_;
   at::Device device_;
-  double budget_slack_;
   std::map<std::string, Kind> kinds_;
-  at::Tensor counts_;  // BinningBudget::kCounts on the device
-  int64_t intersection_budget_ = 0, tile_budget_ = 0;
-  bool budget_measured_ = false;
+  GrowingBudget budget_;
   StepGraphStats stats_;
 };
 

@@ -113,7 +113,7 @@ void TrainingSession::step(int64_t it) {
   // LPIPS in every lpips_every-th step; the steps between report its last value (a resumed run measures first).
   data.lpips = it % config_.loss.lpips_every == 0 || !last_lpips_.defined();
   {
-    const StageScope stage("train: frame upload");
+    const StageScope stage("train: frame (kept or decoded)");
     data.frame = frames_->get(f);
   }
 
@@ -121,9 +121,9 @@ void TrainingSession::step(int64_t it) {
   if (graphs_) {
     try {
       outputs = graphs_->run(data, [&](const StepInputs& in) { return step_->run(in, in.pose, data.lpips); });
-    } catch (const c10::Error& e) {
+    } catch (const StepRecordingError& e) {
       // A step the graphs cannot hold is still a step: the run goes on eagerly, and the log says why.
-      log_->write({{"event", "graphs_off"}, {"iteration", it}, {"message", e.what_without_backtrace()}});
+      log_->write({{"event", "graphs_off"}, {"iteration", it}, {"message", e.what()}});
       graphs_.reset();
     }
   }

@@ -1,5 +1,6 @@
 #include "train/training_step.h"
 
+#include <cmath>
 #include <iomanip>
 #include <sstream>
 
@@ -16,7 +17,7 @@ namespace {
 
 // The upper triangle of a symmetric 3x3 matrix in the splatting op's order: xx, xy, xz, yy, yz, zz.
 constexpr int kCovariancePairs[6][2] = {{0, 0}, {0, 1}, {0, 2}, {1, 1}, {1, 2}, {2, 2}};
-constexpr int64_t kRotationValues = 9, kTranslationValues = 3, kCovarianceMapValues = 36;
+constexpr int64_t kBackgroundChannels = 3, kRotationValues = 9, kTranslationValues = 3, kCovarianceMapValues = 36;
 constexpr int64_t kCameraValues = kRotationValues + kTranslationValues + kCovarianceMapValues;
 
 // The (6, 6) matrix that turns a covariance's six values into those of R Sigma R^T: row (a, b), column (i, j) holds
@@ -46,7 +47,7 @@ std::string step_kind(const StepData& d) {
   return kind.str();
 }
 
-StepInputs::StepInputs(const StepData& like, at::Device device) {
+StepInputs::StepInputs(const StepData& like, at::Device device) : kind_(step_kind(like)) {
   const auto options = at::TensorOptions(device).dtype(at::kFloat);
   TORCH_CHECK(like.frame.dim() == 3 && like.frame.size(2) == 4 && like.frame.scalar_type() == at::kByte,
               "StepInputs: the frame must be (H, W, 4) uint8, got ", describe(like.frame));
@@ -54,12 +55,12 @@ StepInputs::StepInputs(const StepData& like, at::Device device) {
   const at::Tensor like_pose = like.pose.packed();
   pose_values_ = like_pose.size(0);
   const bool moves = !camera_at_origin(like.camera);
-  const int64_t count = pose_values_ + 3 + (moves ? kCameraValues : 0) + (like.time ? 1 : 0);
+  const int64_t count = pose_values_ + kBackgroundChannels + (moves ? kCameraValues : 0) + (like.time ? 1 : 0);
   values_ = at::empty({count}, options);
   pose = like.pose.views_of(values_.narrow(0, 0, pose_values_));
   int64_t offset = pose_values_;
-  background = values_.narrow(0, offset, 3);
-  offset += 3;
+  background = values_.narrow(0, offset, kBackgroundChannels);
+  offset += kBackgroundChannels;
   if (moves) {
     world_to_camera = values_.narrow(0, offset, kRotationValues + kTranslationValues);
     offset += kRotationValues + kTranslationValues;
@@ -72,13 +73,17 @@ StepInputs::StepInputs(const StepData& like, at::Device device) {
 }
 
 void StepInputs::upload(const StepData& data) {
+  const std::string kind = step_kind(data);
+  TORCH_CHECK(kind == kind_, "StepInputs: the step is of another kind than these buffers: expected ", kind_, ", got ",
+              kind);
+  TORCH_CHECK(!data.time || (std::isfinite(*data.time) && *data.time >= -1 && *data.time <= 1),
+              "StepInputs: the step's time must be in [-1, 1], got ", data.time.value_or(0.0));
   const bool cuda = values_.is_cuda();
   // Page-locked staging from LibTorch's caching host allocator: the copy is asynchronous, and the allocator does not
   // hand the block out again before the copy has read it.
   at::Tensor host = at::empty({values_.size(0)}, at::TensorOptions().dtype(at::kFloat).pinned_memory(cuda));
   float* v = host.data_ptr<float>();
   const at::Tensor pose_values = data.pose.packed();
-  TORCH_CHECK(pose_values.size(0) == pose_values_, "StepInputs: the pose's layout differs from the kind's");
   std::copy(pose_values.data_ptr<float>(), pose_values.data_ptr<float>() + pose_values_, v);
   int64_t offset = pose_values_;
   for (float c : data.background) v[offset++] = c;

@@ -35,7 +35,8 @@ std::string step_kind(const StepData& data);
 class StepInputs {
  public:
   StepInputs(const StepData& like, at::Device device);
-  // Copies `data` (of this kind) into the buffers: asynchronously on CUDA (page-locked staging), so the host goes on.
+  // Copies `data` (of this kind; its time, if any, in [-1, 1]) into the buffers: asynchronously on CUDA (page-locked
+  // staging), so the host goes on.
   void upload(const StepData& data);
   // World points (N, 3), directions (N, 3) and covariances (N, 6) in the uploaded camera's frame, differentiable;
   // the values themselves when the kind's camera sits at the origin. Rendered with `camera` they give the image
@@ -54,6 +55,7 @@ class StepInputs {
   Camera camera;         // the kind's camera at the origin (the intrinsics and image size of its steps)
 
  private:
+  std::string kind_;   // step_kind of the steps these buffers take
   at::Tensor values_;  // pose values, then background, world_to_camera and time: one upload
   int64_t pose_values_ = 0;
 };

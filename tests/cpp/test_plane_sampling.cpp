@@ -141,14 +141,14 @@ TEST(PlaneSampling, TimePlanesEqualGridSampleOnBetweenAndBeyondTheRows) {
   }
 }
 
-TEST(PlaneSampling, TimePlanesModuleKeepsItsReads) {
+TEST(PlaneSampling, TimePlanesModuleGradientMatchesGridSampleAtEachTime) {
   at::manual_seed(6);
   model::TimePlanes time_planes(3, 8, 5);
   at::Tensor planes;
   for (const auto& p : time_planes->named_parameters()) planes = p.value();
   const at::Tensor coordinates = at::rand({40, 3}) * 2 - 1;
   const at::Tensor w = at::randn({40, 9});
-  for (double t : {0.3, -0.8}) {  // the second time reuses the reads
+  for (double t : {0.3, -0.8}) {  // the second time with the reads of the first
     const at::Tensor out = time_planes->sample(coordinates, at::scalar_tensor(t));
     const at::Tensor gradient = torch::autograd::grad({(out * w).sum()}, {planes})[0];
     const at::Tensor expected = time_reference(planes, coordinates.t(), t, w).second;

@@ -7,7 +7,9 @@
 #include <gtest/gtest.h>
 #include <torch/csrc/autograd/autograd.h>
 
+#include <chrono>
 #include <filesystem>
+#include <thread>
 
 #include "common/constants.h"
 #include "test_avatar_utils.h"
@@ -90,6 +92,12 @@ TEST(TrainStepInputs, KindsSeparateWhatARecordedStepBakesAndOnlyThat) {
   for (const train::StepData* d : {&without_time, &without_lpips, &other_focal, &at_origin, &no_hands, &larger})
     EXPECT_NE(train::step_kind(base), train::step_kind(*d));
   EXPECT_THROW(train::StepInputs(train::StepData{at::zeros({4, 4, 3}, at::kByte)}, at::kCPU), c10::Error);
+  // Buffers take only steps of their kind, and times on the hexplane's axis.
+  train::StepInputs in(base, at::kCPU);
+  expect_error_mentioning([&] { in.upload(without_time); }, "another kind");
+  train::StepData late = base;
+  late.time = 1.5;
+  expect_error_mentioning([&] { in.upload(late); }, "[-1, 1]");
 }
 
 TEST(TrainStepInputs, RenderInTheCameraFrameEqualsTheCamerasRenderWithGradients) {
@@ -145,6 +153,10 @@ TEST(TrainFrameCache, DecodesAheadOnItsThreadAndGivesTheDatasetsFrames) {
   const std::vector<int64_t> train = video.split(data::Split::kTrain);
   ASSERT_GE(train.size(), 2u);
   train::FrameCache cache(video, train, /*page_locked=*/false);
+  // The thread decodes every training frame without being asked.
+  for (int wait = 0; wait < 600 && cache.kept() < int64_t(train.size()); ++wait)
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  EXPECT_EQ(cache.kept(), int64_t(train.size()));
   for (int64_t f : train) {
     const data::Frame frame = video.load(f);
     const at::Tensor expected =

@@ -31,8 +31,8 @@ std::unique_ptr<torch::optim::Adam> two_group_adam(const std::vector<at::Tensor>
   std::vector<torch::optim::OptimizerParamGroup> groups;
   groups.emplace_back(std::vector<at::Tensor>{p[0], p[1]},
                       std::make_unique<torch::optim::AdamOptions>(torch::optim::AdamOptions(1e-2).eps(1e-15)));
-  groups.emplace_back(std::vector<at::Tensor>{p[2]}, std::make_unique<torch::optim::AdamOptions>(
-                                                         torch::optim::AdamOptions(3e-3).weight_decay(0.1)));
+  groups.emplace_back(std::vector<at::Tensor>{p[2]},
+                      std::make_unique<torch::optim::AdamOptions>(torch::optim::AdamOptions(3e-3).weight_decay(0.1)));
   return std::make_unique<torch::optim::Adam>(groups, torch::optim::AdamOptions(1e-2));
 }
 
@@ -108,8 +108,8 @@ struct GpuStep {
     avatar->to(at::kCUDA);
     avatar->train();
     image_loss = std::make_unique<train::ImageLoss>(train::LossWeights{}, at::kCUDA);
-    regularisers = std::make_unique<train::Regularisers>(train::LossWeights{}, avatar->part_labels(), avatar->faces(),
-                                                         at::kCUDA);
+    regularisers =
+        std::make_unique<train::Regularisers>(train::LossWeights{}, avatar->part_labels(), avatar->faces(), at::kCUDA);
     step = std::make_unique<train::TrainingStep>(avatar, *image_loss, *regularisers);
   }
   train::StepOutputs eager(const train::StepData& data) {
@@ -144,7 +144,8 @@ void expect_same_step(const train::StepOutputs& recorded, const model::Avatar& r
                       const train::StepOutputs& eager, const model::Avatar& eager_avatar, int64_t k) {
   for (const auto& [name, value] : eager.terms) {
     ASSERT_TRUE(recorded.terms.count(name)) << name << ", step " << k;
-    EXPECT_NEAR(recorded.terms.at(name).item<double>(), value.item<double>(), 1e-5 * (1 + std::abs(value.item<double>())))
+    EXPECT_NEAR(recorded.terms.at(name).item<double>(), value.item<double>(),
+                1e-5 * (1 + std::abs(value.item<double>())))
         << name << ", step " << k;
   }
   EXPECT_NEAR(recorded.psnr.item<double>(), eager.psnr.item<double>(), 1e-3) << "step " << k;
@@ -185,6 +186,33 @@ TEST(StepGraphsCuda, RecordedStepsEqualEagerStepsWithAndWithoutTime) {
   EXPECT_EQ(stats.budget_overflows, 0);
 }
 
+TEST(StepGraphsCuda, ARunStartingWithoutTimeRecordsEveryKindOfStep) {
+  if (!torch::cuda::is_available()) GTEST_SKIP() << "no CUDA device";
+  model::Avatar initial(procedural_avatar_body(), subject_betas(), small_config());
+  randomise_parameters(*initial, 0.1, 10);
+  GpuStep recorded(initial), eager(initial);
+  train::StepGraphs graphs(recorded.avatar, at::kCUDA);
+  // The first (eager) step has no time, so the time planes are first sampled by a step being recorded; then steps
+  // without LPIPS and with the camera at the origin (the fit given in the camera's frame) are kinds of their own.
+  for (int64_t k = 1; k <= 6; ++k) {
+    train::StepData data = drawn_step(k);
+    data.lpips = k % 3 != 0;
+    if (k == 5) {
+      data.camera.world_to_camera = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+      data.pose.transl = at::tensor({0.0f, 0.3f, 3.0f});
+    }
+    const train::StepOutputs r =
+        graphs.run(data, [&](const train::StepInputs& in) { return recorded.step->run(in, in.pose, data.lpips); });
+    const train::StepOutputs e = eager.eager(data);
+    expect_same_step(r, recorded.avatar, e, eager.avatar, k);
+    EXPECT_EQ(r.terms.count("lpips") > 0,
+              data.lpips && recorded.image_loss->lpips_status().rfind("LPIPS loss:", 0) == 0)
+        << "step " << k;
+  }
+  EXPECT_EQ(graphs.stats().eager_steps, 1);
+  EXPECT_GE(graphs.stats().captures, 4) << "no time, time, time without LPIPS, the camera at the origin";
+}
+
 TEST(StepGraphsCuda, AStepBeyondTheBudgetGrowsItAndRunsWhole) {
   if (!torch::cuda::is_available()) GTEST_SKIP() << "no CUDA device";
   model::Avatar initial(procedural_avatar_body(), subject_betas(), small_config());
@@ -223,8 +251,8 @@ TEST(StepGraphsCuda, TrainingWithGraphsMatchesTrainingWithout) {
     for (const nlohmann::json& entry : log_entries(run)) {
       EXPECT_NE(entry["event"], "graphs_off") << entry.dump();
       if (entry["event"] == "end" && entry.contains("step_graphs"))
-        recorded = entry["step_graphs"]["captures"].get<int64_t>() > 0 &&
-                   entry["step_graphs"]["replays"].get<int64_t>() > 0;
+        recorded =
+            entry["step_graphs"]["captures"].get<int64_t>() > 0 && entry["step_graphs"]["replays"].get<int64_t>() > 0;
     }
     EXPECT_EQ(recorded, graphs);
   }
