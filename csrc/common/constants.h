@@ -271,11 +271,13 @@ inline constexpr double kJointKeypointOcclusionDepth = 0.1;
 // hands, jaw and expression; the silhouette stage where masks exist) and progress lines every this many steps. The
 // body stage is still settling the limbs' depths at 300 steps: 600 body and 300 detail steps took the benchmark's
 // root-aligned MPJPE from 39.7 to 34.4 mm (sway) and 42.9 to 41.5 mm (walk) for half as much time again (60 frames:
-// 12 -> 18 s on one core; docs/fitting.md).
+// 12 -> 18 s on one core); the detail stage (every keypoint, the body still moving) keeps settling them too: 600
+// detail and 200 silhouette steps took sway / walk / wave from 31.7 / 37.4 / 66.8 to 28.0 / 35.5 / 64.2 mm for
+// two thirds more time (60 frames: 18 -> 31 s on one core; docs/fitting.md).
 inline constexpr long kFitGlobalIterations = 80;
 inline constexpr long kFitBodyIterations = 600;
-inline constexpr long kFitDetailIterations = 300;
-inline constexpr long kFitSilhouetteIterations = 60;
+inline constexpr long kFitDetailIterations = 600;
+inline constexpr long kFitSilhouetteIterations = 200;
 inline constexpr long kFitLogEvery = 25;
 // Intra-op threads of a CPU fit (fit.h FitOptions::threads says why one).
 inline constexpr long kFitCpuThreads = 1;
