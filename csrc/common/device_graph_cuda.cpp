@@ -45,16 +45,16 @@ std::unique_ptr<DeviceGraph> capture_device_graph(const std::function<void()>& w
     recorded->graph().capture_begin(pool);
     try {
       work();
-    } catch (...) {
+      recorded->graph().capture_end();
+    } catch (const std::exception& e) {
       // End the capture so the stream is usable again; the graph is dropped, and the work's error is the one told
       // (ending an invalidated capture reports its own).
       try {
         recorded->graph().capture_end();
       } catch (...) {
       }
-      throw;
+      throw GraphCaptureError(e.what());
     }
-    recorded->graph().capture_end();
   }
   side.synchronize();
   return recorded;

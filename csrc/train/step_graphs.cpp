@@ -6,11 +6,18 @@
 
 namespace sfgs::train {
 
-StepGraphs::StepGraphs(model::Avatar avatar, at::Device device, double budget_slack)
-    : avatar_(std::move(avatar)), device_(device), budget_(device, budget_slack, "training") {
-  TORCH_CHECK(device_.is_cuda() && device_graphs_available(),
-              "StepGraphs: recording training steps needs a CUDA device and a CUDA build, got ", device_);
+namespace {
+
+at::Device recordable(at::Device device) {
+  TORCH_CHECK(device.is_cuda() && device_graphs_available(),
+              "StepGraphs: recording training steps needs a CUDA device and a CUDA build, got ", device);
+  return device;
 }
+
+}  // namespace
+
+StepGraphs::StepGraphs(model::Avatar avatar, at::Device device, double budget_slack)
+    : avatar_(std::move(avatar)), device_(recordable(device)), budget_(device_, budget_slack, "training") {}
 
 StepGraphs::~StepGraphs() = default;
 
@@ -66,7 +73,7 @@ void StepGraphs::capture(Kind& kind, const std::function<StepOutputs(const StepI
   StepOutputs recorded;
   try {
     kind.graph = capture_device_graph([&] { recorded = run_budgeted(kind, work); }, pool);
-  } catch (const std::exception& e) {
+  } catch (const GraphCaptureError& e) {
     drop_graphs();
     throw StepRecordingError(std::string("a training step could not be recorded as a CUDA graph: ") + e.what());
   }
