@@ -160,6 +160,16 @@ void expect_same_step(const train::StepOutputs& recorded, const model::Avatar& r
   }
 }
 
+// Step k on `data` recorded (or replayed) by `graphs` on `recorded`'s avatar and run eagerly on `eager`'s: the same
+// step, as expect_same_step checks. Returns the recorded step's outputs.
+train::StepOutputs recorded_equals_eager(train::StepGraphs& graphs, GpuStep& recorded, GpuStep& eager,
+                                         const train::StepData& data, int64_t k) {
+  const train::StepOutputs r =
+      graphs.run(data, [&](const train::StepInputs& in) { return recorded.step->run(in, in.pose, data.lpips); });
+  expect_same_step(r, recorded.avatar, eager.eager(data), eager.avatar, k);
+  return r;
+}
+
 TEST(StepGraphsCuda, RecordedStepsEqualEagerStepsWithAndWithoutTime) {
   if (!torch::cuda::is_available()) GTEST_SKIP() << "no CUDA device";
   model::Avatar initial(procedural_avatar_body(), subject_betas(), small_config());
@@ -169,10 +179,7 @@ TEST(StepGraphsCuda, RecordedStepsEqualEagerStepsWithAndWithoutTime) {
   const int64_t steps = 6;
   for (int64_t k = 0; k < steps; ++k) {
     const train::StepData data = drawn_step(k);
-    const train::StepOutputs r =
-        graphs.run(data, [&](const train::StepInputs& in) { return recorded.step->run(in, in.pose, data.lpips); });
-    const train::StepOutputs e = eager.eager(data);
-    expect_same_step(r, recorded.avatar, e, eager.avatar, k);
+    recorded_equals_eager(graphs, recorded, eager, data, k);
     // Both move on from the same parameters: the next step compares recording, not Adam's rounding.
     at::NoGradGuard no_grad;
     for (at::Tensor& p : recorded.avatar->parameters())
@@ -203,10 +210,7 @@ TEST(StepGraphsCuda, ARunStartingWithoutTimeRecordsEveryKindOfStep) {
       data.camera.world_to_camera = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
       data.pose.transl = at::tensor({0.0f, 0.3f, 3.0f});
     }
-    const train::StepOutputs r =
-        graphs.run(data, [&](const train::StepInputs& in) { return recorded.step->run(in, in.pose, data.lpips); });
-    const train::StepOutputs e = eager.eager(data);
-    expect_same_step(r, recorded.avatar, e, eager.avatar, k);
+    const train::StepOutputs r = recorded_equals_eager(graphs, recorded, eager, data, k);
     EXPECT_EQ(r.terms.count("lpips") > 0,
               data.lpips && recorded.image_loss->lpips_status().rfind("LPIPS loss:", 0) == 0)
         << "step " << k;
@@ -226,10 +230,7 @@ TEST(StepGraphsCuda, AStepBeyondTheBudgetGrowsItAndRunsWhole) {
   const std::vector<double> closer{0, 0, 0, 1.2, 1.2};
   for (size_t k = 0; k < closer.size(); ++k) {
     train::StepData data = drawn_step(int64_t(k % 2 == 0 ? 0 : 2), closer[k]);  // all with a time: one kind
-    const train::StepOutputs r =
-        graphs.run(data, [&](const train::StepInputs& in) { return recorded.step->run(in, in.pose, data.lpips); });
-    const train::StepOutputs e = eager.eager(data);
-    expect_same_step(r, recorded.avatar, e, eager.avatar, int64_t(k));
+    recorded_equals_eager(graphs, recorded, eager, data, int64_t(k));
   }
   EXPECT_GE(graphs.stats().budget_overflows, 1);
   EXPECT_GE(graphs.stats().captures, 2) << "recorded again with the grown budget";
