@@ -3,8 +3,10 @@
 #include <c10/util/Exception.h>
 
 #include "body/body_backend.h"
+#include "feature_fusion/backend.h"
 #include "gathered_mlp/backend.h"
 #include "group_norm/backend.h"
+#include "linear/backend.h"
 #include "pixel_loss/backend.h"
 #include "plane_sampling/backend.h"
 #include "skin/backend.h"
@@ -44,6 +46,19 @@ namespace sfgs::gathered_mlp::cuda {
 
 bool available() { return false; }
 void forward(const GatheredMlpArrays&, at::Device) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
+int64_t first_layer_partial_rows(int64_t, at::Device) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
+void first_layer_forward(const FirstLayerArrays<float>&, at::Device) {
+  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
+}
+void first_layer_forward(const FirstLayerArrays<double>&, at::Device) {
+  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
+}
+void first_layer_backward(const FirstLayerGradientArrays<float>&, at::Device) {
+  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
+}
+void first_layer_backward(const FirstLayerGradientArrays<double>&, at::Device) {
+  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
+}
 
 }  // namespace sfgs::gathered_mlp::cuda
 
@@ -116,3 +131,32 @@ void gradient(const PlaneGradientArrays<double>&, at::Device) {
 }
 
 }  // namespace sfgs::plane_sampling::cuda
+
+namespace sfgs::feature_fusion::cuda {
+
+bool available() { return false; }
+void gated_mix(const GatedMixArrays<float>&, at::Device) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
+void gated_mix(const GatedMixArrays<double>&, at::Device) {
+  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
+}
+void gated_mix_backward(const GatedMixGradientArrays<float>&, at::Device) {
+  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
+}
+void gated_mix_backward(const GatedMixGradientArrays<double>&, at::Device) {
+  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
+}
+void gather_rows(const RowGatherArrays<float>&, at::Device) {
+  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
+}
+void gather_rows(const RowGatherArrays<double>&, at::Device) {
+  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
+}
+
+}  // namespace sfgs::feature_fusion::cuda
+
+namespace sfgs::linear::cuda {
+
+bool available() { return false; }
+at::Tensor column_sum(const at::Tensor&) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
+
+}  // namespace sfgs::linear::cuda

@@ -1,11 +1,13 @@
-// The fused GroupNorm + ReLU kernels. A warp takes a row at a time (grid-stride), lane l holding channels
-// l, l + 32, ..., l + 32 (K - 1) (K = C / 32 values, coalesced loads): a group's sums are warp sums of its slabs of
-// 32 channels. The forward keeps the row in registers for the exact two-pass variance; the backward recomputes the
-// normalised row from the saved moments and keeps each lane's column sums (gamma's, beta's and the bias's
-// gradients) in registers across its rows, summed per block into one partial row.
+// The fused GroupNorm + ReLU kernels. float rows of 128 channels (the avatar's layers) take the float4 kernels
+// (below: a lane holds four adjacent channels). Otherwise a warp takes a row at a time (grid-stride), lane l
+// holding channels l, l + 32, ..., l + 32 (K - 1) (K = C / 32 values, coalesced loads): a group's sums are warp
+// sums of its slabs of 32 channels. The forward keeps the row in registers for the exact two-pass variance; the
+// backward recomputes the normalised row from the saved moments and keeps each lane's column sums (gamma's, beta's
+// and the bias's gradients) in registers across its rows, summed per block into one partial row.
 #include <algorithm>
 #include <stdexcept>
 #include <string>
+#include <type_traits>
 
 #include "common/constants.h"
 #include "cuda/group_norm_kernels.h"
@@ -154,6 +156,133 @@ __global__ void __launch_bounds__(kThreads, kBlocksPerSm) backward_kernel(const 
   for (int i = threadIdx.x; i < 3 * a.channels; i += blockDim.x) partial[i] = block_columns[i];
 }
 
+// The float rows of kQuadChannels channels (the avatar's hidden layers): lane l holds channels 4l..4l+3 as one float4
+// (one 512-byte load a row), so a group of S channels is S / 4 adjacent lanes and its sums take log2(S / 4)
+// shuffles instead of five per 32-channel slab; the kernels keep fewer values a lane and more rows in flight.
+constexpr int kQuadChannels = 128;
+constexpr int kQuadBlocksPerSm = 6;  // 1,536 threads: sm_89's most, three quarters of sm_90's
+
+// The sum over the aligned block of kGroupLanes lanes holding one group.
+template <int kGroupLanes>
+__device__ __forceinline__ float group_sum(float v) {
+#pragma unroll
+  for (int offset = kGroupLanes / 2; offset > 0; offset /= 2) v += __shfl_xor_sync(0xffffffffu, v, offset);
+  return v;
+}
+
+__device__ __forceinline__ float4 load_quad(const float* values, int lane) {
+  return reinterpret_cast<const float4*>(values)[lane];
+}
+
+__device__ __forceinline__ float quad_sum(const float4& v) { return (v.x + v.y) + (v.z + v.w); }
+
+template <int kGroupLanes>
+__global__ void __launch_bounds__(kThreads, kQuadBlocksPerSm) forward_quad_kernel(const GroupNormArrays<float> a) {
+  const int lane = threadIdx.x & 31;
+  const float size = float(a.channels / a.groups);
+  const float4 gamma = load_quad(a.gamma, lane), beta = load_quad(a.beta, lane);
+  const float4 bias = a.bias ? load_quad(a.bias, lane) : make_float4(0, 0, 0, 0);
+  const int64_t stride = (int64_t(gridDim.x) * blockDim.x) >> 5;
+  int64_t row = (int64_t(blockIdx.x) * blockDim.x + threadIdx.x) >> 5;
+  float4 next = row < a.rows ? load_quad(a.pre + row * kQuadChannels, lane) : make_float4(0, 0, 0, 0);
+  for (; row < a.rows; row += stride) {
+    const float4 h = make_float4(next.x + bias.x, next.y + bias.y, next.z + bias.z, next.w + bias.w);
+    if (row + stride < a.rows) next = load_quad(a.pre + (row + stride) * kQuadChannels, lane);
+    const float mean = group_sum<kGroupLanes>(quad_sum(h)) / size;
+    const float4 d = make_float4(h.x - mean, h.y - mean, h.z - mean, h.w - mean);
+    const float variance = group_sum<kGroupLanes>((d.x * d.x + d.y * d.y) + (d.z * d.z + d.w * d.w)) / size;
+    const float rstd = inverse_deviation(variance, a.epsilon);
+    reinterpret_cast<float4*>(a.out + row * kQuadChannels)[lane] =
+        make_float4(activated(d.x * rstd, gamma.x, beta.x), activated(d.y * rstd, gamma.y, beta.y),
+                    activated(d.z * rstd, gamma.z, beta.z), activated(d.w * rstd, gamma.w, beta.w));
+    if (lane % kGroupLanes == 0) {
+      a.mean[row * a.groups + lane / kGroupLanes] = mean;
+      a.rstd[row * a.groups + lane / kGroupLanes] = rstd;
+    }
+  }
+}
+
+// One channel's share of the backward of a row: its gradient steps, the column sums it adds to.
+struct QuadChannel {
+  float xhat, gy, gxhat;
+};
+
+__device__ __forceinline__ QuadChannel quad_channel(float pre, float bias, float grad_out, float mean, float rstd,
+                                                    float gamma, float beta) {
+  const float xhat = (pre + bias - mean) * rstd;
+  const float gy = affine_gradient(grad_out, xhat, gamma, beta);
+  return {xhat, gy, gy * gamma};
+}
+
+template <int kGroupLanes>
+__global__ void __launch_bounds__(kThreads, kBlocksPerSm)
+    backward_quad_kernel(const GroupNormGradientArrays<float> a) {
+  __shared__ float block_columns[3 * kQuadChannels];
+  for (int i = threadIdx.x; i < 3 * kQuadChannels; i += blockDim.x) block_columns[i] = 0.0f;
+  __syncthreads();
+
+  const int lane = threadIdx.x & 31, group = lane / kGroupLanes;
+  const float size = float(a.channels / a.groups);
+  const float4 gamma = load_quad(a.gamma, lane), beta = load_quad(a.beta, lane);
+  const float4 bias = a.bias ? load_quad(a.bias, lane) : make_float4(0, 0, 0, 0);
+  float grad_gamma[4] = {}, grad_beta[4] = {}, grad_bias[4] = {};
+  const int64_t stride = (int64_t(gridDim.x) * blockDim.x) >> 5;
+  int64_t row = (int64_t(blockIdx.x) * blockDim.x + threadIdx.x) >> 5;
+  float4 next_pre = make_float4(0, 0, 0, 0), next_grad = next_pre;
+  if (row < a.rows) {
+    next_pre = load_quad(a.pre + row * kQuadChannels, lane);
+    next_grad = load_quad(a.grad_out + row * kQuadChannels, lane);
+  }
+  for (; row < a.rows; row += stride) {
+    const float mean = a.mean[row * a.groups + group], rstd = a.rstd[row * a.groups + group];
+    const QuadChannel c[4] = {quad_channel(next_pre.x, bias.x, next_grad.x, mean, rstd, gamma.x, beta.x),
+                              quad_channel(next_pre.y, bias.y, next_grad.y, mean, rstd, gamma.y, beta.y),
+                              quad_channel(next_pre.z, bias.z, next_grad.z, mean, rstd, gamma.z, beta.z),
+                              quad_channel(next_pre.w, bias.w, next_grad.w, mean, rstd, gamma.w, beta.w)};
+    if (row + stride < a.rows) {
+      next_pre = load_quad(a.pre + (row + stride) * kQuadChannels, lane);
+      next_grad = load_quad(a.grad_out + (row + stride) * kQuadChannels, lane);
+    }
+    float s1 = 0, s2 = 0;
+#pragma unroll
+    for (int k = 0; k < 4; ++k) {
+      s1 += c[k].gxhat;
+      s2 += c[k].gxhat * c[k].xhat;
+      grad_gamma[k] += c[k].gy * c[k].xhat;
+      grad_beta[k] += c[k].gy;
+    }
+    const float m1 = group_sum<kGroupLanes>(s1) / size, m2 = group_sum<kGroupLanes>(s2) / size;
+    float g[4];
+#pragma unroll
+    for (int k = 0; k < 4; ++k) {
+      g[k] = normalised_gradient(c[k].gxhat, c[k].xhat, rstd, m1, m2);
+      grad_bias[k] += g[k];
+    }
+    reinterpret_cast<float4*>(a.grad_pre + row * kQuadChannels)[lane] = make_float4(g[0], g[1], g[2], g[3]);
+  }
+#pragma unroll
+  for (int k = 0; k < 4; ++k) {
+    const int c = 4 * lane + k;
+    atomicAdd(block_columns + c, grad_gamma[k]);
+    atomicAdd(block_columns + kQuadChannels + c, grad_beta[k]);
+    atomicAdd(block_columns + 2 * kQuadChannels + c, grad_bias[k]);
+  }
+  __syncthreads();
+  float* partial = a.column_partials + int64_t(blockIdx.x) * 3 * kQuadChannels;
+  for (int i = threadIdx.x; i < 3 * kQuadChannels; i += blockDim.x) partial[i] = block_columns[i];
+}
+
+bool aligned16(const void* p) { return reinterpret_cast<uintptr_t>(p) % 16 == 0; }
+
+// Lanes a group takes in the float4 kernels, or 0 where they do not apply (other widths, misaligned arrays).
+template <typename Arrays>
+int quad_group_lanes(const Arrays& a) {
+  if (a.channels != kQuadChannels || a.groups <= 0 || a.channels % a.groups != 0) return 0;
+  const int lanes = a.channels / a.groups / 4;
+  if (lanes != 8 && lanes != 16 && lanes != 32) return 0;
+  return aligned16(a.pre) && aligned16(a.gamma) && aligned16(a.beta) && aligned16(a.bias) ? lanes : 0;
+}
+
 void check_launch(const char* what) {
   const cudaError_t status = cudaGetLastError();
   if (status != cudaSuccess)
@@ -215,10 +344,30 @@ int64_t backward_blocks(int64_t rows, int device) { return blocks_for(rows, devi
 
 template <typename T> void forward(const GroupNormArrays<T>& a, int device, cudaStream_t stream) {
   if (a.rows == 0) return;
+  if constexpr (std::is_same_v<T, float>) {
+    if (const int lanes = quad_group_lanes(a); lanes > 0 && aligned16(a.out)) {
+      const unsigned blocks = unsigned(std::max<int64_t>(
+          1, std::min((a.rows + kWarpsPerBlock - 1) / kWarpsPerBlock,
+                      resident_blocks(device) / kBlocksPerSm * kQuadBlocksPerSm)));
+      if (lanes == 8) forward_quad_kernel<8><<<blocks, kThreads, 0, stream>>>(a);
+      else if (lanes == 16) forward_quad_kernel<16><<<blocks, kThreads, 0, stream>>>(a);
+      else forward_quad_kernel<32><<<blocks, kThreads, 0, stream>>>(a);
+      return check_launch("forward_quad_kernel");
+    }
+  }
   with_lane_values<ForwardLaunch, T>(a, unsigned(blocks_for(a.rows, device)), stream);
 }
 
 template <typename T> void backward(const GroupNormGradientArrays<T>& a, int, cudaStream_t stream) {
+  if constexpr (std::is_same_v<T, float>) {
+    if (const int lanes = quad_group_lanes(a); lanes > 0 && aligned16(a.grad_out) && aligned16(a.grad_pre)) {
+      const unsigned blocks = unsigned(a.partial_rows);
+      if (lanes == 8) backward_quad_kernel<8><<<blocks, kThreads, 0, stream>>>(a);
+      else if (lanes == 16) backward_quad_kernel<16><<<blocks, kThreads, 0, stream>>>(a);
+      else backward_quad_kernel<32><<<blocks, kThreads, 0, stream>>>(a);
+      return check_launch("backward_quad_kernel");
+    }
+  }
   with_lane_values<BackwardLaunch, T>(a, unsigned(a.partial_rows), stream);
 }
 

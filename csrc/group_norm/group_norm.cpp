@@ -6,6 +6,7 @@
 
 #include "common/tensor_description.h"
 #include "group_norm/backend.h"
+#include "linear/linear.h"
 
 namespace sfgs::group_norm {
 namespace {
@@ -85,7 +86,7 @@ ActivationGradients run_backward(const SavedForward& s, const at::Tensor& grad) 
   const at::Tensor partials = at::empty({partial_rows, 3 * c}, s.pre.options());
   if (s.pre.scalar_type() == at::kDouble) backward_as<double>(s, grad_out, grad_pre, partials);
   else backward_as<float>(s, grad_out, grad_pre, partials);
-  const at::Tensor columns = partials.sum(0).view({3, c});
+  const at::Tensor columns = linear::column_sum(partials).view({3, c});
   return {grad_pre, s.bias.numel() > 0 ? columns[2] : at::Tensor(), columns[0], columns[1]};
 }
 

@@ -133,6 +133,18 @@ Lpips Lpips::to(at::Device device, at::ScalarType dtype) const {
   return Lpips(net_, std::move(converted));
 }
 
+Lpips Lpips::with_trunk_dtype(at::ScalarType trunk) const {
+  TORCH_CHECK(at::isFloatingType(trunk), "Lpips::with_trunk_dtype: the trunk needs a floating dtype, got ", trunk);
+  Lpips copy = *this;
+  for (auto& [name, tensor] : copy.weights_) {
+    if (name.rfind("features.", 0) != 0) continue;  // the lin* weights weigh the distances, in the images' dtype
+    tensor = tensor.to(trunk);
+    if (tensor.dim() == 4 && tensor.is_cuda()) tensor = tensor.contiguous(at::MemoryFormat::ChannelsLast);
+  }
+  copy.trunk_dtype_ = trunk;
+  return copy;
+}
+
 int64_t Lpips::layer_count() const { return int64_t(tap_channels(net_).size()); }
 
 int64_t Lpips::min_image_side() const {
@@ -162,6 +174,11 @@ LpipsFeatures Lpips::backbone(const at::Tensor& images_nchw) const {
   const at::Tensor shift = kept ? shift_ : scaling_constant(kLpipsShift, options);
   const at::Tensor scale = kept ? scale_ : scaling_constant(kLpipsScale, options);
   at::Tensor x = (images_nchw * 2.0 - 1.0 - shift) / scale;
+  if (trunk_dtype_ && *trunk_dtype_ != x.scalar_type()) {
+    x = x.to(*trunk_dtype_);
+    // cuDNN's tensor-core kernels take NHWC; in NCHW every convolution would be wrapped in two transposes.
+    if (x.is_cuda()) x = x.contiguous(at::MemoryFormat::ChannelsLast);
+  }
 
   LpipsFeatures f;
   if (net_ == LpipsNet::alex) {
@@ -193,6 +210,7 @@ LpipsFeatures Lpips::backbone(const at::Tensor& images_nchw) const {
     }
   }
   for (at::Tensor& tap : f.taps) {
+    tap = tap.to(options.dtype());  // the normalisation's sum of squares over the channels in the images' dtype
     const at::Tensor norm = at::sqrt(tap.pow(2).sum(1, true).clamp_min(kLpipsMinSquaredNorm));
     tap = tap / (norm + kLpipsNormEpsilon);
   }
@@ -231,6 +249,15 @@ at::Tensor Lpips::per_layer_distance(const LpipsFeatures& a, const LpipsFeatures
 at::Tensor Lpips::per_layer(const at::Tensor& prediction, const at::Tensor& target) const {
   detail::check_image_pair("lpips", prediction, target, 3);
   check_images(prediction);
+  if (at::GradMode::is_enabled() && prediction.requires_grad() && !target.requires_grad()) {
+    // A batch of both would make autograd run the backbone's backward for the target too.
+    LpipsFeatures target_features;
+    {
+      at::NoGradGuard no_grad;
+      target_features = features(target);
+    }
+    return detail::match_batch_layout(per_layer_distance(features(prediction), target_features), prediction);
+  }
   // One backbone pass over both images.
   const LpipsFeatures both = features(at::cat({prediction.dim() == 3 ? prediction.unsqueeze(0) : prediction,
                                                target.dim() == 3 ? target.unsqueeze(0) : target}));

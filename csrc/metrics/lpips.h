@@ -3,6 +3,7 @@
 // SqueezeNet backbone, weights read from safetensors files (../shared/lpips/README.md defines the layout and
 // the forward pass). Functional and differentiable: autograd reaches both images. See docs/metrics.md.
 #include <map>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -44,12 +45,20 @@ class Lpips {
   // A copy whose weights live on `device` in `dtype`: inputs elsewhere work too, but convert the weights on
   // every call.
   Lpips to(at::Device device, at::ScalarType dtype) const;
+  // A copy whose backbone (the convolutions, pools and ReLUs) runs in `trunk` (e.g. bfloat16: tensor cores, half
+  // the memory traffic), channels-last on CUDA, whatever the images' dtype; the scaling layer, the taps'
+  // normalisation and the distances stay in the images' dtype. bfloat16 keeps float32's range, so the small
+  // gradients of the loss need no scaling. Training's loss uses it on CUDA (docs/performance.md measures the
+  // effect); the metrics keep the images' dtype.
+  Lpips with_trunk_dtype(at::ScalarType trunk) const;
   int64_t layer_count() const;
   // Smallest image side the backbone's strides and pools accept (alex 31, squeeze 17).
   int64_t min_image_side() const;
 
   // Images (H, W, 3) or (B, H, W, 3), RGB in [0, 1] (mapped to [-1, 1] inside, like torchmetrics with
-  // normalize=True). Returns a 0-dim tensor or (B). The computation runs in the images' dtype and device.
+  // normalize=True). Returns a 0-dim tensor or (B). The computation runs in the images' dtype (the backbone in the
+  // trunk's, with_trunk_dtype) and device. When only the prediction is differentiated (the training loss), the target
+  // takes its own pass without autograd, so the backward runs the backbone for the prediction alone.
   at::Tensor operator()(const at::Tensor& prediction, const at::Tensor& target) const;
   // The spatially averaged contribution of every tap (they sum to the distance): (L) or (B, L).
   at::Tensor per_layer(const at::Tensor& prediction, const at::Tensor& target) const;
@@ -67,6 +76,7 @@ class Lpips {
 
   LpipsNet net_;
   std::map<std::string, at::Tensor> weights_;
+  std::optional<at::ScalarType> trunk_dtype_;  // the backbone's dtype; unset: the images' (with_trunk_dtype)
   at::Tensor shift_, scale_;  // (1, 3, 1, 1) the scaling layer's, in the weights' dtype and device
 };
 

@@ -75,8 +75,18 @@ FeatureFieldImpl::FeatureFieldImpl(const FeatureFieldOptions& options, const at:
   }
 }
 
+const feature_fusion::MergeOrder& FeatureFieldImpl::merge_rows_order() const {
+  if (merge_rows_order_of_ != merge_order_.data_ptr()) {
+    at::Tensor inverse = at::empty_like(merge_order_);
+    inverse.index_copy_(0, merge_order_, at::arange(merge_order_.size(0), merge_order_.options()));
+    merge_rows_order_ = {merge_order_, inverse, coordinates_.size(0)};
+    merge_rows_order_of_ = merge_order_.data_ptr();
+  }
+  return merge_rows_order_;
+}
+
 at::Tensor FeatureFieldImpl::merge(const at::Tensor& body_rows, const at::Tensor& face_rows) const {
-  return at::cat({body_rows, face_rows}).index_select(0, merge_order_);
+  return feature_fusion::merge_rows(body_rows, face_rows, merge_rows_order());
 }
 
 StaticFeatures FeatureFieldImpl::static_features() const {
@@ -100,10 +110,10 @@ at::Tensor FeatureFieldImpl::fuse(const StaticFeatures& features, const at::Tens
     const at::Tensor time_features = split_face_ ? merge(hexplane_time_->sample(coordinates_, time),
                                                          face_hexplane_time_->sample(face_coordinates_, time))
                                                  : hexplane_time_->sample(coordinates_, time);
-    aligned = aligned + hexplane_to_triplane_->project(1, time_features);
+    aligned = hexplane_to_triplane_->project_add(1, time_features, aligned);
   }
-  const at::Tensor alpha = at::sigmoid(gate_->finish(features.gate_triplane + gate_->project(1, aligned)));
-  return (1 - alpha) * features.triplane + alpha * aligned;
+  const at::Tensor gate_logits = gate_->finish(gate_->project_add(1, aligned, features.gate_triplane));
+  return feature_fusion::gated_mix(gate_logits, features.triplane, aligned);  // (1 - alpha) f_tri + alpha f_hex
 }
 
 }  // namespace sfgs::model

@@ -6,11 +6,13 @@
 //
 // The hexplane's XY, XZ and YZ planes do not depend on time, and the linear map is a sum over its input planes,
 // so the spatial half (and the gate's triplane half) is computed once per point set: StaticFeatures, cacheable.
+// The gate's mix and the merge of body and face rows are single fused passes (feature_fusion/feature_fusion.h).
 #include <cstdint>
 
 #include <torch/nn/module.h>
 #include <torch/nn/pimpl.h>
 
+#include "feature_fusion/feature_fusion.h"
 #include "model/mlp.h"
 #include "model/planes.h"
 
@@ -53,12 +55,17 @@ class FeatureFieldImpl : public torch::nn::Module {
   static MlpShape gate_shape(int64_t channels);
   // Rows sampled from the body planes (non-face points) and from the face planes, merged into point order.
   at::Tensor merge(const at::Tensor& body_rows, const at::Tensor& face_rows) const;
+  // merge_order_ with its inverse (feature_fusion::MergeOrder), on merge_order_'s device: made at the first merge
+  // there (the inverse is no buffer, so checkpoints keep their layout).
+  const feature_fusion::MergeOrder& merge_rows_order() const;
 
   FeatureFieldOptions options_;
   bool split_face_ = false;  // face planes in use and a face region present
   at::Tensor coordinates_;   // (N, 3), or (N - K, 3) of the non-face points when split_face_
   at::Tensor face_coordinates_;
   at::Tensor merge_order_;  // (N): row of each point in cat(body rows, face rows)
+  mutable feature_fusion::MergeOrder merge_rows_order_;
+  mutable const void* merge_rows_order_of_ = nullptr;  // merge_order_'s data when merge_rows_order_ was made
   Triplane triplane_{nullptr}, face_triplane_{nullptr}, hexplane_space_{nullptr}, face_hexplane_space_{nullptr};
   TimePlanes hexplane_time_{nullptr}, face_hexplane_time_{nullptr};
   Mlp hexplane_to_triplane_{nullptr};  // groups: spatial planes (with the bias), time planes; no hidden layer

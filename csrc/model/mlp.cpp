@@ -9,6 +9,7 @@
 
 #include "common/constants.h"
 #include "group_norm/group_norm.h"
+#include "linear/linear.h"
 
 namespace sfgs::model {
 namespace {
@@ -77,26 +78,44 @@ at::Tensor MlpImpl::project(size_t group, const at::Tensor& input) const {
   TORCH_CHECK(group < input_weights_.size(), "Mlp::project: group ", group, " of ", input_weights_.size());
   TORCH_CHECK(input.dim() == 2 && input.size(1) == shape_.input_widths[group], "Mlp::project: group ", group,
               " must have shape (N, ", shape_.input_widths[group], "), got ", input.sizes());
-  return group == 0 ? at::linear(input, input_weights_[0], input_bias_) : at::linear(input, input_weights_[group]);
+  return group == 0 && !bias_in_activation() ? linear::linear(input, input_weights_[0], input_bias_)
+                                             : at::linear(input, input_weights_[group]);
 }
+
+at::Tensor MlpImpl::project_add(size_t group, const at::Tensor& input, const at::Tensor& base) const {
+  TORCH_CHECK(group < input_weights_.size(), "Mlp::project_add: group ", group, " of ", input_weights_.size());
+  TORCH_CHECK(input.dim() == 2 && input.size(1) == shape_.input_widths[group], "Mlp::project_add: group ", group,
+              " must have shape (N, ", shape_.input_widths[group], "), got ", input.sizes());
+  const at::Tensor sum = at::addmm(base, input, input_weights_[group].t());
+  return group == 0 && !bias_in_activation() ? sum + input_bias_ : sum;
+}
+
+bool MlpImpl::bias_in_activation() const { return shape_.group_norm && !shape_.hidden_widths.empty(); }
 
 at::Tensor MlpImpl::activate(size_t layer, const at::Tensor& pre) const {
   if (!shape_.group_norm) return at::relu(pre);
-  return group_norm::group_norm_relu(pre, {}, norm_weights_[layer], norm_biases_[layer], kMlpGroupNormGroups,
+  const at::Tensor bias = layer == 0 ? input_bias_ : at::Tensor();  // the first layer's: bias_in_activation()
+  return group_norm::group_norm_relu(pre, bias, norm_weights_[layer], norm_biases_[layer], kMlpGroupNormGroups,
                                      kMlpGroupNormEpsilon);
 }
 
 at::Tensor MlpImpl::finish(const at::Tensor& first_layer) const {
   if (shape_.hidden_widths.empty()) return first_layer;
-  at::Tensor x = activate(0, first_layer);
+  return finish_activated(activate(0, first_layer));
+}
+
+at::Tensor MlpImpl::finish_activated(const at::Tensor& first_activation) const {
+  TORCH_CHECK(!shape_.hidden_widths.empty(),
+              "Mlp::finish_activated: this network has no hidden layer, so no first activation (use finish)");
+  at::Tensor x = first_activation;
   for (size_t k = 1; k < shape_.hidden_widths.size(); ++k) {
     // With GroupNorm the fused layer adds the bias (its gradient summed in the same pass) and keeps no product.
     x = shape_.group_norm ? group_norm::linear_group_norm_relu(x, hidden_weights_[k - 1], hidden_biases_[k - 1],
                                                                norm_weights_[k], norm_biases_[k], kMlpGroupNormGroups,
                                                                kMlpGroupNormEpsilon)
-                          : activate(k, at::linear(x, hidden_weights_[k - 1], hidden_biases_[k - 1]));
+                          : activate(k, linear::linear(x, hidden_weights_[k - 1], hidden_biases_[k - 1]));
   }
-  return at::linear(x, output_weight_, output_bias_);
+  return linear::linear(x, output_weight_, output_bias_);
 }
 
 at::Tensor MlpImpl::forward(const std::vector<at::Tensor>& inputs) const {

@@ -28,10 +28,21 @@ class MlpImpl : public torch::nn::Module {
  public:
   explicit MlpImpl(MlpShape shape);
 
-  // (N, input_widths[group]) -> (N, first layer width): group 0 carries the first layer's bias.
+  // (N, input_widths[group]) -> (N, first layer width): group 0 carries the first layer's bias, except where
+  // bias_in_activation().
   at::Tensor project(size_t group, const at::Tensor& input) const;
+  // A GroupNorm network adds its first layer's bias in the first activation (the fused GroupNorm op), not in
+  // project(0): the op sums the bias's gradient in its own backward pass, where a linear layer's bias costs one more
+  // column sum over the N rows (about 0.2 ms at 216k rows on an H200). finish() takes the projections' sum either way.
+  bool bias_in_activation() const;
+  // base + project(group, input) with the sum in the matrix product (one pass fewer over the (N, width) rows).
+  at::Tensor project_add(size_t group, const at::Tensor& input, const at::Tensor& base) const;
   // The sum of the projections of every group -> (N, output_width).
   at::Tensor finish(const at::Tensor& first_layer) const;
+  // The layers after the first hidden layer's activation (N, hidden_widths[0]) -> (N, output_width), for a caller
+  // that computes that activation itself (the structure offset's fused first layer, gathered_mlp.h); finish(x) is
+  // finish_activated of x's first activation. Networks without hidden layers have no such activation: an error.
+  at::Tensor finish_activated(const at::Tensor& first_activation) const;
   // All groups at once.
   at::Tensor forward(const std::vector<at::Tensor>& inputs) const;
 
@@ -43,7 +54,8 @@ class MlpImpl : public torch::nn::Module {
   static int64_t parameter_count(const MlpShape& shape);
 
  private:
-  // Hidden layer `layer`'s activation of its linear part `pre` (bias included).
+  // Hidden layer `layer`'s activation of its linear part `pre` (bias included, but for the first layer where
+  // bias_in_activation(): then it is added here).
   at::Tensor activate(size_t layer, const at::Tensor& pre) const;
 
   MlpShape shape_;

@@ -3,6 +3,7 @@
 #include <ATen/Functions.h>
 
 #include "body/tensor_checks.h"
+#include "gathered_mlp/gathered_mlp.h"
 
 namespace sfgs::model {
 namespace {
@@ -46,11 +47,14 @@ at::Tensor StructureOffsetImpl::joint_features(const at::Tensor& joint_rotations
 
 StructureOffsetOutput StructureOffsetImpl::forward(const at::Tensor& feature_projection,
                                                    const at::Tensor& joint_rotations_6d) const {
-  const at::Tensor joint_features = this->joint_features(joint_rotations_6d);
-  // A gather of 55 rows into N: embedding's backward reduces the N gradients per row by sorting, where
-  // index_select's would pile N atomic additions onto 55 rows (tens of milliseconds on a GPU at 250k points).
-  const at::Tensor joint_projection = at::embedding(mlp_->project(1, joint_features), dominant_joints_);
-  const at::Tensor out = mlp_->finish(feature_projection + joint_projection);
+  const at::Tensor joint_projection = mlp_->project(1, joint_features(joint_rotations_6d));
+  // The first activation relu(feature projection + joint projection gathered by dominant joint) in one pass each way
+  // (the network has no GroupNorm: shape()). Its backward reduces N rows' gradients onto the 55 joints: not as
+  // index_select's backward would, piling N atomic additions onto 55 rows (tens of milliseconds on a GPU at 250k
+  // points), but per block of rows in shared memory and over the blocks in a fixed order.
+  const at::Tensor activation =
+      gathered_mlp::gathered_first_layer(feature_projection, joint_projection, dominant_joints_);
+  const at::Tensor out = mlp_->finish_activated(activation);
   return {out.narrow(1, 0, 3), out.select(1, 3)};
 }
 

@@ -28,7 +28,9 @@ ImageLoss::ImageLoss(const LossWeights& weights, at::Device device) : weights_(w
   try {
     lpips_ = metrics::Lpips::load(metrics::LpipsNet::alex, metrics::lpips_weights_file(metrics::LpipsNet::alex, dir))
                  .to(device, at::kFloat);
-    lpips_status_ = "LPIPS loss: AlexNet weights from " + dir;
+    const bool bfloat16 = device.is_cuda() && weights.lpips_bfloat16;
+    if (bfloat16) lpips_ = lpips_->with_trunk_dtype(at::kBFloat16);
+    lpips_status_ = "LPIPS loss: AlexNet weights from " + dir + (bfloat16 ? " (bfloat16 trunk)" : "");
   } catch (const c10::Error& e) {
     lpips_status_ = std::string("LPIPS loss skipped: ") + e.what_without_backtrace();
   }
@@ -49,7 +51,7 @@ void ImageLoss::add_terms(const at::Tensor& prediction, const at::Tensor& target
   terms["l1"] = l1.detach();
   terms["ssim"] = ssim.detach();
   if (with_lpips && lpips_ && std::min(prediction.size(0), prediction.size(1)) >= lpips_->min_image_side()) {
-    const at::Tensor lpips = (*lpips_)(prediction, target);
+    const at::Tensor lpips = (*lpips_)(prediction, target.detach());
     terms["lpips"] = lpips.detach();
     photometric = photometric + lpips;
   }

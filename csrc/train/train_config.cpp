@@ -79,7 +79,7 @@ std::vector<std::pair<std::string, Section>> sections(TrainConfig& c) {
                   {"colour_offset_on_new_motions", field(a.colour_offset_on_new_motions)}, {"time_dropout", field(a.time_dropout)}}},
       {"loss", {{"image", field(l.image)}, {"lab", field(l.lab)}, {"gradient", field(l.gradient)},
                 {"use_lpips", field(l.use_lpips)}, {"lpips_weights", field(l.lpips_weights)},
-                {"lpips_every", field(l.lpips_every)},
+                {"lpips_every", field(l.lpips_every)}, {"lpips_bfloat16", field(l.lpips_bfloat16)},
                 {"mean_offset", field(l.mean_offset)}, {"mean_offset_parts", parts_field(l.mean_offset_parts)},
                 {"scale", field(l.scale)}, {"scale_parts", parts_field(l.scale_parts)},
                 {"laplacian_mean", field(l.laplacian_mean)}, {"laplacian_mean_parts", parts_field(l.laplacian_mean_parts)},

@@ -22,6 +22,9 @@ struct LossWeights {
   // LPIPS in every k-th training step only (its AlexNet forward and backward are the costliest loss); the steps
   // between carry L1, SSIM and the rest. docs/performance.md measures what it costs the metrics.
   int64_t lpips_every = 1;
+  // CUDA: the LPIPS loss's AlexNet trunk in bfloat16 on tensor cores (metrics::Lpips::with_trunk_dtype; the taps'
+  // normalisation and the distance stay float32). docs/performance.md measures its effect on the final metrics.
+  bool lpips_bfloat16 = true;
   // Regularisers.
   double mean_offset = 1.0;
   PartWeights mean_offset_parts{10, 1, 1000};

@@ -191,7 +191,34 @@ TEST(GroupNormRelu, MlpHiddenLayersAreLinearGroupNormRelu) {
                                    p["norm" + std::to_string(k) + "_bias"], kMlpGroupNormEpsilon));
   };
   const at::Tensor hidden = layer(at::linear(layer(first, 0), p["hidden1_weight"], p["hidden1_bias"]), 1);
-  EXPECT_LT(max_difference(mlp->forward({a, b}), at::linear(hidden, p["output_weight"], p["output_bias"])), 1e-12);
+  const at::Tensor expected = at::linear(hidden, p["output_weight"], p["output_bias"]);
+  const at::Tensor got = mlp->forward({a, b});
+  EXPECT_LT(max_difference(got, expected), 1e-12);
+  // The first layer's bias is added by the first GroupNorm op (Mlp::bias_in_activation), not by project(0): the
+  // projections' sum, finished, is the same function, and every parameter's gradient is the composition's.
+  EXPECT_TRUE(mlp->bias_in_activation());
+  EXPECT_LT(max_difference(mlp->finish(mlp->project(0, a) + mlp->project(1, b)), expected), 1e-12);
+  EXPECT_LT(max_difference(mlp->finish(mlp->project_add(1, b, mlp->project(0, a))), expected), 1e-12);
+  const at::Tensor weights = at::randn(expected.sizes(), generator, kF64);
+  const std::vector<at::Tensor> parameters = mlp->parameters();
+  const auto expected_grads = torch::autograd::grad({(expected * weights).sum()}, parameters);
+  const auto grads = torch::autograd::grad({(got * weights).sum()}, parameters);
+  for (size_t k = 0; k < grads.size(); ++k) {
+    EXPECT_GT(expected_grads[k].abs().max().item<double>(), 0.0) << k;
+    EXPECT_LT(max_difference(grads[k], expected_grads[k]), 1e-10) << k;
+  }
+}
+
+// A network without GroupNorm keeps the bias in project(0) (the gathered MLP and the inference caches bake it).
+TEST(GroupNormRelu, PlainMlpKeepsTheFirstBiasInTheProjection) {
+  model::Mlp mlp(model::MlpShape{{5}, {16}, 2});
+  mlp->to(at::kDouble);
+  EXPECT_FALSE(mlp->bias_in_activation());
+  const at::Tensor a = at::randn({8, 5}, kF64);
+  const auto p = mlp->named_parameters();
+  EXPECT_LT(max_difference(mlp->project(0, a), at::linear(a, p["input0_weight"], p["input_bias"])), 1e-12);
+  const at::Tensor base = at::randn({8, 16}, kF64);
+  EXPECT_LT(max_difference(mlp->project_add(0, a, base), base + mlp->project(0, a)), 1e-12);
 }
 
 }  // namespace

@@ -82,6 +82,44 @@ TEST(MetricsLpips, GradientStaysFiniteWhereATapIsAllZero) {
   EXPECT_GT(gradient.abs().max().item<double>(), 0.0);
 }
 
+// The training loss differentiates the prediction alone: the target then takes its own pass without autograd, which
+// must give the batched pass's value and the prediction the same gradient.
+TEST(MetricsLpips, TargetWithoutGradientGivesTheBatchedValueAndGradient) {
+  for (LpipsNet net : {LpipsNet::alex, LpipsNet::squeeze}) {
+    const Lpips lpips = Lpips(net, random_lpips_weights(net, 5)).to(at::kCPU, at::kDouble);
+    const at::Tensor a = random_image(40, 44, 8), b = random_image(40, 44, 9);
+    at::Tensor p = a.clone().requires_grad_(true), t = b.clone().requires_grad_(true);
+    const at::Tensor batched = lpips(p, t);  // both differentiated: one pass over both images
+    const at::Tensor batched_gradient = torch::autograd::grad({batched}, {p})[0];
+    at::Tensor q = a.clone().requires_grad_(true);
+    const at::Tensor split = lpips(q, b);
+    const at::Tensor split_gradient = torch::autograd::grad({split}, {q})[0];
+    EXPECT_NEAR(split.item<double>(), batched.item<double>(), 1e-12) << metrics::lpips_net_name(net);
+    EXPECT_LT((split_gradient - batched_gradient).abs().max().item<double>(),
+              1e-10 * batched_gradient.abs().max().item<double>())
+        << metrics::lpips_net_name(net);
+  }
+}
+
+// A bfloat16 trunk (the CUDA training loss's): the distance and the prediction's gradient come back in the images'
+// dtype and stay close to the float32 trunk's (bfloat16's 8-bit mantissa: about a percent).
+TEST(MetricsLpips, BFloat16TrunkStaysCloseToFloat) {
+  const Lpips lpips(LpipsNet::alex, random_lpips_weights(LpipsNet::alex, 6));
+  const Lpips reduced = lpips.with_trunk_dtype(at::kBFloat16);
+  const at::Tensor a = random_image(48, 52, 10, at::kFloat), b = random_image(48, 52, 11, at::kFloat);
+  at::Tensor p = a.clone().requires_grad_(true), q = a.clone().requires_grad_(true);
+  const at::Tensor exact = lpips(p, b), approximate = reduced(q, b);
+  EXPECT_EQ(approximate.scalar_type(), at::kFloat);
+  EXPECT_NEAR(approximate.item<double>(), exact.item<double>(), 0.03 * exact.item<double>());
+  const at::Tensor g = torch::autograd::grad({exact}, {p})[0], h = torch::autograd::grad({approximate}, {q})[0];
+  ASSERT_EQ(h.scalar_type(), at::kFloat);
+  const double cosine = ((g * h).sum() / (g.norm() * h.norm())).item<double>();
+  EXPECT_GT(cosine, 0.98) << "the bfloat16 trunk's gradient points elsewhere";
+  EXPECT_EQ(reduced(a, a.clone()).item<double>(), 0.0);
+  expect_error([&] { lpips.with_trunk_dtype(at::kInt); },
+               {"Lpips::with_trunk_dtype: the trunk needs a floating dtype"});
+}
+
 TEST(MetricsLpips, BadImagesAreClearErrors) {
   const Lpips alex(LpipsNet::alex, random_lpips_weights(LpipsNet::alex, 4));
   const at::Tensor small = random_image(30, 40, 1, at::kFloat);

@@ -20,6 +20,7 @@ TEST(TrainConfig, YamlRoundTripAndOverrides) {
   EXPECT_EQ(c.schedule.iterations, 200);
   EXPECT_EQ(c.loss.mean_offset_parts.hands, 4);
   EXPECT_EQ(c.loss.lpips_every, 1) << "LPIPS in every step unless configured";
+  EXPECT_TRUE(c.loss.lpips_bfloat16);
   EXPECT_TRUE(c.schedule.tf32_matmul);
   EXPECT_TRUE(c.schedule.cuda_graphs);
   EXPECT_EQ(c.loss.image, 0.8) << "defaults are the paper's best setting";

@@ -66,16 +66,42 @@ TEST(GroupNormReluCuda, MatchesTheCpuBackendInFloat64) {
   }
 }
 
-// The avatar's layer at its size in float32 against float64 (the column sums run over 250k rows).
+// float32 (128 channels: the float4 kernels; others: the per-slab ones) against float64 on the GPU. An element whose
+// affine output lies within float32's rounding of 0 may fall on the other side of the ReLU, which changes its own
+// gradient (by up to |gamma go rstd|) and its group's: those rows (a few in a thousand) are left out of the
+// elementwise comparison, and the column sums over all rows, which they enter, get a looser bound.
+void expect_float32_close(int64_t rows, int64_t channels, int64_t groups, bool bias) {
+  const Result exact = run_on(at::kCUDA, at::kDouble, rows, channels, groups, bias, 9);
+  const Result f32 = run_on(at::kCUDA, at::kFloat, rows, channels, groups, bias, 9);
+  const std::string what = std::to_string(rows) + " x " + std::to_string(channels) + " in " + std::to_string(groups);
+  EXPECT_LT(max_difference(f32.out, exact.out), 2e-5) << what;
+  // The float64 affine output, from the same draws: a row with an element near the kink.
+  at::Generator g = at::detail::createCPUGenerator(9);
+  const auto f64 = at::TensorOptions().dtype(at::kDouble);
+  const at::Tensor pre = at::randn({rows, channels}, g, f64);
+  const at::Tensor b = bias ? at::randn({channels}, g, f64) : at::zeros({channels}, f64);
+  const at::Tensor gamma = 1 + 0.5 * at::randn({channels}, g, f64), beta = 0.3 * at::randn({channels}, g, f64);
+  const at::Tensor normalised = at::group_norm(pre + b, groups, {}, {}, kMlpGroupNormEpsilon);
+  const at::Tensor near_kink = ((normalised * gamma + beta).abs() < 1e-5).any(1);
+  EXPECT_LT(near_kink.sum().item<int64_t>(), std::max<int64_t>(1, rows / 100)) << what;
+  const at::Tensor kept = near_kink.logical_not();
+  const double pre_scale = std::max(1.0, exact.grads[0].abs().max().item<double>());
+  EXPECT_LT(max_difference(f32.grads[0].index({kept}), exact.grads[0].index({kept})) / pre_scale, 2e-5) << what;
+  for (size_t k = 1; k < exact.grads.size(); ++k) {
+    const double scale = std::max(1.0, exact.grads[k].abs().max().item<double>());
+    EXPECT_LT(max_difference(f32.grads[k], exact.grads[k]) / scale, 5e-3) << what << " column sums " << k;
+  }
+}
+
+// The avatar's layer at its size in float32 against float64 (the column sums run over 250k rows), with the float4
+// kernels' other group sizes and the per-slab kernels' widths.
 TEST(GroupNormReluCuda, Float32AtTheAvatarsSize) {
   if (!torch::cuda::is_available()) GTEST_SKIP() << "no CUDA device";
-  const Result exact = run_on(at::kCUDA, at::kDouble, 250000, 128, 4, true, 9);
-  const Result f32 = run_on(at::kCUDA, at::kFloat, 250000, 128, 4, true, 9);
-  EXPECT_LT(max_difference(f32.out, exact.out), 2e-5);
-  for (size_t k = 0; k < exact.grads.size(); ++k) {
-    const double scale = std::max(1.0, exact.grads[k].abs().max().item<double>());
-    EXPECT_LT(max_difference(f32.grads[k], exact.grads[k]) / scale, 2e-5) << "gradient " << k;
-  }
+  expect_float32_close(250000, 128, 4, true);
+  expect_float32_close(20000, 128, 2, false);
+  expect_float32_close(20000, 128, 1, true);
+  expect_float32_close(20000, 256, 8, true);
+  expect_float32_close(20000, 96, 3, false);
 }
 
 // Groups of 16 channels are not the kernels' (a group is a warp's multiple): the LibTorch reference, same results.
@@ -112,6 +138,8 @@ TEST(GroupNormCudaSanitizer, SmallRows) {
   if (!torch::cuda::is_available()) GTEST_SKIP() << "no CUDA device";
   expect_parity(3, 128, 4, true, 1e-12);
   expect_parity(2000, 64, 2, false, 1e-12);
+  expect_float32_close(3, 128, 4, true);  // the float4 kernels
+  expect_float32_close(2000, 128, 1, false);
 }
 
 }  // namespace

@@ -1,0 +1,12 @@
+#pragma once
+// The contract between the linear layer (csrc/linear/linear.cpp) and its CUDA column sum
+// (csrc/cuda/linear_cuda.cpp); the CPU sums with at::sum.
+#include <ATen/core/Tensor.h>
+
+namespace sfgs::linear::cuda {
+
+bool available();
+// rows (R, C) contiguous float or double on a CUDA device -> (C) on its current stream.
+at::Tensor column_sum(const at::Tensor& rows);
+
+}  // namespace sfgs::linear::cuda
