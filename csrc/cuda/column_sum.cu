@@ -11,6 +11,7 @@
 namespace sfgs::linear::cuda_kernels {
 namespace {
 
+constexpr int kColumnsPerBlock = 32;   // a warp's lanes: one coalesced read of 32 columns a row
 constexpr int kRowLanes = 8;           // warps a block, each over every kRowLanes-th row of the chunk
 constexpr int kBlocksPerSm = 8;        // blocks the first pass aims at a multiprocessor
 constexpr int64_t kMinChunkRows = 64;  // fewer rows a chunk would cost more in partial rows than it spreads
@@ -19,8 +20,8 @@ constexpr int64_t kMaxChunks = 256;    // the second pass's rows: one block sums
 template <typename T>
 __global__ void __launch_bounds__(32 * kRowLanes)
     column_sum_kernel(const T* rows, int64_t row_count, int64_t columns, int64_t chunk_rows, T* out) {
-  __shared__ T lane_sums[kRowLanes][33];
-  const int64_t column = int64_t(blockIdx.x) * 32 + threadIdx.x;
+  __shared__ T lane_sums[kRowLanes][kColumnsPerBlock + 1];  // +1: the column reads hit distinct banks
+  const int64_t column = int64_t(blockIdx.x) * kColumnsPerBlock + threadIdx.x;
   const int64_t begin = int64_t(blockIdx.y) * chunk_rows;
   const int64_t end = begin + chunk_rows < row_count ? begin + chunk_rows : row_count;
   T sum = 0;
@@ -52,7 +53,8 @@ void check_launch() {
 template <typename T>
 void launch(const T* rows, int64_t row_count, int64_t columns, int64_t chunk_count, T* out, cudaStream_t stream) {
   const int64_t chunk_rows = (row_count + chunk_count - 1) / chunk_count;
-  const dim3 grid(unsigned((columns + 31) / 32), unsigned(chunk_count)), block(32, kRowLanes);
+  const dim3 grid(unsigned((columns + kColumnsPerBlock - 1) / kColumnsPerBlock), unsigned(chunk_count)),
+      block(kColumnsPerBlock, kRowLanes);
   column_sum_kernel<T><<<grid, block, 0, stream>>>(rows, row_count, columns, std::max<int64_t>(1, chunk_rows), out);
   check_launch();
 }
@@ -64,7 +66,7 @@ int64_t chunks(int64_t rows, int64_t columns, int device) {
   if (cudaDeviceGetAttribute(&multiprocessors, cudaDevAttrMultiProcessorCount, device) != cudaSuccess)
     throw std::runtime_error("sfgs column_sum: cannot read the multiprocessor count of CUDA device " +
                              std::to_string(device));
-  const int64_t column_tiles = (columns + 31) / 32;
+  const int64_t column_tiles = std::max<int64_t>(1, (columns + kColumnsPerBlock - 1) / kColumnsPerBlock);
   const int64_t wanted = std::max<int64_t>(1, int64_t(multiprocessors) * kBlocksPerSm / column_tiles);
   return std::max<int64_t>(1, std::min({wanted, kMaxChunks, rows / kMinChunkRows}));
 }

@@ -4,7 +4,8 @@
 // The backward writes each row's gradient and adds it into its block's table of the groups' sums (G x H) in shared
 // memory, so the groups' gradient takes no global atomic adds (216k rows onto 55 joints would queue on a few
 // addresses); a warp's lanes take consecutive columns, so their shared adds hit distinct banks and never one address.
-// Each block writes its table as one partial row, which the op sums in a fixed order (linear::column_sum). A table
+// Each block writes its table as one partial row, which the op sums in a fixed order (linear::column_sum); within a
+// block the warps' adds land in the order they come (the last bits may differ between runs). A table
 // over 48 KiB (double at H = 128, G = 55: 55 KiB) opts in to the device's larger dynamic shared memory
 // (cudaFuncSetAttribute: a setting of the kernel, not a stream operation, so CUDA graph capture goes on); a table
 // beyond even that (hundreds of groups) is the block's partial row itself, in global memory, which only the block's

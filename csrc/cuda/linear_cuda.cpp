@@ -15,6 +15,7 @@ at::Tensor column_sum(const at::Tensor& rows) {
   const c10::cuda::CUDAGuard guard(rows.device());
   const int64_t r = rows.size(0), c = rows.size(1);
   const at::Tensor out = at::empty({c}, rows.options());  // no rows: the one-pass launch writes zeros
+  if (c == 0) return out;
   const int64_t chunks = cuda_kernels::chunks(r, c, rows.device().index());
   const at::Tensor partials = at::empty({chunks > 1 ? chunks : 0, c}, rows.options());
   const cudaStream_t stream = at::cuda::getCurrentCUDAStream();

@@ -15,6 +15,12 @@ using torch::autograd::variable_list;
 
 bool fusable_dtype(const at::Tensor& t) { return t.scalar_type() == at::kFloat || t.scalar_type() == at::kDouble; }
 
+// The backends: the CPU's loops or the CUDA kernels.
+void check_backend(const at::Tensor& t, const char* op) {
+  TORCH_CHECK(t.is_cpu() || t.is_cuda(), op, ": tensors must be on the CPU or a CUDA device, got ", t.device());
+  if (t.is_cuda()) TORCH_CHECK(cuda::available(), op, ": this build has no CUDA backend");
+}
+
 template <typename T>
 void gated_mix_as(const at::Tensor& logits, const at::Tensor& a, const at::Tensor& b, const at::Tensor& out) {
   const GatedMixArrays<T> arrays{logits.data_ptr<T>(), a.data_ptr<T>(), b.data_ptr<T>(), out.data_ptr<T>(),
@@ -51,7 +57,7 @@ class GatedMixFunction : public torch::autograd::Function<GatedMixFunction> {
 
   static variable_list backward(AutogradContext* ctx, variable_list grads) {
     const variable_list saved = ctx->get_saved_variables();
-    const at::Tensor grad = grads[0].defined() ? grads[0].contiguous() : at::zeros_like(saved[1]);
+    const at::Tensor grad = grads[0].contiguous();  // materialised: zeros where the output had no gradient
     const variable_list out = {at::empty_like(saved[0]), at::empty_like(saved[1]), at::empty_like(saved[2])};
     if (grad.scalar_type() == at::kDouble)
       gated_mix_backward_as<double>(saved, grad, out);
@@ -126,7 +132,7 @@ at::Tensor gated_mix(const at::Tensor& logits, const at::Tensor& a, const at::Te
         "gated_mix: logits, a and b must share a's shape ", a.sizes(), ", dtype ", a.scalar_type(), " and device ",
         a.device(), ", got ", describe(*t));
   }
-  if (a.is_cuda()) TORCH_CHECK(cuda::available(), "gated_mix: this build has no CUDA backend");
+  check_backend(a, "gated_mix");
   return GatedMixFunction::apply(logits.contiguous(), a.contiguous(), b.contiguous());
 }
 
@@ -172,7 +178,7 @@ at::Tensor merge_rows(const at::Tensor& first, const at::Tensor& second, const M
   }
   TORCH_CHECK(order.first_rows == first.size(0), "merge_rows: the order was made for ", order.first_rows,
               " rows of the first subset, got ", first.size(0));
-  if (first.is_cuda()) TORCH_CHECK(cuda::available(), "merge_rows: this build has no CUDA backend");
+  check_backend(first, "merge_rows");
   // Strided rows are read as they come: the planes' samples are a transposed view, which a copy would cost a pass.
   return MergeRowsFunction::apply(first, second, order.source, order.inverse);
 }

@@ -28,8 +28,7 @@ class LinearFunction : public torch::autograd::Function<LinearFunction> {
     const variable_list saved = ctx->get_saved_variables();
     const at::Tensor& x = saved[0];
     const at::Tensor& weight = saved[1];
-    const at::Tensor grad =
-        grads[0].defined() ? grads[0].contiguous() : at::zeros({x.size(0), weight.size(0)}, x.options());
+    const at::Tensor grad = grads[0].contiguous();  // materialised: zeros where the output had no gradient
     const at::Tensor grad_x = ctx->needs_input_grad(0) ? grad.mm(weight) : at::Tensor();
     const at::Tensor grad_weight = ctx->needs_input_grad(1) ? grad.t().mm(x) : at::Tensor();
     const bool bias = ctx->saved_data["bias"].toBool();

@@ -327,8 +327,8 @@ CanonicalGaussians AvatarImpl::canonical_gaussians(const FramePose& frame, const
   g.means = body.rest + attributes.mean_offset;
   g.log_scales = attributes.log_scales;
   if (structure_offset_) {
-    // Inference from the cache on CUDA: the fused kernel (gathered_mlp.h); a gradient (training, or through the
-    // pose) takes the LibTorch composition.
+    // Inference from the cache on CUDA: the whole network as one fused kernel (gathered_mlp.h); a gradient
+    // (training, or through the pose) takes the network layer by layer, its first layer fused (gathered_first_layer).
     const bool fused = attributes.structure_projection_half.defined() && !at::GradMode::is_enabled();
     const StructureOffsetOutput structure =
         fused ? structure_offset_->forward_inference(attributes.structure_projection_half, frame.rotations_6d)

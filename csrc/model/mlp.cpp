@@ -7,6 +7,7 @@
 #include <ATen/Functions.h>
 #include <ATen/TensorOperators.h>
 
+#include "body/tensor_checks.h"
 #include "common/constants.h"
 #include "group_norm/group_norm.h"
 #include "linear/linear.h"
@@ -86,6 +87,11 @@ at::Tensor MlpImpl::project_add(size_t group, const at::Tensor& input, const at:
   TORCH_CHECK(group < input_weights_.size(), "Mlp::project_add: group ", group, " of ", input_weights_.size());
   TORCH_CHECK(input.dim() == 2 && input.size(1) == shape_.input_widths[group], "Mlp::project_add: group ", group,
               " must have shape (N, ", shape_.input_widths[group], "), got ", input.sizes());
+  const int64_t width = input_weights_[group].size(0);
+  TORCH_CHECK(base.defined() && base.dim() == 2 && base.size(0) == input.size(0) && base.size(1) == width &&
+                  base.scalar_type() == input.scalar_type() && base.device() == input.device(),
+              "Mlp::project_add: base must be a ", input.scalar_type(), " (", input.size(0), ", ", width,
+              ") tensor on ", input.device(), ", got ", describe(base));
   const at::Tensor sum = at::addmm(base, input, input_weights_[group].t());
   return group == 0 && !bias_in_activation() ? sum + input_bias_ : sum;
 }
@@ -107,6 +113,10 @@ at::Tensor MlpImpl::finish(const at::Tensor& first_layer) const {
 at::Tensor MlpImpl::finish_activated(const at::Tensor& first_activation) const {
   TORCH_CHECK(!shape_.hidden_widths.empty(),
               "Mlp::finish_activated: this network has no hidden layer, so no first activation (use finish)");
+  TORCH_CHECK(first_activation.defined() && first_activation.dim() == 2 &&
+                  first_activation.size(1) == shape_.hidden_widths.front(),
+              "Mlp::finish_activated: the first activation must have shape (N, ", shape_.hidden_widths.front(),
+              "), got ", describe(first_activation));
   at::Tensor x = first_activation;
   for (size_t k = 1; k < shape_.hidden_widths.size(); ++k) {
     // With GroupNorm the fused layer adds the bias (its gradient summed in the same pass) and keeps no product.

@@ -32,6 +32,8 @@ StructureOffsetImpl::StructureOffsetImpl(int64_t feature_width, int64_t hidden_w
   // torch.nn.Embedding's initialisation.
   embedding_ = register_parameter("joint_embedding", at::randn({canonical_joints.size(0), embedding_size}));
   mlp_ = register_module("mlp", Mlp(shape(feature_width, hidden_width, embedding_size)));
+  // forward's fused first layer is relu(...): a GroupNorm network would need its first activation instead.
+  TORCH_CHECK(!mlp_->shape().group_norm, "StructureOffset: the network must have no GroupNorm");
 }
 
 at::Tensor StructureOffsetImpl::project_features(const at::Tensor& features) const {

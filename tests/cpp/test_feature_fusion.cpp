@@ -134,6 +134,9 @@ TEST(FeatureFusion, BadInputsAreClearErrors) {
                {"gated_mix: logits, a and b must share a's shape [4, 6]", "[4, 5]"});
   expect_error([&] { feature_fusion::gated_mix(x, x.to(at::kInt), x); }, {"gated_mix: a must be a float or double"});
   expect_error([&] { feature_fusion::gated_mix(x.to(at::kFloat), x, x); }, {"dtype Double", "Float"});
+  const at::Tensor meta = at::empty({4, 6}, at::TensorOptions().dtype(at::kDouble).device(at::kMeta));
+  expect_error([&] { feature_fusion::gated_mix(meta, meta, meta); },
+               {"gated_mix: tensors must be on the CPU or a CUDA device, got meta"});
   const auto longs = [](std::vector<int64_t> v) { return at::tensor(v, at::TensorOptions().dtype(at::kLong)); };
   const MergeOrder order = MergeOrder::of(longs({1, 3}), longs({0, 2}));
   expect_error([&] { feature_fusion::merge_rows(x.narrow(0, 0, 3), x.narrow(0, 0, 1), order); },

@@ -2,6 +2,7 @@
 // affine map and a ReLU (forward and every gradient, float64), against central differences, its LibTorch reference,
 // float32 against float64, a group of equal values, and the errors at its boundary.
 #include <algorithm>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -219,6 +220,18 @@ TEST(GroupNormRelu, PlainMlpKeepsTheFirstBiasInTheProjection) {
   EXPECT_LT(max_difference(mlp->project(0, a), at::linear(a, p["input0_weight"], p["input_bias"])), 1e-12);
   const at::Tensor base = at::randn({8, 16}, kF64);
   EXPECT_LT(max_difference(mlp->project_add(0, a, base), base + mlp->project(0, a)), 1e-12);
+  // A base of another shape is refused, not broadcast; so is a first activation of another width.
+  const auto refused = [](const std::function<void()>& call, const std::string& part) {
+    try {
+      call();
+      ADD_FAILURE() << "accepted: " << part;
+    } catch (const c10::Error& e) {
+      EXPECT_NE(std::string(e.what()).find(part), std::string::npos) << e.what();
+    }
+  };
+  refused([&] { mlp->project_add(0, a, base.narrow(0, 0, 1)); }, "Mlp::project_add: base must be a Double (8, 16)");
+  refused([&] { mlp->finish_activated(base.narrow(1, 0, 15)); },
+          "Mlp::finish_activated: the first activation must have shape (N, 16)");
 }
 
 }  // namespace

@@ -40,6 +40,7 @@ TEST(LinearCuda, ColumnSumsMatchAtSum) {
            {215782, 128}, {215782, 96}, {215782, 3}, {528, 384}, {1000, 33}, {65, 1}, {1, 5}})
     expect_column_sums(rows, columns);
   EXPECT_EQ(linear::column_sum(at::zeros({0, 4}, at::kCUDA)).abs().sum().item<double>(), 0.0);
+  EXPECT_EQ(linear::column_sum(at::zeros({5, 0}, at::kCUDA)).numel(), 0);
 }
 
 TEST(LinearCuda, GradientsMatchAtLinear) {
