@@ -3,10 +3,9 @@
 // independent loads in flight a thread); the block's sums meet in shared memory and go to one partial row. A second
 // launch sums the partial rows the same way. Fixed order throughout: the same result every run.
 #include <algorithm>
-#include <stdexcept>
-#include <string>
 
 #include "cuda/column_sum_kernels.h"
+#include "cuda/launch_geometry.cuh"
 
 namespace sfgs::linear::cuda_kernels {
 namespace {
@@ -44,30 +43,21 @@ __global__ void __launch_bounds__(32 * kRowLanes)
   }
 }
 
-void check_launch() {
-  const cudaError_t status = cudaGetLastError();
-  if (status != cudaSuccess)
-    throw std::runtime_error(std::string("sfgs column_sum: launch failed: ") + cudaGetErrorString(status));
-}
-
 template <typename T>
 void launch(const T* rows, int64_t row_count, int64_t columns, int64_t chunk_count, T* out, cudaStream_t stream) {
   const int64_t chunk_rows = (row_count + chunk_count - 1) / chunk_count;
   const dim3 grid(unsigned((columns + kColumnsPerBlock - 1) / kColumnsPerBlock), unsigned(chunk_count)),
       block(kColumnsPerBlock, kRowLanes);
   column_sum_kernel<T><<<grid, block, 0, stream>>>(rows, row_count, columns, std::max<int64_t>(1, chunk_rows), out);
-  check_launch();
+  cuda_launch::check_launch("column_sum", "column_sum_kernel");
 }
 
 }  // namespace
 
 int64_t chunks(int64_t rows, int64_t columns, int device) {
-  int multiprocessors = 0;
-  if (cudaDeviceGetAttribute(&multiprocessors, cudaDevAttrMultiProcessorCount, device) != cudaSuccess)
-    throw std::runtime_error("sfgs column_sum: cannot read the multiprocessor count of CUDA device " +
-                             std::to_string(device));
   const int64_t column_tiles = std::max<int64_t>(1, (columns + kColumnsPerBlock - 1) / kColumnsPerBlock);
-  const int64_t wanted = std::max<int64_t>(1, int64_t(multiprocessors) * kBlocksPerSm / column_tiles);
+  const int64_t wanted =
+      std::max<int64_t>(1, cuda_launch::multiprocessors(device, "column_sum") * kBlocksPerSm / column_tiles);
   return std::max<int64_t>(1, std::min({wanted, kMaxChunks, rows / kMinChunkRows}));
 }
 

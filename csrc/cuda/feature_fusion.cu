@@ -3,11 +3,10 @@
 // when their addresses and lengths allow, which keeps more bytes in flight per thread.
 #include <algorithm>
 #include <cstdint>
-#include <stdexcept>
-#include <string>
 #include <type_traits>
 
 #include "cuda/feature_fusion_kernels.h"
+#include "cuda/launch_geometry.cuh"
 
 namespace sfgs::feature_fusion::cuda_kernels {
 namespace {
@@ -17,23 +16,13 @@ constexpr int kBlocksPerSm = 8;   // 2,048 resident threads a multiprocessor (gr
 constexpr int kRowsPerBlock = 8;  // the gather: a warp per row, kRowsPerBlock rows a block at a time
 constexpr int kTile = 32;         // the strided gather's square tiles (a warp's lanes along one side)
 
-void check_launch(const char* what) {
-  const cudaError_t status = cudaGetLastError();
-  if (status != cudaSuccess)
-    throw std::runtime_error(std::string("sfgs feature_fusion: ") + what +
-                             " launch failed: " + cudaGetErrorString(status));
-}
+using cuda_launch::aligned16;
+
+void check_launch(const char* kernel) { cuda_launch::check_launch("feature_fusion", kernel); }
 
 unsigned blocks_for(int64_t work, int64_t work_per_block, int device) {
-  int multiprocessors = 0;
-  if (cudaDeviceGetAttribute(&multiprocessors, cudaDevAttrMultiProcessorCount, device) != cudaSuccess)
-    throw std::runtime_error("sfgs feature_fusion: cannot read the multiprocessor count of CUDA device " +
-                             std::to_string(device));
-  const int64_t needed = (work + work_per_block - 1) / work_per_block;
-  return unsigned(std::max<int64_t>(1, std::min<int64_t>(needed, int64_t(multiprocessors) * kBlocksPerSm)));
+  return unsigned(cuda_launch::grid_stride_blocks(work, work_per_block, kBlocksPerSm, device, "feature_fusion"));
 }
-
-bool aligned16(const void* p) { return reinterpret_cast<uintptr_t>(p) % 16 == 0; }
 
 // A float4's four values through the scalar math.
 template <typename F>

@@ -12,11 +12,10 @@
 // own warps add into.
 #include <algorithm>
 #include <cstdint>
-#include <stdexcept>
-#include <string>
 #include <type_traits>
 
 #include "cuda/gathered_first_layer_kernels.h"
+#include "cuda/launch_geometry.cuh"
 
 namespace sfgs::gathered_mlp::cuda_kernels {
 namespace {
@@ -31,28 +30,14 @@ constexpr size_t kDefaultSharedBytes = 48 * 1024;  // dynamic shared memory a bl
 constexpr int kForwardThreads = kWarpSize * kForwardWarps;
 constexpr int kBackwardThreads = kWarpSize * kBackwardWarps;
 
-void check_cuda(cudaError_t status, const char* what) {
-  if (status != cudaSuccess)
-    throw std::runtime_error(std::string("sfgs gathered_first_layer: ") + what +
-                             " failed: " + cudaGetErrorString(status));
-}
+constexpr const char* kOwner = "gathered_first_layer";
+using cuda_launch::aligned16;
 
-void check_launch(const char* what) { check_cuda(cudaGetLastError(), what); }
-
-int device_attribute(cudaDeviceAttr attribute, int device, const char* what) {
-  int value = 0;
-  check_cuda(cudaDeviceGetAttribute(&value, attribute, device), what);
-  return value;
-}
+void check_launch(const char* kernel) { cuda_launch::check_launch(kOwner, kernel); }
 
 int64_t blocks_for(int64_t rows, int rows_per_block, int blocks_per_sm, int device) {
-  const int64_t multiprocessors =
-      device_attribute(cudaDevAttrMultiProcessorCount, device, "reading the multiprocessor count");
-  const int64_t needed = (rows + rows_per_block - 1) / rows_per_block;
-  return std::max<int64_t>(1, std::min<int64_t>(needed, multiprocessors * blocks_per_sm));
+  return cuda_launch::grid_stride_blocks(rows, rows_per_block, blocks_per_sm, device, kOwner);
 }
-
-bool aligned16(const void* p) { return reinterpret_cast<uintptr_t>(p) % 16 == 0; }
 
 // The forward's values of one load: a T, or four floats.
 template <typename T>
@@ -158,11 +143,11 @@ void first_layer_forward(const FirstLayerArrays<T>& a, int device, cudaStream_t 
   if constexpr (std::is_same_v<T, float>) {
     if (vectorisable(a)) {
       forward_kernel<float4, float><<<blocks, block, 0, stream>>>(a, a.width / 4);
-      return check_launch("forward_kernel (float4) launch");
+      return check_launch("forward_kernel (float4)");
     }
   }
   forward_kernel<T, T><<<blocks, block, 0, stream>>>(a, a.width);
-  check_launch("forward_kernel launch");
+  check_launch("forward_kernel");
 }
 
 template <typename T>
@@ -170,18 +155,18 @@ void first_layer_backward(const FirstLayerGradientArrays<T>& a, int device, cuda
   const size_t table_bytes = size_t(a.group_count * a.width) * sizeof(T);
   const dim3 block(kWarpSize, kBackwardWarps);
   const unsigned blocks = unsigned(a.partial_rows);
-  const size_t shared_limit = size_t(device_attribute(cudaDevAttrMaxSharedMemoryPerBlockOptin, device,
-                                                      "reading the shared memory a block may opt in to"));
+  const size_t shared_limit = size_t(cuda_launch::device_attribute(cudaDevAttrMaxSharedMemoryPerBlockOptin, device,
+                                                                   kOwner, "shared memory a block may opt in to"));
   if (table_bytes > shared_limit) {
     backward_kernel<T, false><<<blocks, block, 0, stream>>>(a);
-    return check_launch("backward_kernel (global table) launch");
+    return check_launch("backward_kernel (global table)");
   }
   if (table_bytes > kDefaultSharedBytes)
-    check_cuda(
+    cuda_launch::check(
         cudaFuncSetAttribute(backward_kernel<T, true>, cudaFuncAttributeMaxDynamicSharedMemorySize, int(table_bytes)),
-        "opting in to the backward's shared table");
+        kOwner, "opting in to the backward's shared table");
   backward_kernel<T, true><<<blocks, block, table_bytes, stream>>>(a);
-  check_launch("backward_kernel (shared table) launch");
+  check_launch("backward_kernel (shared table)");
 }
 
 template void first_layer_forward<float>(const FirstLayerArrays<float>&, int, cudaStream_t);

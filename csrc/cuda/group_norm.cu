@@ -11,6 +11,7 @@
 
 #include "common/constants.h"
 #include "cuda/group_norm_kernels.h"
+#include "cuda/launch_geometry.cuh"
 #include "cuda/warp_utils.cuh"
 
 namespace sfgs::group_norm::cuda_kernels {
@@ -272,7 +273,7 @@ __global__ void __launch_bounds__(kThreads, kBlocksPerSm)
   for (int i = threadIdx.x; i < 3 * kQuadChannels; i += blockDim.x) partial[i] = block_columns[i];
 }
 
-bool aligned16(const void* p) { return reinterpret_cast<uintptr_t>(p) % 16 == 0; }
+using cuda_launch::aligned16;
 
 // Lanes a group takes in the float4 kernels, or 0 where they do not apply (other widths, misaligned arrays).
 template <typename Arrays>
@@ -283,23 +284,13 @@ int quad_group_lanes(const Arrays& a) {
   return aligned16(a.pre) && aligned16(a.gamma) && aligned16(a.beta) && aligned16(a.bias) ? lanes : 0;
 }
 
-void check_launch(const char* what) {
-  const cudaError_t status = cudaGetLastError();
-  if (status != cudaSuccess)
-    throw std::runtime_error(std::string("sfgs group_norm_relu: ") + what +
-                             " launch failed: " + cudaGetErrorString(status));
-}
+constexpr const char* kOwner = "group_norm_relu";
 
-int64_t resident_blocks(int device) {
-  int multiprocessors = 0;
-  if (cudaDeviceGetAttribute(&multiprocessors, cudaDevAttrMultiProcessorCount, device) != cudaSuccess)
-    throw std::runtime_error("sfgs group_norm_relu: cannot read the multiprocessor count of CUDA device " +
-                             std::to_string(device));
-  return int64_t(multiprocessors) * kBlocksPerSm;
-}
+void check_launch(const char* kernel) { cuda_launch::check_launch(kOwner, kernel); }
 
-int64_t blocks_for(int64_t rows, int device) {
-  return std::max<int64_t>(1, std::min((rows + kWarpsPerBlock - 1) / kWarpsPerBlock, resident_blocks(device)));
+// Blocks of a row-per-warp launch, at most `blocks_per_sm` a multiprocessor.
+int64_t blocks_for(int64_t rows, int device, int blocks_per_sm = kBlocksPerSm) {
+  return cuda_launch::grid_stride_blocks(rows, kWarpsPerBlock, blocks_per_sm, device, kOwner);
 }
 
 template <typename T, int K> struct ForwardLaunch {
@@ -346,9 +337,7 @@ template <typename T> void forward(const GroupNormArrays<T>& a, int device, cuda
   if (a.rows == 0) return;
   if constexpr (std::is_same_v<T, float>) {
     if (const int lanes = quad_group_lanes(a); lanes > 0 && aligned16(a.out)) {
-      const unsigned blocks = unsigned(std::max<int64_t>(
-          1, std::min((a.rows + kWarpsPerBlock - 1) / kWarpsPerBlock,
-                      resident_blocks(device) / kBlocksPerSm * kQuadBlocksPerSm)));
+      const unsigned blocks = unsigned(blocks_for(a.rows, device, kQuadBlocksPerSm));
       if (lanes == 8) forward_quad_kernel<8><<<blocks, kThreads, 0, stream>>>(a);
       else if (lanes == 16) forward_quad_kernel<16><<<blocks, kThreads, 0, stream>>>(a);
       else forward_quad_kernel<32><<<blocks, kThreads, 0, stream>>>(a);
