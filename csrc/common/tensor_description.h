@@ -9,4 +9,7 @@ namespace sfgs {
 // "a Float tensor of shape [2, 3] on cpu", or "an undefined tensor".
 std::string describe(const at::Tensor& t);
 
+// float or double: the dtypes the fused ops' CPU backends and CUDA kernels are written for.
+bool is_float_or_double(const at::Tensor& t);
+
 }  // namespace sfgs

@@ -13,8 +13,6 @@ namespace {
 using torch::autograd::AutogradContext;
 using torch::autograd::variable_list;
 
-bool fusable_dtype(const at::Tensor& t) { return t.scalar_type() == at::kFloat || t.scalar_type() == at::kDouble; }
-
 // The backends: the CPU's loops or the CUDA kernels.
 void check_backend(const at::Tensor& t, const char* op) {
   TORCH_CHECK(t.is_cpu() || t.is_cuda(), op, ": tensors must be on the CPU or a CUDA device, got ", t.device());
@@ -125,7 +123,7 @@ class MergeRowsFunction : public torch::autograd::Function<MergeRowsFunction> {
 }  // namespace
 
 at::Tensor gated_mix(const at::Tensor& logits, const at::Tensor& a, const at::Tensor& b) {
-  TORCH_CHECK(a.defined() && fusable_dtype(a), "gated_mix: a must be a float or double tensor, got ", describe(a));
+  TORCH_CHECK(a.defined() && is_float_or_double(a), "gated_mix: a must be a float or double tensor, got ", describe(a));
   for (const at::Tensor* t : {&logits, &b}) {
     TORCH_CHECK(
         t->defined() && t->sizes() == a.sizes() && t->scalar_type() == a.scalar_type() && t->device() == a.device(),
@@ -164,7 +162,7 @@ MergeOrder MergeOrder::of(const at::Tensor& first_points, const at::Tensor& seco
 MergeOrder MergeOrder::to(at::Device device) const { return {source.to(device), inverse.to(device), first_rows}; }
 
 at::Tensor merge_rows(const at::Tensor& first, const at::Tensor& second, const MergeOrder& order) {
-  TORCH_CHECK(first.defined() && first.dim() == 2 && fusable_dtype(first),
+  TORCH_CHECK(first.defined() && first.dim() == 2 && is_float_or_double(first),
               "merge_rows: first must be a float or double (N1, C) tensor, got ", describe(first));
   TORCH_CHECK(second.defined() && second.dim() == 2 && second.size(1) == first.size(1) &&
                   second.scalar_type() == first.scalar_type() && second.device() == first.device(),

@@ -15,8 +15,6 @@ namespace {
 using torch::autograd::AutogradContext;
 using torch::autograd::variable_list;
 
-bool fusable_dtype(const at::Tensor& t) { return t.scalar_type() == at::kFloat || t.scalar_type() == at::kDouble; }
-
 template <typename T>
 void forward_as(const at::Tensor& row_inputs, const at::Tensor& group_inputs, const at::Tensor& groups,
                 const at::Tensor& out) {
@@ -101,7 +99,7 @@ void check_groups_in_range(const at::Tensor& groups, int64_t group_count) {
 
 at::Tensor gathered_first_layer(const at::Tensor& row_inputs, const at::Tensor& group_inputs,
                                 const at::Tensor& groups) {
-  TORCH_CHECK(row_inputs.defined() && row_inputs.dim() == 2 && fusable_dtype(row_inputs),
+  TORCH_CHECK(row_inputs.defined() && row_inputs.dim() == 2 && is_float_or_double(row_inputs),
               "gathered_first_layer: row_inputs must be a float or double (N, H) tensor, got ", describe(row_inputs));
   TORCH_CHECK(row_inputs.is_cpu() || row_inputs.is_cuda(),
               "gathered_first_layer: tensors must be on the CPU or a CUDA device, got ", describe(row_inputs));

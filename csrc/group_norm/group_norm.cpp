@@ -153,7 +153,7 @@ void check_layer(const at::Tensor& like, int64_t channels, const at::Tensor& bia
 
 void check_inputs(const at::Tensor& pre, const at::Tensor& bias, const at::Tensor& gamma, const at::Tensor& beta,
                   int64_t groups, double epsilon) {
-  TORCH_CHECK(pre.defined() && pre.dim() == 2 && (pre.scalar_type() == at::kFloat || pre.scalar_type() == at::kDouble),
+  TORCH_CHECK(pre.defined() && pre.dim() == 2 && is_float_or_double(pre),
               "group_norm_relu: pre must be a float32 or float64 (N, C) tensor, got ", describe(pre));
   check_layer(pre, pre.size(1), bias, gamma, beta, groups, epsilon);
 }
@@ -189,7 +189,7 @@ at::Tensor group_norm_relu(const at::Tensor& pre, const at::Tensor& bias, const 
 
 at::Tensor linear_group_norm_relu(const at::Tensor& x, const at::Tensor& weight, const at::Tensor& bias,
                                   const at::Tensor& gamma, const at::Tensor& beta, int64_t groups, double epsilon) {
-  TORCH_CHECK(x.defined() && x.dim() == 2 && (x.scalar_type() == at::kFloat || x.scalar_type() == at::kDouble),
+  TORCH_CHECK(x.defined() && x.dim() == 2 && is_float_or_double(x),
               "linear_group_norm_relu: x must be a float32 or float64 (N, I) tensor, got ", describe(x));
   TORCH_CHECK(weight.defined() && weight.dim() == 2 && weight.size(1) == x.size(1) &&
                   weight.scalar_type() == x.scalar_type() && weight.device() == x.device(),

@@ -56,7 +56,7 @@ at::Tensor linear(const at::Tensor& x, const at::Tensor& weight, const at::Tenso
 at::Tensor column_sum(const at::Tensor& rows) {
   TORCH_CHECK(rows.defined() && rows.dim() == 2 && at::isFloatingType(rows.scalar_type()),
               "column_sum: rows must be a floating (R, C) tensor, got ", describe(rows));
-  const bool fused = rows.is_cuda() && (rows.scalar_type() == at::kFloat || rows.scalar_type() == at::kDouble);
+  const bool fused = rows.is_cuda() && is_float_or_double(rows);
   if (!fused) return rows.sum(0);
   TORCH_CHECK(cuda::available(), "column_sum: this build has no CUDA backend");
   return cuda::column_sum(rows.contiguous());
