@@ -7,10 +7,10 @@ namespace sfgs::body {
 
 // KinematicTreeImpl::pose (kinematics.h).
 struct KinematicChainArrays {
-  const float* rotations;     // (batch, joints, 3, 3) local rotations, row-major
-  const float* rest_joints;   // (batch, joints, 3)
-  const float* translation;   // (batch, 3): moves the root
-  const int32_t* parents;     // (joints): parents[0] = -1, 0 <= parents[j] < j otherwise
+  const float* rotations;    // (batch, joints, 3, 3) local rotations, row-major
+  const float* rest_joints;  // (batch, joints, 3)
+  const float* translation;  // (batch, 3): moves the root
+  const int32_t* parents;    // (joints): parents[0] = -1, 0 <= parents[j] < j otherwise
   int64_t batch;
   int32_t joints;
   float* posed_joints;         // (batch, joints, 3) out
@@ -28,13 +28,13 @@ struct AxisAngleArrays {
 
 // vertex_normals (mesh.h).
 struct VertexNormalArrays {
-  const float* vertices;  // (vertex_count, 3)
-  const int64_t* faces;   // (face_count, 3), validated to lie in [0, vertex_count)
+  const float* vertices;        // (vertex_count, 3)
+  const int64_t* faces;         // (F, 3); a face with a corner outside [0, vertex_count) is skipped
+  const int32_t* face_offsets;  // (vertex_count + 1): vertex v's faces are vertex_faces[face_offsets[v] ..
+  const int32_t* vertex_faces;  //   face_offsets[v + 1]), in the order they are summed (VertexFaces)
   int64_t vertex_count;
-  int64_t face_count;
-  float min_length;       // kMinNormalLength: shorter sums give a zero normal
-  float* sums;            // (vertex_count, 3) scratch, zeroed by the caller
-  float* normals;         // (vertex_count, 3) out
+  float min_length;  // kMinNormalLength: shorter sums give a zero normal
+  float* normals;    // (vertex_count, 3) out
 };
 
 }  // namespace sfgs::body

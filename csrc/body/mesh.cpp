@@ -1,5 +1,7 @@
 #include "body/mesh.h"
 
+#include <cstdint>
+#include <limits>
 #include <tuple>
 
 #include <ATen/Functions.h>
@@ -95,8 +97,8 @@ std::vector<MidpointSubdivision> midpoint_subdivisions(const at::Tensor& faces, 
 }
 
 VertexNeighbours vertex_neighbours(const at::Tensor& faces, int64_t num_vertices, int64_t max_neighbours) {
-  TORCH_CHECK(max_neighbours == -1 || max_neighbours > 0, "vertex_neighbours: max_neighbours must be -1 (all) or > 0, got ",
-              max_neighbours);
+  TORCH_CHECK(max_neighbours == -1 || max_neighbours > 0,
+              "vertex_neighbours: max_neighbours must be -1 (all) or > 0, got ", max_neighbours);
   const at::Tensor edges = mesh_edges(faces, num_vertices).edges;
   const at::Tensor source = at::cat({edges.select(1, 0), edges.select(1, 1)});
   const at::Tensor target = at::cat({edges.select(1, 1), edges.select(1, 0)});
@@ -136,26 +138,57 @@ at::Tensor uniform_laplacian(const VertexNeighbours& neighbours, const at::Tenso
   return at::where(isolated, at::zeros_like(values), values - mean);
 }
 
-at::Tensor vertex_normals(const at::Tensor& vertices, const at::Tensor& faces) {
+VertexFaces vertex_faces(const at::Tensor& faces, int64_t num_vertices) {
+  TORCH_CHECK(faces.defined() && faces.dim() == 2 && faces.size(1) == 3 && faces.scalar_type() == at::kLong,
+              "vertex_faces: faces must be an int64 (F, 3) tensor, got ", describe(faces));
+  TORCH_CHECK(num_vertices >= 0 && num_vertices < std::numeric_limits<int32_t>::max() &&
+                  3 * faces.size(0) < std::numeric_limits<int32_t>::max(),
+              "vertex_faces: int32 indices hold fewer than 2^31 vertices and corners, got ", num_vertices,
+              " vertices and ", faces.size(0), " faces");
+  const int64_t f = faces.size(0);
+  const at::Tensor inside = ((faces >= 0) & (faces < num_vertices)).all(1).repeat({3});
+  // Corner-major (all first corners, then all second, then all third): a stable sort by vertex then gives each
+  // vertex its faces in the reference's order of summation.
+  const at::Tensor corners = faces.t().reshape({-1});
+  const at::Tensor keys = at::where(inside, corners, at::full_like(corners, num_vertices));
+  const auto [sorted, order] = at::sort(keys, /*stable=*/true, /*dim=*/0, /*descending=*/false);
+  VertexFaces result;
+  result.offsets = at::searchsorted(sorted, at::arange(num_vertices + 1, keys.options())).to(at::kInt);
+  result.face_indices = f > 0 ? order.remainder(f).to(at::kInt) : order.to(at::kInt);
+  return result;
+}
+
+at::Tensor vertex_normals(const at::Tensor& vertices, const at::Tensor& faces, const VertexFaces& around) {
   TORCH_CHECK(vertices.defined() && vertices.dim() == 2 && vertices.size(1) == 3,
               "vertex_normals: vertices must have shape (V, 3), got ", describe(vertices));
   TORCH_CHECK(faces.defined() && faces.dim() == 2 && faces.size(1) == 3 && faces.scalar_type() == at::kLong &&
                   faces.device() == vertices.device(),
               "vertex_normals: faces must be an int64 (F, 3) tensor on ", vertices.device(), ", got ", describe(faces));
-  const bool fused = vertices.is_cuda() && vertices.scalar_type() == at::kFloat && !vertices.requires_grad() &&
-                     cuda::available();
+  const bool fused =
+      vertices.is_cuda() && vertices.scalar_type() == at::kFloat && !vertices.requires_grad() && cuda::available();
   if (!fused) return vertex_normals_reference(vertices, faces);
-  const at::Tensor v = vertices.contiguous(), f = faces.contiguous();
-  at::Tensor sums = at::zeros_like(v), normals = at::empty_like(v);
+  const int64_t v = vertices.size(0);
+  const VertexFaces made = around.offsets.defined() ? VertexFaces() : vertex_faces(faces, v);
+  const VertexFaces& used = around.offsets.defined() ? around : made;
+  TORCH_CHECK(used.offsets.dim() == 1 && used.offsets.size(0) == v + 1 && used.offsets.scalar_type() == at::kInt &&
+                  used.offsets.device() == vertices.device() && used.face_indices.dim() == 1 &&
+                  used.face_indices.size(0) == 3 * faces.size(0) && used.face_indices.scalar_type() == at::kInt &&
+                  used.face_indices.device() == vertices.device(),
+              "vertex_normals: the faces around the vertices must be vertex_faces of these ", faces.size(0),
+              " faces and ", v, " vertices on ", vertices.device(), ", got offsets ", describe(used.offsets),
+              " and face indices ", describe(used.face_indices));
+  const at::Tensor points = vertices.contiguous(), f = faces.contiguous();
+  const at::Tensor offsets = used.offsets.contiguous(), face_indices = used.face_indices.contiguous();
+  at::Tensor normals = at::empty_like(points);
   VertexNormalArrays arrays{};
-  arrays.vertices = v.data_ptr<float>();
+  arrays.vertices = points.data_ptr<float>();
   arrays.faces = f.data_ptr<int64_t>();
-  arrays.vertex_count = v.size(0);
-  arrays.face_count = f.size(0);
+  arrays.face_offsets = offsets.data_ptr<int32_t>();
+  arrays.vertex_faces = face_indices.data_ptr<int32_t>();
+  arrays.vertex_count = v;
   arrays.min_length = static_cast<float>(kMinNormalLength);
-  arrays.sums = sums.data_ptr<float>();
   arrays.normals = normals.data_ptr<float>();
-  cuda::vertex_normals(arrays, v.device());
+  cuda::vertex_normals(arrays, points.device());
   return normals;
 }
 

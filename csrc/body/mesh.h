@@ -58,11 +58,23 @@ struct VertexNeighbours {
 };
 VertexNeighbours vertex_neighbours(const at::Tensor& faces, int64_t num_vertices, int64_t max_neighbours = -1);
 
+// The faces around each vertex in the order the reference sums them (those where it is the first corner, by face,
+// then the second, then the third): vertex v's faces are face_indices[offsets[v] .. offsets[v + 1]), int32 on the
+// faces' device. A face with an index outside [0, V) is left out. Made by a stable sort, no atomics.
+struct VertexFaces {
+  at::Tensor offsets;       // (V + 1) int32
+  at::Tensor face_indices;  // (3 F) int32; entries beyond offsets[V] belong to left-out faces
+};
+VertexFaces vertex_faces(const at::Tensor& faces, int64_t num_vertices);
+
 // Area-weighted unit vertex normals (V, 3) of vertices (V, 3) with faces (F, 3) int64 on the same device
 // (counter-clockwise seen from outside); vertices on no face, or only on degenerate ones, get 0. For float32 CUDA
-// vertices that need no gradient it is one fused pair of kernels (csrc/cuda/vertex_normals.cu; a face with an index
-// outside [0, V) is skipped there rather than checked with a device read), otherwise vertex_normals_reference.
-at::Tensor vertex_normals(const at::Tensor& vertices, const at::Tensor& faces);
+// vertices that need no gradient it is one fused kernel (csrc/cuda/vertex_normals.cu): each vertex sums its faces'
+// normals in the order of `around` (vertex_faces of these faces, made here when not given), so the result is the
+// same bits on every run (an atomic scatter's order varies, and a training step's bfloat16 LPIPS turned that noise
+// into 1 % changes of the hands' gradients); a face with an index outside [0, V) is skipped rather than checked
+// with a device read. Otherwise vertex_normals_reference.
+at::Tensor vertex_normals(const at::Tensor& vertices, const at::Tensor& faces, const VertexFaces& around = {});
 // The LibTorch composition (differentiable, any dtype and device), the fused path's reference.
 at::Tensor vertex_normals_reference(const at::Tensor& vertices, const at::Tensor& faces);
 

@@ -5,8 +5,8 @@
 // instead of the ~8 small launches per depth level of the LibTorch composition (KinematicTreeImpl::pose_reference).
 // rotations.cu: one thread per axis-angle rotation, one launch instead of the ~40 of the composition
 // (body::axis_angle_to_matrix_reference).
-// vertex_normals.cu: one thread per face adds its area-weighted normal to its corners, one per vertex normalises:
-// two launches instead of the 18 of the composition (body::vertex_normals_reference).
+// vertex_normals.cu: one thread per vertex sums its faces' area-weighted normals in a fixed order and normalises:
+// one launch instead of the 18 of the composition (body::vertex_normals_reference), and no atomics.
 #include <cuda_runtime_api.h>
 
 #include "body/body_kernel_arrays.h"

@@ -22,11 +22,11 @@ namespace sfgs::model {
 
 // The frame's pose in the avatar's dtype and on its device, as the stages use it.
 struct AvatarImpl::FramePose {
-  at::Tensor rotations;                // (J, 3, 3) local rotations of every joint (hand means applied)
-  at::Tensor rotations_6d;             // (J, 6) the same, for the pose-driven networks
-  at::Tensor left_hand, right_hand;    // (15, 3) as applied; undefined where the pose gives no hand pose
-  at::Tensor expression;               // (E) padded or truncated to the model's, or undefined
-  at::Tensor translation;              // (3)
+  at::Tensor rotations;              // (J, 3, 3) local rotations of every joint (hand means applied)
+  at::Tensor rotations_6d;           // (J, 6) the same, for the pose-driven networks
+  at::Tensor left_hand, right_hand;  // (15, 3) as applied; undefined where the pose gives no hand pose
+  at::Tensor expression;             // (E) padded or truncated to the model's, or undefined
+  at::Tensor translation;            // (3)
 };
 
 // The Gaussians in the canonical frame: the frame's rest mesh plus every learned offset.
@@ -163,13 +163,14 @@ AvatarOutput AvatarImpl::forward_trusted_pose(const body::SmplxPose& pose, Frame
 
 AvatarOutput AvatarImpl::forward_trusted_pose(const body::SmplxPose& pose, const at::Tensor& device_time) {
   const at::Tensor& reference = body_->vertices();
-  TORCH_CHECK(!device_time.defined() || (device_time.dim() == 0 &&
-                                         device_time.scalar_type() == reference.scalar_type() &&
-                                         device_time.device() == reference.device()),
-              "Avatar: a device time must be a 0-dim ", reference.scalar_type(), " tensor on ", reference.device(),
-              ", got ", describe(device_time));
-  TORCH_CHECK(!cache_, "Avatar: a device time is for training; the inference cache keys on host times (call "
-                       "clear_cache() first)");
+  TORCH_CHECK(
+      !device_time.defined() || (device_time.dim() == 0 && device_time.scalar_type() == reference.scalar_type() &&
+                                 device_time.device() == reference.device()),
+      "Avatar: a device time must be a 0-dim ", reference.scalar_type(), " tensor on ", reference.device(), ", got ",
+      describe(device_time));
+  TORCH_CHECK(!cache_,
+              "Avatar: a device time is for training; the inference cache keys on host times (call "
+              "clear_cache() first)");
   return posed(pose, std::nullopt, device_time);
 }
 
@@ -183,8 +184,7 @@ AvatarOutput AvatarImpl::posed(const body::SmplxPose& pose, FrameTime host_time,
   {
     const StageScope stage("avatar: pose and hand residual");
     frame = frame_pose(pose);
-    if (hand_residual_)
-      coarse_residual = hand_residual_->forward(frame.left_hand, frame.right_hand, frame.rotations);
+    if (hand_residual_) coarse_residual = hand_residual_->forward(frame.left_hand, frame.right_hand, frame.rotations);
   }
   FrameBody body;
   {
@@ -226,7 +226,12 @@ AvatarOutput AvatarImpl::posed(const body::SmplxPose& pose, FrameTime host_time,
     // The body-model surface's orientation: smooth, free of the learned offsets' noise, and no gradient.
     const StageScope stage("avatar: normals");
     at::NoGradGuard no_grad;
-    out.posed_normals = body::vertex_normals(out.posed_vertices.detach(), body_->faces());
+    const at::Tensor& faces = body_->faces();
+    // The faces around each point, made once per device: the fused normals then sum in a fixed order.
+    if (faces.is_cuda() && (!faces_around_.offsets.defined() || faces_around_.offsets.device() != faces.device()))
+      faces_around_ = body::vertex_faces(faces, out.posed_vertices.size(0));
+    out.posed_normals =
+        body::vertex_normals(out.posed_vertices.detach(), faces, faces.is_cuda() ? faces_around_ : body::VertexFaces());
   }
   const StageScope stage("avatar: appearance");
   out.colours = appearance(frame, attributes, has_time, out);
@@ -244,13 +249,11 @@ AvatarImpl::FramePose AvatarImpl::frame_pose(const body::SmplxPose& pose) const 
   const at::Tensor right = hand(pose.right_hand_pose, "right_hand_pose", body::Side::kRight);
   if (pose.left_hand_pose.defined()) frame.left_hand = left;
   if (pose.right_hand_pose.defined()) frame.right_hand = right;
-  frame.rotations = body::axis_angle_to_matrix(at::cat({joint_pose(pose.global_orient, 1, "global_orient", options),
-                                                        joint_pose(pose.body_pose, body::kSmplxBodyJointCount,
-                                                                   "body_pose", options),
-                                                        joint_pose(pose.jaw_pose, 1, "jaw_pose", options),
-                                                        joint_pose(pose.leye_pose, 1, "leye_pose", options),
-                                                        joint_pose(pose.reye_pose, 1, "reye_pose", options), left,
-                                                        right}));
+  frame.rotations = body::axis_angle_to_matrix(
+      at::cat({joint_pose(pose.global_orient, 1, "global_orient", options),
+               joint_pose(pose.body_pose, body::kSmplxBodyJointCount, "body_pose", options),
+               joint_pose(pose.jaw_pose, 1, "jaw_pose", options), joint_pose(pose.leye_pose, 1, "leye_pose", options),
+               joint_pose(pose.reye_pose, 1, "reye_pose", options), left, right}));
   frame.rotations_6d = body::matrix_to_rotation_6d(frame.rotations);
   if (pose.expression.defined() && body_->expression_count() > 0) {
     const at::Tensor given = vector_input(pose.expression, "expression", options);

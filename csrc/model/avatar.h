@@ -90,11 +90,11 @@ struct AvatarBody {
 // The posed Gaussians ready for sfgs::render, plus what the regularisers need. Outputs of switched-off modules
 // (and the hand residual of a frame without hand poses) are undefined.
 struct AvatarOutput {
-  at::Tensor means;        // (N, 3) world
-  at::Tensor covariances;  // (N, 6) world, packed (xx, xy, xz, yy, yz, zz)
-  at::Tensor opacities;    // (N) constant ones (not learned)
-  at::Tensor colours;      // (N, 3) non-negative: in [0, 1] without shading; shading may light them beyond 1
-  at::Tensor albedo;       // (N, 3) in [0, 1]: the colours before shading (the colours themselves without it)
+  at::Tensor means;                // (N, 3) world
+  at::Tensor covariances;          // (N, 6) world, packed (xx, xy, xz, yy, yz, zz)
+  at::Tensor opacities;            // (N) constant ones (not learned)
+  at::Tensor colours;              // (N, 3) non-negative: in [0, 1] without shading; shading may light them beyond 1
+  at::Tensor albedo;               // (N, 3) in [0, 1]: the colours before shading (the colours themselves without it)
   at::Tensor skinning_transforms;  // (J, 4, 4) rest pose -> posed per joint: what skinned this frame's Gaussians
   // Canonical quantities (before skinning) for regularisers and export.
   at::Tensor canonical_means;   // (N, 3): this frame's rest mesh plus every offset below
@@ -127,8 +127,8 @@ class AvatarImpl : public torch::nn::Module {
   // moving it to the device (Animator: the check of device tensors is a host synchronisation a CUDA graph cannot
   // hold). A non-finite pose gives non-finite Gaussians.
   AvatarOutput forward_trusted_pose(const body::SmplxPose& pose, FrameTime time);
-  // forward_trusted_pose with the time as a 0-dim tensor of the avatar's dtype and device (undefined: none), not checked
-  // against [-1, 1]: for a caller that records the work as a CUDA graph and writes each replay's time into that
+  // forward_trusted_pose with the time as a 0-dim tensor of the avatar's dtype and device (undefined: none), not
+  // checked against [-1, 1]: for a caller that records the work as a CUDA graph and writes each replay's time into that
   // tensor (train/step_graphs.h). Training mode only (the inference cache keys on host times).
   AvatarOutput forward_trusted_pose(const body::SmplxPose& pose, const at::Tensor& device_time);
 
@@ -184,6 +184,7 @@ class AvatarImpl : public torch::nn::Module {
   at::Tensor opacities_;
   at::Tensor observed_fraction_, confidence_;  // (N) and (N, 1) on the module's device, or undefined
   body::VertexNeighbours neighbours_;          // of the mesh points, for the observation prior
+  body::VertexFaces faces_around_;             // of the mesh points on the CUDA device, for their normals
   std::unique_ptr<InferenceCache> cache_;
 };
 TORCH_MODULE(Avatar);

@@ -143,6 +143,47 @@ TEST(BodyMesh, NeighboursAndTheUniformLaplacian) {
   EXPECT_EQ(capped.counts[id(2, 2)].item<int64_t>(), 4);
 }
 
+TEST(BodyMesh, FacesAroundEachVertexInTheReferencesOrder) {
+  // Face 3 has a corner beyond the 4 vertices: left out. Each vertex lists the faces where it is the first corner,
+  // then the second, then the third, each by face index.
+  const at::Tensor faces = at::tensor({0, 1, 2, 2, 1, 3, 3, 0, 2, 0, 9, 1}, at::kLong).view({4, 3});
+  const body::VertexFaces around = body::vertex_faces(faces, 4);
+  EXPECT_TRUE(around.offsets.equal(at::tensor({0, 2, 4, 7, 9}, at::kInt)));
+  EXPECT_TRUE(around.face_indices.narrow(0, 0, 9).equal(at::tensor({0, 2, 0, 1, 1, 0, 2, 2, 1}, at::kInt)));
+  EXPECT_THROW(body::vertex_faces(faces.to(at::kInt), 4), c10::Error);
+  EXPECT_THROW(body::vertex_faces(faces.view({-1}), 4), c10::Error);
+
+  // On the procedural body's mesh the listed faces are each vertex's own: their normals, summed in that order (as
+  // the fused CUDA kernel does), are the reference's normals.
+  at::manual_seed(3);
+  const auto& body = procedural_body().smplx;
+  const at::Tensor mesh = body.faces.to(at::kLong);
+  const int64_t v = body.v_template.size(0);
+  const at::Tensor points = body.v_template.to(at::kFloat) + 0.002 * at::randn({v, 3});
+  const body::VertexFaces order = body::vertex_faces(mesh, v);
+  const auto offsets = order.offsets.accessor<int32_t, 1>();
+  const auto listed = order.face_indices.accessor<int32_t, 1>();
+  const auto f = mesh.accessor<int64_t, 2>();
+  const auto p = points.accessor<float, 2>();
+  at::Tensor sums = at::zeros({v, 3});
+  auto sum = sums.accessor<float, 2>();
+  for (int64_t i = 0; i < v; ++i)
+    for (int32_t k = offsets[i]; k < offsets[i + 1]; ++k) {
+      const int64_t face = listed[k];
+      float e1[3], e2[3];
+      for (int c = 0; c < 3; ++c) {
+        e1[c] = p[f[face][1]][c] - p[f[face][0]][c];
+        e2[c] = p[f[face][2]][c] - p[f[face][0]][c];
+      }
+      sum[i][0] += e1[1] * e2[2] - e1[2] * e2[1];
+      sum[i][1] += e1[2] * e2[0] - e1[0] * e2[2];
+      sum[i][2] += e1[0] * e2[1] - e1[1] * e2[0];
+    }
+  const at::Tensor reference = body::vertex_normals_reference(points, mesh);
+  const at::Tensor length = sums.pow(2).sum(1, /*keepdim=*/true).sqrt();
+  EXPECT_LT((sums / length - reference).abs().max().item<double>(), 1e-5);
+}
+
 TEST(BodyParts, LabelsFromWeightsFollowTheDominantJoint) {
   const auto& body = procedural_body().smplx;
   const at::Tensor dominant = body::dominant_joints(body.weights);
