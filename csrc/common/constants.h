@@ -62,6 +62,9 @@ inline constexpr long kCpuMaxTilePairs = 1L << 25;
 // from).
 inline constexpr long kGraphInitialIntersectionsPerGaussian = 4;
 inline constexpr double kGraphBudgetSlack = 1.5;
+// Recorded training steps the host queues before it reads the splatting counts of the oldest (train/step_graphs.h):
+// two, so it reads a step while the GPU runs the next and never waits for the step it has just queued.
+inline constexpr long kGraphUncheckedSteps = 2;
 // The Animator can cull Gaussians whose posed normal faces away from the camera by more than a cosine (between the
 // normal and the view ray; animate/visibility.h). Off by default (1): on a trained avatar it is lossy (0.3: the
 // frame 9 % faster, but 38-42 dB against the exact render; docs/performance.md), because small Gaussians' opacity
@@ -332,7 +335,7 @@ inline constexpr double kFitHangingArmAngle = 1.2;
 inline constexpr double kFitTwistPriorFactor = 4.0;
 // Joints that move little in most motions weigh more in the body prior, the shoulders (the widest range) less: an
 // even prior lets the optimiser lean the spine (three joints sharing a bend) where the arm should have turned.
-inline constexpr double kFitSpinePriorFactor = 30.0;  // spine1-3, neck, collars
+inline constexpr double kFitSpinePriorFactor = 30.0;      // spine1-3, neck, collars
 inline constexpr double kFitSpineTwistPriorFactor = 3.0;  // but a spine joint's twist
 inline constexpr double kFitShoulderPriorFactor = 0.3;
 // A hip's flexion (a leg swinging forwards or backwards, along the view when the subject faces the camera) weighs

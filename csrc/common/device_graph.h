@@ -17,6 +17,18 @@ class DeviceGraph {
 
 bool device_graphs_available();
 
+// A point in the current CUDA stream's queue: wait() blocks the host until the work queued before it is done, and
+// not the work queued after it (which a read of device memory would wait for too). The recorded training steps read
+// their splatting counts this way one step late, so the host never waits for the step it has just queued.
+class DeviceEvent {
+ public:
+  virtual ~DeviceEvent() = default;
+  virtual void wait() = 0;
+};
+
+// Records one on the current stream of the current CUDA device (the CUDA build only).
+std::unique_ptr<DeviceEvent> record_device_event();
+
 // The recorded run of capture_device_graph failed (it synchronised with the host, read host memory, ...): the work
 // cannot be recorded. Errors of the eager run before it come as they are.
 class GraphCaptureError : public std::runtime_error {

@@ -11,4 +11,8 @@ std::unique_ptr<DeviceGraph> capture_device_graph(const std::function<void()>&, 
   TORCH_CHECK(false, "sfgs: this build has no CUDA backend, so it cannot capture CUDA graphs");
 }
 
+std::unique_ptr<DeviceEvent> record_device_event() {
+  TORCH_CHECK(false, "sfgs: this build has no CUDA backend, so it records no CUDA events");
+}
+
 }  // namespace sfgs

@@ -24,7 +24,21 @@ BinningBudget GrowingBudget::budget(int64_t gaussians) {
 }
 
 BinningCounts GrowingBudget::read() const {
-  const at::Tensor host = counts_.cpu();  // waits for the pass
+  return counts_from(counts_.cpu());  // waits for the pass
+}
+
+at::Tensor GrowingBudget::overflowed() const {
+  if (!limits_.defined() || limits_intersections_ != intersections_ || limits_longest_tile_ != longest_tile_) {
+    // Uploaded when the budget changes (never while a graph is being recorded: budgets change between steps).
+    limits_ = at::tensor({intersections_, longest_tile_, int64_t(0)}, at::kLong).to(counts_.device());
+    limits_intersections_ = intersections_;
+    limits_longest_tile_ = longest_tile_;
+  }
+  return at::gt(counts_, limits_).any().to(at::kFloat);
+}
+
+BinningCounts GrowingBudget::counts_from(const at::Tensor& host_counts) const {
+  const at::Tensor host = host_counts.contiguous();
   const int64_t* v = host.data_ptr<int64_t>();
   const BinningCounts counts{v[0], v[1], v[2]};
   TORCH_CHECK(counts.invalid_opacities == 0, owner_, ": ", counts.invalid_opacities,

@@ -32,6 +32,14 @@ class GrowingBudget {
 
   // The counts of the latest pass under budget(); waits for its work. A pass with invalid opacities is an error.
   BinningCounts read() const;
+  // The counts as the device holds them (BinningBudget::kCounts int64), for a copy the host reads later, and that
+  // copy's counts (the same check as read()).
+  const at::Tensor& device_counts() const { return counts_; }
+  BinningCounts counts_from(const at::Tensor& host_counts) const;
+  // 0-dim float on the device: 1 where the latest pass went beyond the current budget or met invalid opacities,
+  // else 0 (no host read: the optimiser's skip flag).
+  at::Tensor overflowed() const;
+  int64_t longest_tile() const { return longest_tile_; }
   bool fits(const BinningCounts& counts) const;
   // Sizes the budget from `counts` with the slack.
   void grow(const BinningCounts& counts);
@@ -40,6 +48,8 @@ class GrowingBudget {
   double slack_;
   std::string owner_;
   at::Tensor counts_;  // BinningBudget::kCounts int64 on the device
+  mutable at::Tensor limits_;  // (intersections, longest tile, 0 invalid opacities) on the device, for overflowed()
+  mutable int64_t limits_intersections_ = -1, limits_longest_tile_ = -1;
   int64_t intersections_ = 0, longest_tile_ = 0;
   bool measured_ = false;
 };

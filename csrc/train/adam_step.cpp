@@ -63,10 +63,10 @@ torch::optim::AdamParamState& AdamStepper::state_of(const at::Tensor& p, const t
   return static_cast<torch::optim::AdamParamState&>(*found->second);
 }
 
-void AdamStepper::step() {
+void AdamStepper::step(const at::Tensor& skip) {
   fused_ = allow_fused_ && fusable();
   if (!fused_) {
-    optimizer_.step();
+    if (!skip.defined() || skip.item<float>() == 0.0f) optimizer_.step();
     return;
   }
   at::NoGradGuard no_grad;
@@ -93,7 +93,9 @@ void AdamStepper::step() {
     // torch.optim.Adam(fused=True) does.
     at::_foreach_add_(steps, 1);
     at::_fused_adam_(params, grads, averages, squares, /*max_exp_avg_sqs=*/{}, steps, options.lr(), beta1, beta2,
-                     options.weight_decay(), options.eps(), /*amsgrad=*/false, /*maximize=*/false);
+                     options.weight_decay(), options.eps(), /*amsgrad=*/false, /*maximize=*/false,
+                     /*grad_scale=*/c10::nullopt, /*found_inf=*/skip.defined() ? c10::optional<at::Tensor>(skip)
+                                                                                : c10::optional<at::Tensor>());
   }
 }
 

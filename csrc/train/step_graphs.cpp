@@ -1,7 +1,10 @@
 #include "train/step_graphs.h"
 
+#include <algorithm>
+
 #include <ATen/ATen.h>
 
+#include "common/constants.h"
 #include "splat/splat.h"
 
 namespace sfgs::train {
@@ -31,6 +34,8 @@ StepOutputs StepGraphs::run(const StepData& data, const std::function<StepOutput
   }
   Kind& kind = found->second;
   kind.inputs->upload(data);
+  // The steps queued before the previous one are done by now (the GPU is on the previous one): read their counts.
+  while (pending_.size() >= size_t(kGraphUncheckedSteps)) check_oldest();
   for (;;) {
     if (!budget_.measured()) {
       // No step has measured the splatting yet: an eager step with a guess. If it fitted, it is this step.
@@ -47,16 +52,53 @@ StepOutputs StepGraphs::run(const StepData& data, const std::function<StepOutput
     if (!kind.graph) capture(kind, work);
     kind.graph->replay();
     ++stats_.replays;
-    const BinningCounts counts = budget_.read();  // waits for the step
-    if (budget_.fits(counts)) break;
-    // The step's image was emptied on the device: grow the budget, record again, and run the same step.
-    ++stats_.budget_overflows;
-    budget_.grow(counts);
-    drop_graphs();
+    break;
   }
+  StepOutputs outputs = kind.outputs;
+  outputs.skip_update = queue_check();
   const std::vector<at::Tensor> parameters = avatar_->parameters();
   for (size_t k = 0; k < parameters.size(); ++k) parameters[k].mutable_grad() = kind.gradients[k];
-  return kind.outputs;
+  return outputs;
+}
+
+void StepGraphs::settle() {
+  while (!pending_.empty()) check_oldest();
+}
+
+at::Tensor StepGraphs::queue_check() {
+  PendingCheck check;
+  check.counts = at::empty({BinningBudget::kCounts}, at::TensorOptions().dtype(at::kLong).pinned_memory(true));
+  check.counts.copy_(budget_.device_counts(), /*non_blocking=*/true);
+  check.copied = record_device_event();
+  check.intersections = budget_.intersections();
+  check.longest_tile = budget_.longest_tile();
+  pending_.push_back(std::move(check));
+  return budget_.overflowed();
+}
+
+void StepGraphs::check_oldest() {
+  PendingCheck oldest = std::move(pending_.front());
+  pending_.pop_front();
+  oldest.copied->wait();
+  BinningCounts largest = budget_.counts_from(oldest.counts);
+  if (largest.intersections <= oldest.intersections && largest.longest_tile <= oldest.longest_tile) return;
+  // That step rendered an incomplete image (the optimiser left it out). The steps queued after it ran under the same
+  // budget: read them too, grow the budget past all of them, and record the graphs again before the next step.
+  ++stats_.budget_overflows;
+  for (PendingCheck& later : pending_) {
+    later.copied->wait();
+    const BinningCounts counts = budget_.counts_from(later.counts);
+    if (counts.intersections > later.intersections || counts.longest_tile > later.longest_tile)
+      ++stats_.budget_overflows;
+    largest.intersections = std::max(largest.intersections, counts.intersections);
+    largest.longest_tile = std::max(largest.longest_tile, counts.longest_tile);
+  }
+  pending_.clear();
+  budget_.grow(largest);
+  // The previous step's replay may still run: the graphs (and their pool) go only once it is done. One wait per
+  // overflow, a handful in a run.
+  record_device_event()->wait();
+  drop_graphs();
 }
 
 StepOutputs StepGraphs::run_budgeted(Kind& kind, const std::function<StepOutputs(const StepInputs&)>& work) {

@@ -6,14 +6,18 @@
 // runs outside the graphs, so learning rates and step counts stay host values).
 //
 // The splatting's intersection buffers are sized from a budget (splat/growing_budget.h) instead of the count read
-// that a graph cannot hold. Each replay's true counts are read back once the step is done (the step's one host
-// synchronisation, before the optimiser): a step beyond the budget grows it, records the graphs again and runs
-// again, so no step ever trains on an incomplete image. While no budget is known, steps run eagerly with a guess.
+// that a graph cannot hold, and the host never waits for a replayed step: each replay's true counts are copied to
+// page-locked memory in stream order and read two steps later, when that step has long finished (a DeviceEvent, not
+// a wait for the queue). A step beyond its budget rendered an incomplete image, so its outputs carry skip_update = 1
+// (computed on the device) and the optimiser leaves it out; once the host reads its counts, the budget grows and the
+// graphs are recorded again (the step after it, replayed before the host knew, is left out likewise if it
+// overflowed too). While no budget is known, steps run eagerly with a guess and are read at once.
 //
 // Contract: a step's outputs (and the gradients it leaves on the parameters) are valid until the next run(); the
 // graphs share one pool, so another kind's replay may overwrite them: copy what must last (the trainer does: the
 // loss watch stacks the terms, LPIPS is cloned). The avatar must stay as it was (parameters are updated in place; the
 // planes' reads and every buffer a graph reads keep their addresses); moving it needs a new StepGraphs.
+#include <deque>
 #include <functional>
 #include <map>
 #include <memory>
@@ -42,7 +46,7 @@ struct StepGraphStats {
   int64_t captures = 0;          // graphs recorded (a new kind of step, or a grown budget)
   int64_t replays = 0;           // steps run as one replay (those that overflowed included)
   int64_t eager_steps = 0;       // steps run eagerly while the budget was unknown
-  int64_t budget_overflows = 0;  // replays that reported more intersections than their budget, and ran again
+  int64_t budget_overflows = 0;  // replays beyond their budget (skipped by the optimiser; the budget then grew)
   int64_t intersection_budget = 0;
 };
 
@@ -60,6 +64,8 @@ class StepGraphs {
   // step's and the outputs are on the device; they stay valid until the next run(). Throws StepRecordingError when
   // the work cannot be recorded (the step has not run), and the work's own errors as they come.
   StepOutputs run(const StepData& data, const std::function<StepOutputs(const StepInputs&)>& work);
+  // Reads the counts of every replayed step not read yet (waits for them), so that stats() counts every overflow.
+  void settle();
   const StepGraphStats& stats() const { return stats_; }
 
  private:
@@ -69,7 +75,18 @@ class StepGraphs {
     StepOutputs outputs;                // the graph's, rewritten by each replay
     std::vector<at::Tensor> gradients;  // the graph's, per parameter (undefined: the kind does not reach it)
   };
+  // A replayed step whose counts the host has not read: their page-locked copy, filled in stream order, and the
+  // budget it ran under.
+  struct PendingCheck {
+    at::Tensor counts;
+    std::unique_ptr<DeviceEvent> copied;
+    int64_t intersections = 0, longest_tile = 0;
+  };
   StepOutputs run_budgeted(Kind& kind, const std::function<StepOutputs(const StepInputs&)>& work);
+  // Queues the check of the step just replayed; returns its skip flag.
+  at::Tensor queue_check();
+  // Reads the oldest pending check (waiting for that step only); beyond its budget: grow it, drop the graphs.
+  void check_oldest();
   void capture(Kind& kind, const std::function<StepOutputs(const StepInputs&)>& work);
   void drop_graphs();
 
@@ -77,6 +94,7 @@ class StepGraphs {
   at::Device device_;
   std::map<std::string, Kind> kinds_;
   GrowingBudget budget_;
+  std::deque<PendingCheck> pending_;
   StepGraphStats stats_;
 };
 

@@ -142,10 +142,12 @@ void TrainingSession::step(int64_t it) {
   }
   {
     const StageScope stage("train: optimizer");
-    adam_->step();
+    adam_->step(outputs.skip_update);
     if (refinement_) refinement_->step(f, it, factor);
   }
-  observation_sum_ += outputs.observation;
+  // A left-out step's record is of an incomplete image: it adds nothing (and still counts, one in thousands).
+  observation_sum_ += outputs.skip_update.defined() ? outputs.observation * (1 - outputs.skip_update)
+                                                    : outputs.observation;
   ++observation_steps_;
   LossTerms& terms = outputs.terms;
   // A copy: a recorded step rewrites its outputs at every replay.
@@ -179,6 +181,7 @@ TrainSummary TrainingSession::run(int64_t start, int64_t end) {
   nlohmann::json entry{{"event", "end"}, {"iteration", summary_.iterations}, {"seconds", summary_.seconds},
                        {"training_seconds", training_seconds_}};
   if (graphs_) {
+    graphs_->settle();  // the last steps' counts, so that every overflow is counted
     const StepGraphStats& g = graphs_->stats();
     entry["step_graphs"] = {{"captures", g.captures}, {"replays", g.replays}, {"eager_steps", g.eager_steps},
                             {"budget_overflows", g.budget_overflows}, {"intersection_budget", g.intersection_budget}};

@@ -66,6 +66,9 @@ struct StepOutputs {
   LossTerms terms;
   at::Tensor psnr;
   at::Tensor observation;  // (N)
+  // A recorded step's: 0-dim float on the device, 1 where its splatting went beyond the budget (an incomplete
+  // image: the optimiser leaves the step out), else 0. Undefined for eager steps, which are always whole.
+  at::Tensor skip_update;
 };
 
 class TrainingStep {

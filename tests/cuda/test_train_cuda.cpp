@@ -1,8 +1,9 @@
 // The training step's GPU parts: the fused Adam step (train/adam_step.h) against LibTorch's own Adam::step over
 // several steps, two parameter groups with their own learning rates, weight decay, and a parameter that a step leaves
 // without a gradient; training steps recorded as CUDA graphs (train/step_graphs.h) against the same steps run
-// eagerly (outputs and gradients, with and without the time branch, a moving camera, a step beyond the splatting
-// budget), and a whole training run with graphs against one without. Skips without a CUDA device.
+// eagerly (outputs and gradients, with and without the time branch, a moving camera; a step beyond the splatting
+// budget left out and the budget grown), the fused step's skip flag, and a whole training run with graphs against
+// one without. Skips without a CUDA device.
 #include <algorithm>
 #include <vector>
 
@@ -66,6 +67,38 @@ TEST(AdamStepperCuda, FusedStepsEqualLibTorchAdam) {
     ASSERT_TRUE(f && r) << "parameter " << k;
     EXPECT_EQ(f->step(), r->step()) << "parameter " << k;
     EXPECT_LT((f->exp_avg_sq() - r->exp_avg_sq()).abs().max().item<double>(), 1e-6) << "parameter " << k;
+  }
+}
+
+// A recorded step whose image was incomplete is left out on the device (StepOutputs::skip_update): the fused step
+// with skip = 1 moves no parameter and no moment; with skip = 0 it is the plain step.
+TEST(AdamStepperCuda, SkipFlagLeavesTheStepOut) {
+  if (!torch::cuda::is_available()) GTEST_SKIP() << "no CUDA device";
+  at::manual_seed(4);
+  const auto gpu = at::TensorOptions(at::kCUDA);
+  const std::vector<at::Tensor> initial{at::randn({100, 7}, gpu), at::randn({33}, gpu), at::randn({5, 5}, gpu)};
+  const std::vector<at::Tensor> plain_params = parameters_like(initial), skipping_params = parameters_like(initial);
+  auto plain = two_group_adam(plain_params), skipping = two_group_adam(skipping_params);
+  train::AdamStepper plain_stepper(*plain), skipping_stepper(*skipping);
+  for (int step = 0; step < 3; ++step) {
+    for (size_t k = 0; k < initial.size(); ++k) {
+      const at::Tensor grad = at::randn_like(initial[k]);
+      plain_params[k].mutable_grad() = grad.clone();
+      skipping_params[k].mutable_grad() = grad.clone();
+    }
+    std::vector<at::Tensor> before;
+    for (const at::Tensor& p : skipping_params) before.push_back(p.detach().clone());
+    skipping_stepper.step(at::ones({}, gpu));
+    ASSERT_TRUE(skipping_stepper.fused());
+    for (size_t k = 0; k < initial.size(); ++k)
+      EXPECT_TRUE(at::equal(skipping_params[k], before[k])) << "a skipped step moved parameter " << k;
+    skipping_stepper.step(at::zeros({}, gpu));
+    plain_stepper.step();
+    for (size_t k = 0; k < initial.size(); ++k) {
+      const double difference = (plain_params[k] - skipping_params[k]).abs().max().item<double>();
+      // The skipped step counted in the bias corrections: a step count one ahead, a tiny difference.
+      EXPECT_LT(difference, 1e-2) << "parameter " << k << " after step " << step;
+    }
   }
 }
 
@@ -213,6 +246,7 @@ TEST(StepGraphsCuda, RecordedStepsEqualEagerStepsWithAndWithoutTime) {
       if (p.grad().defined()) p.add_(p.grad().sign(), 1e-3);
     copy_parameters(*recorded.avatar, *eager.avatar);
   }
+  graphs.settle();
   const train::StepGraphStats& stats = graphs.stats();
   EXPECT_EQ(stats.eager_steps, 1) << "the first step measures the splatting";
   EXPECT_EQ(stats.captures, 2) << "one graph with the time branch, one without";
@@ -247,20 +281,41 @@ TEST(StepGraphsCuda, ARunStartingWithoutTimeRecordsEveryKindOfStep) {
                                            "without LPIPS";
 }
 
-TEST(StepGraphsCuda, AStepBeyondTheBudgetGrowsItAndRunsWhole) {
+// A replayed step beyond its budget rendered an incomplete image: its skip flag is 1 (the optimiser leaves it out).
+// The host reads its counts two steps later; then the budget grows, the graph is recorded again, and the next steps
+// are whole again, equal to eager ones.
+TEST(StepGraphsCuda, AStepBeyondTheBudgetIsLeftOutAndTheBudgetGrows) {
   if (!torch::cuda::is_available()) GTEST_SKIP() << "no CUDA device";
   model::Avatar initial(procedural_avatar_body(), subject_betas(), small_config());
   randomise_parameters(*initial, 0.1, 9);
   GpuStep recorded(initial), eager(initial);
   train::StepGraphs graphs(recorded.avatar, at::kCUDA, /*budget_slack=*/1.0);
-  // The budget is taken from the far steps; the camera then comes closer: more intersections than the budget.
-  const std::vector<double> closer{0, 0, 0, 1.2, 1.2};
-  for (size_t k = 0; k < closer.size(); ++k) {
-    train::StepData data = drawn_step(int64_t(k % 2 == 0 ? 0 : 2), closer[k]);  // all with a time: one kind
-    recorded_equals_eager(graphs, recorded, eager, data, int64_t(k));
+  // The budget (no slack) is taken from the first step, which the next two repeat (the parameters stay: the same
+  // counts). The camera then moves away: at 64 x 48 pixels the far body crosses more tiles (19k intersections
+  // against 14k near), beyond the budget. One kind of step throughout.
+  const std::vector<double> closer{1.2, 1.2, 1.2, -3, -3, -3, -3};
+  const auto data_of = [&](size_t k) { return drawn_step(0, closer[k]); };
+  for (size_t k = 0; k < 3; ++k) {
+    const train::StepOutputs r = recorded_equals_eager(graphs, recorded, eager, data_of(k), int64_t(k));
+    if (r.skip_update.defined()) EXPECT_EQ(r.skip_update.item<float>(), 0.0f) << "step " << k;
   }
-  EXPECT_GE(graphs.stats().budget_overflows, 1);
-  EXPECT_GE(graphs.stats().captures, 2) << "recorded again with the grown budget";
+  const train::StepData far = data_of(3);
+  const train::StepOutputs overflowing =
+      graphs.run(far, [&](const train::StepInputs& in) { return recorded.step->run(in, in.pose, far.lpips); });
+  ASSERT_TRUE(overflowing.skip_update.defined());
+  EXPECT_EQ(overflowing.skip_update.item<float>(), 1.0f) << "an incomplete image must be left out";
+  const train::StepData next = data_of(4);  // queued before the host has read the overflow
+  const train::StepOutputs overflowing_too =
+      graphs.run(next, [&](const train::StepInputs& in) { return recorded.step->run(in, in.pose, next.lpips); });
+  EXPECT_EQ(overflowing_too.skip_update.item<float>(), 1.0f) << "the step queued after it overflowed as well";
+  const int64_t captures_before = graphs.stats().captures;
+  for (size_t k = 5; k < closer.size(); ++k) {
+    const train::StepOutputs r = recorded_equals_eager(graphs, recorded, eager, data_of(k), int64_t(k));
+    EXPECT_EQ(r.skip_update.item<float>(), 0.0f) << "step " << k << " after the budget grew";
+  }
+  graphs.settle();
+  EXPECT_EQ(graphs.stats().budget_overflows, 2);
+  EXPECT_GT(graphs.stats().captures, captures_before) << "recorded again with the grown budget";
 }
 
 TEST(StepGraphsCuda, TrainingWithGraphsMatchesTrainingWithout) {
