@@ -14,10 +14,10 @@ struct PartWeights {
 };
 
 struct LossWeights {
-  double image = 0.8;       // lambda_1 on (L1 + (1 - SSIM) + LPIPS)
-  double lab = 0.3;         // lambda_a on L1 in CIELAB
-  double gradient = 0.01;   // lambda_g on L1 of image gradients
-  bool use_lpips = true;    // AlexNet LPIPS (the shared weights); skipped, with a log line, when unavailable
+  double image = 0.8;         // lambda_1 on (L1 + (1 - SSIM) + LPIPS)
+  double lab = 0.3;           // lambda_a on L1 in CIELAB
+  double gradient = 0.01;     // lambda_g on L1 of image gradients
+  bool use_lpips = true;      // AlexNet LPIPS (the shared weights); skipped, with a log line, when unavailable
   std::string lpips_weights;  // folder holding lpips_alex.safetensors; empty: the default search
   // LPIPS in every k-th training step only (its AlexNet forward and backward are the costliest loss); the steps
   // between carry L1, SSIM and the rest. docs/performance.md measures what it costs the metrics.
@@ -37,10 +37,10 @@ struct LossWeights {
 
 struct Schedule {
   int64_t iterations = 3000;
-  int64_t warmup_iterations = 100;    // learning rates ramp linearly from 0
-  std::vector<double> decay_at{0.75, 0.95};    // fractions of the run
+  int64_t warmup_iterations = 100;              // learning rates ramp linearly from 0
+  std::vector<double> decay_at{0.75, 0.95};     // fractions of the run
   std::vector<double> decay_factor{0.1, 0.01};  // learning-rate factor from each point on
-  double learning_rate = 1e-3;        // feature planes, networks, embeddings
+  double learning_rate = 1e-3;                  // feature planes, networks, embeddings
   double colour_learning_rate = 1e-3;
   double adam_epsilon = 1e-15;
   // CUDA: Adam as one fused multi-tensor kernel per parameter group (train/adam_step.h); the same update.
@@ -57,15 +57,17 @@ struct Schedule {
 // correction of the SMPL-X fit (axis-angles of the global orientation, body, jaw and fingers; translation).
 struct PoseRefinementConfig {
   bool enabled = false;
-  double learning_rate = 2e-3;              // rotations (radians), scaled by the schedule's factor
-  double translation_learning_rate = 1e-3;  // metres
-  double start = 0.05;        // share of the run before the corrections move (the avatar is a blur before)
-  double prior = 0.01;        // weight of the squared correction (radians, metres) of the drawn frame
-  double smoothness = 0.05;   // weight of the squared acceleration of the refined fits around the drawn frame
+  // A frame is drawn in few steps (about 30 in 1,500 over 48 frames): at 2e-3 rad a step its joints could move
+  // about 3.5 degrees in a run, less than an estimator's error (docs/results.md measured the rates).
+  double learning_rate = 1e-2;              // rotations (radians), scaled by the schedule's factor
+  double translation_learning_rate = 5e-3;  // metres
+  double start = 0.05;       // share of the run before the corrections move (the avatar is a blur before)
+  double prior = 0.01;       // weight of the squared correction (radians, metres) of the drawn frame
+  double smoothness = 0.05;  // weight of the squared acceleration of the refined fits around the drawn frame
   // Shares of the run at which every training frame's refined fit is aligned to its image with the avatar as it is
   // then (train/pose_fit.h, align_iterations each): centimetres the per-step corrections cannot cover. From
   // `start` on, rising.
-  std::vector<double> align_at{0.1, 0.3};
+  std::vector<double> align_at{0.1};
   int64_t align_iterations = 60;
 };
 
