@@ -58,8 +58,8 @@ struct VertexNeighbours {
 };
 VertexNeighbours vertex_neighbours(const at::Tensor& faces, int64_t num_vertices, int64_t max_neighbours = -1);
 
-// The faces around each vertex in the order the reference sums them (those where it is the first corner, by face,
-// then the second, then the third): vertex v's faces are face_indices[offsets[v] .. offsets[v + 1]), int32 on the
+// The faces around each vertex in the order the CPU reference sums them (those where it is the first corner, by
+// face, then the second, then the third): vertex v's faces are face_indices[offsets[v] .. offsets[v + 1]), int32 on the
 // faces' device. A face with an index outside [0, V) is left out. Made by a stable sort, no atomics.
 struct VertexFaces {
   at::Tensor offsets;       // (V + 1) int32
@@ -70,7 +70,8 @@ VertexFaces vertex_faces(const at::Tensor& faces, int64_t num_vertices);
 // Area-weighted unit vertex normals (V, 3) of vertices (V, 3) with faces (F, 3) int64 on the same device
 // (counter-clockwise seen from outside); vertices on no face, or only on degenerate ones, get 0. For float32 CUDA
 // vertices that need no gradient it is one fused kernel (csrc/cuda/vertex_normals.cu): each vertex sums its faces'
-// normals in the order of `around` (vertex_faces of these faces, made here when not given), so the result is the
+// normals in the order of `around` (vertex_faces of these very faces, made here when not given; its shapes are
+// checked, its values trusted: other faces' lists give wrong normals or reads out of bounds), so the result is the
 // same bits on every run (an atomic scatter's order varies, and a training step's bfloat16 LPIPS turned that noise
 // into 1 % changes of the hands' gradients); a face with an index outside [0, V) is skipped rather than checked
 // with a device read. Otherwise vertex_normals_reference.

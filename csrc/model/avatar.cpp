@@ -228,7 +228,9 @@ AvatarOutput AvatarImpl::posed(const body::SmplxPose& pose, FrameTime host_time,
     at::NoGradGuard no_grad;
     const at::Tensor& faces = body_->faces();
     // The faces around each point, made once per device: the fused normals then sum in a fixed order.
-    if (faces.is_cuda() && (!faces_around_.offsets.defined() || faces_around_.offsets.device() != faces.device()))
+    if (!faces.is_cuda())
+      faces_around_ = body::VertexFaces();  // the CPU reference needs none
+    else if (!faces_around_.offsets.defined() || faces_around_.offsets.device() != faces.device())
       faces_around_ = body::vertex_faces(faces, out.posed_vertices.size(0));
     out.posed_normals =
         body::vertex_normals(out.posed_vertices.detach(), faces, faces.is_cuda() ? faces_around_ : body::VertexFaces());

@@ -22,8 +22,9 @@ class AdamStepper {
   explicit AdamStepper(torch::optim::Adam& optimizer, bool allow_fused = true)
       : optimizer_(optimizer), allow_fused_(allow_fused) {}
   // `skip` (optional): a 0-dim float on the device, 1 to leave this step's update out (a recorded training step
-  // whose image was incomplete, StepOutputs::skip_update). The fused kernel reads it on the device; the optimiser's
-  // own step reads it back first. A skipped step still counts in the bias corrections' step count (one in thousands).
+  // whose image was incomplete, StepOutputs::skip_update). The fused kernel reads it on the device, and a step it
+  // skips still counts in the bias corrections' step count (one in thousands); the optimiser's own step (fused_adam
+  // off) reads it back first, a host read every step, and a skipped step is not counted.
   void step(const at::Tensor& skip = at::Tensor());
   // Whether the latest step() took the fused kernel.
   bool fused() const { return fused_; }

@@ -11,6 +11,8 @@ namespace sfgs::train {
 
 namespace {
 
+static_assert(kGraphUncheckedSteps >= 1, "the host reads a step's counts after queuing at least that step");
+
 at::Device recordable(at::Device device) {
   TORCH_CHECK(device.is_cuda() && device_graphs_available(),
               "StepGraphs: recording training steps needs a CUDA device and a CUDA build, got ", device);
