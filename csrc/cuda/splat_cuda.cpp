@@ -69,7 +69,7 @@ void check_on_device(const at::Tensor& t, const char* name, const at::Tensor& me
 
 void check_inputs(const SplatInputs& in) {
   TORCH_CHECK(in.means.is_cuda(), "sfgs CUDA backend: means must be on a CUDA device, got ", in.means.device());
-  TORCH_CHECK(in.means.scalar_type() == at::kFloat || in.means.scalar_type() == at::kDouble,
+  TORCH_CHECK(is_float_or_double(in.means),
               "sfgs CUDA backend: tensors must be float32 or float64, got ", in.means.scalar_type());
   TORCH_CHECK(in.means.is_contiguous(), "sfgs CUDA backend: means must be contiguous");
   TORCH_CHECK(in.uses_covariances() != (in.scales.defined() && in.rotations.defined()),

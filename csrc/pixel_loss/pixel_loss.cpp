@@ -67,8 +67,7 @@ class PixelLossFunction : public torch::autograd::Function<PixelLossFunction> {
 
 void check_inputs(const at::Tensor& prediction, const at::Tensor& target) {
   TORCH_CHECK(prediction.defined() && prediction.dim() == 3 && prediction.size(2) == 3 && prediction.size(0) >= 2 &&
-                  prediction.size(1) >= 2 &&
-                  (prediction.scalar_type() == at::kFloat || prediction.scalar_type() == at::kDouble),
+                  prediction.size(1) >= 2 && is_float_or_double(prediction),
               "pixel_losses: prediction must be a float32 or float64 (H, W, 3) image with H, W >= 2, got ",
               describe(prediction));
   TORCH_CHECK(target.defined() && target.sizes() == prediction.sizes() &&

@@ -25,7 +25,7 @@ void check_means(const at::Tensor& means, bool on_backend_device) {
   TORCH_CHECK(means.defined(), "sfgs::render: means must be given as an (N, 3) tensor");
   TORCH_CHECK(means.dim() == 2 && means.size(1) == 3, "sfgs::render: means must have shape (N, 3), got ",
               describe(means));
-  TORCH_CHECK(means.scalar_type() == at::kFloat || means.scalar_type() == at::kDouble,
+  TORCH_CHECK(is_float_or_double(means),
               "sfgs::render: tensors must be float32 or float64, got ", describe(means));
   if (on_backend_device) check_backend_device(means);
   TORCH_CHECK(means.size(0) <= std::numeric_limits<int32_t>::max(), "sfgs::render: at most 2^31 - 1 Gaussians, got ",

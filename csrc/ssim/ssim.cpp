@@ -115,8 +115,7 @@ class FusedSsimFunction : public torch::autograd::Function<FusedSsimFunction> {
 void check_inputs(const at::Tensor& prediction, const at::Tensor& target) {
   for (const auto* image : {&prediction, &target}) {
     const char* name = image == &prediction ? "prediction" : "target";
-    TORCH_CHECK(image->defined() && image->dim() == 3 &&
-                    (image->scalar_type() == at::kFloat || image->scalar_type() == at::kDouble),
+    TORCH_CHECK(image->defined() && image->dim() == 3 && is_float_or_double(*image),
                 "fused_ssim: ", name, " must be a float32 or float64 image (H, W, C), got ", describe(*image));
     TORCH_CHECK(image->numel() > 0, "fused_ssim: ", name, " must not be empty, got ", describe(*image));
     TORCH_CHECK(image->is_cpu() || image->is_cuda(), "fused_ssim: ", name, " must be on the CPU or a CUDA device, got ",
