@@ -1,9 +1,7 @@
 // The fused pixel-loss kernels: a thread per pixel. The forward sums each block's pixels in shared memory into one
 // partial row (divided by the terms' counts, so the rows add up to the means); the backward writes each pixel's
 // gradient, reading its neighbours' differences itself.
-#include <stdexcept>
-#include <string>
-
+#include "cuda/launch_geometry.cuh"
 #include "cuda/pixel_loss_kernels.h"
 
 namespace sfgs::pixel_loss::cuda_kernels {
@@ -33,13 +31,6 @@ template <typename T> __global__ void __launch_bounds__(kThreads) backward_kerne
   if (pixel < int64_t(a.height) * a.width) pixel_gradient(a, int(pixel / a.width), int(pixel % a.width));
 }
 
-void check_launch(const char* what) {
-  const cudaError_t status = cudaGetLastError();
-  if (status != cudaSuccess)
-    throw std::runtime_error(std::string("sfgs pixel_losses: ") + what + " launch failed: " +
-                             cudaGetErrorString(status));
-}
-
 unsigned blocks_for(int height, int width) { return unsigned((int64_t(height) * width + kThreads - 1) / kThreads); }
 
 }  // namespace
@@ -48,12 +39,12 @@ int64_t partials(int height, int width) { return blocks_for(height, width); }
 
 template <typename T> void forward(const PixelLossArrays<T>& a, cudaStream_t stream) {
   forward_kernel<T><<<blocks_for(a.height, a.width), kThreads, 0, stream>>>(a);
-  check_launch("forward_kernel");
+  cuda_launch::check_launch("pixel_losses", "forward_kernel");
 }
 
 template <typename T> void backward(const PixelLossGradientArrays<T>& a, cudaStream_t stream) {
   backward_kernel<T><<<blocks_for(a.height, a.width), kThreads, 0, stream>>>(a);
-  check_launch("backward_kernel");
+  cuda_launch::check_launch("pixel_losses", "backward_kernel");
 }
 
 template void forward<float>(const PixelLossArrays<float>&, cudaStream_t);

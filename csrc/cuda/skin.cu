@@ -1,6 +1,4 @@
-#include <stdexcept>
-#include <string>
-
+#include "cuda/launch_geometry.cuh"
 #include "cuda/skin_kernels.h"
 
 namespace sfgs::skin::cuda_kernels {
@@ -20,24 +18,18 @@ template <typename T> __global__ void skin_backward_kernel(const SkinGradientArr
 
 unsigned blocks_for(int64_t count) { return unsigned((count + kThreads - 1) / kThreads); }
 
-void check_launch(const char* what) {
-  const cudaError_t status = cudaGetLastError();
-  if (status != cudaSuccess)
-    throw std::runtime_error(std::string("sfgs skinning: ") + what + " launch failed: " + cudaGetErrorString(status));
-}
-
 }  // namespace
 
 template <typename T> void skin_forward(const SkinArrays<T>& arrays, cudaStream_t stream) {
   if (arrays.count == 0) return;
   skin_forward_kernel<T><<<blocks_for(arrays.count), kThreads, 0, stream>>>(arrays);
-  check_launch("skin_forward_kernel");
+  cuda_launch::check_launch("skinning", "skin_forward_kernel");
 }
 
 template <typename T> void skin_backward(const SkinGradientArrays<T>& arrays, cudaStream_t stream) {
   if (arrays.count == 0) return;
   skin_backward_kernel<T><<<blocks_for(arrays.count), kThreads, 0, stream>>>(arrays);
-  check_launch("skin_backward_kernel");
+  cuda_launch::check_launch("skinning", "skin_backward_kernel");
 }
 
 template void skin_forward<float>(const SkinArrays<float>&, cudaStream_t);

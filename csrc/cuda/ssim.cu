@@ -8,6 +8,7 @@
 #include <string>
 
 #include "common/constants.h"
+#include "cuda/launch_geometry.cuh"
 #include "cuda/ssim_kernels.h"
 #include "cuda/warp_utils.cuh"
 
@@ -170,12 +171,6 @@ __global__ void __launch_bounds__(kThreads) backward_kernel(const SsimGradientAr
   }
 }
 
-void check_launch(const char* what) {
-  const cudaError_t status = cudaGetLastError();
-  if (status != cudaSuccess)
-    throw std::runtime_error(std::string("sfgs fused_ssim: ") + what + " launch failed: " + cudaGetErrorString(status));
-}
-
 // The grid of tiles over an image; CUDA bounds its y and z extents at 65535.
 template <typename T>
 dim3 tile_grid(int64_t height, int64_t width, int64_t channels) {
@@ -201,13 +196,13 @@ int64_t tile_count(int64_t height, int64_t width, int64_t channels) {
 template <typename T>
 void forward(const SsimArrays<T>& a, cudaStream_t stream) {
   forward_kernel<T><<<tile_grid<T>(a.height, a.width, a.channels), dim3(kTileColumns, kThreadRows), 0, stream>>>(a);
-  check_launch("forward_kernel");
+  cuda_launch::check_launch("fused_ssim", "forward_kernel");
 }
 
 template <typename T>
 void backward(const SsimGradientArrays<T>& a, cudaStream_t stream) {
   backward_kernel<T><<<tile_grid<T>(a.height, a.width, a.channels), dim3(kTileColumns, kThreadRows), 0, stream>>>(a);
-  check_launch("backward_kernel");
+  cuda_launch::check_launch("fused_ssim", "backward_kernel");
 }
 
 template int64_t tile_count<float>(int64_t, int64_t, int64_t);

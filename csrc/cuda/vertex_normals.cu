@@ -1,10 +1,8 @@
 // The fused vertex normals' kernel (body_kernels.h): per vertex, the sum over its faces of (v1 - v0) x (v2 - v0)
 // (twice the area times the unit normal) in the fixed order of VertexFaces, then normalised, or zero where the sum is
 // shorter than min_length. A gather rather than a scatter of atomic adds: the same bits on every run.
-#include <stdexcept>
-#include <string>
-
 #include "cuda/body_kernels.h"
+#include "cuda/launch_geometry.cuh"
 
 namespace sfgs::body::cuda_kernels {
 namespace {
@@ -35,19 +33,12 @@ __global__ void vertex_normals_kernel(const VertexNormalArrays a) {
   for (int c = 0; c < 3; ++c) a.normals[v * 3 + c] = sum[c] * scale;
 }
 
-void check_launch(const char* what) {
-  const cudaError_t status = cudaGetLastError();
-  if (status != cudaSuccess)
-    throw std::runtime_error(std::string("sfgs vertex normals: ") + what +
-                             " launch failed: " + cudaGetErrorString(status));
-}
-
 }  // namespace
 
 void vertex_normals_forward(const VertexNormalArrays& a, cudaStream_t stream) {
   if (a.vertex_count == 0) return;
   vertex_normals_kernel<<<unsigned((a.vertex_count + kThreads - 1) / kThreads), kThreads, 0, stream>>>(a);
-  check_launch("vertex_normals_kernel");
+  cuda_launch::check_launch("vertex normals", "vertex_normals_kernel");
 }
 
 }  // namespace sfgs::body::cuda_kernels
