@@ -39,7 +39,6 @@ class GrowingBudget {
   // 0-dim float on the device: 1 where the latest pass went beyond the current budget or met invalid opacities,
   // else 0 (no host read: the optimiser's skip flag).
   at::Tensor overflowed() const;
-  int64_t longest_tile() const { return longest_tile_; }
   bool fits(const BinningCounts& counts) const;
   // Sizes the budget from `counts` with the slack.
   void grow(const BinningCounts& counts);
@@ -47,7 +46,7 @@ class GrowingBudget {
  private:
   double slack_;
   std::string owner_;
-  at::Tensor counts_;  // BinningBudget::kCounts int64 on the device
+  at::Tensor counts_;          // BinningBudget::kCounts int64 on the device
   mutable at::Tensor limits_;  // (intersections, longest tile, 0 invalid opacities) on the device, for overflowed()
   mutable int64_t limits_intersections_ = -1, limits_longest_tile_ = -1;
   int64_t intersections_ = 0, longest_tile_ = 0;

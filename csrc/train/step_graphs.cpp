@@ -72,8 +72,6 @@ at::Tensor StepGraphs::queue_check() {
   check.counts = at::empty({BinningBudget::kCounts}, at::TensorOptions().dtype(at::kLong).pinned_memory(true));
   check.counts.copy_(budget_.device_counts(), /*non_blocking=*/true);
   check.copied = record_device_event();
-  check.intersections = budget_.intersections();
-  check.longest_tile = budget_.longest_tile();
   pending_.push_back(std::move(check));
   return budget_.overflowed();
 }
@@ -83,15 +81,14 @@ void StepGraphs::check_oldest() {
   pending_.pop_front();
   oldest.copied->wait();
   BinningCounts largest = budget_.counts_from(oldest.counts);
-  if (largest.intersections <= oldest.intersections && largest.longest_tile <= oldest.longest_tile) return;
+  if (budget_.fits(largest)) return;
   // That step rendered an incomplete image (the optimiser left it out). The steps queued after it ran under the same
   // budget: read them too, grow the budget past all of them, and record the graphs again before the next step.
   ++stats_.budget_overflows;
   for (PendingCheck& later : pending_) {
     later.copied->wait();
     const BinningCounts counts = budget_.counts_from(later.counts);
-    if (counts.intersections > later.intersections || counts.longest_tile > later.longest_tile)
-      ++stats_.budget_overflows;
+    if (!budget_.fits(counts)) ++stats_.budget_overflows;
     largest.intersections = std::max(largest.intersections, counts.intersections);
     largest.longest_tile = std::max(largest.longest_tile, counts.longest_tile);
   }

@@ -75,12 +75,11 @@ class StepGraphs {
     StepOutputs outputs;                // the graph's, rewritten by each replay
     std::vector<at::Tensor> gradients;  // the graph's, per parameter (undefined: the kind does not reach it)
   };
-  // A replayed step whose counts the host has not read: their page-locked copy, filled in stream order, and the
-  // budget it ran under.
+  // A replayed step whose counts the host has not read: their page-locked copy, filled in stream order. Every
+  // pending step ran under the current budget (the budget grows only once the pending checks are cleared).
   struct PendingCheck {
     at::Tensor counts;
     std::unique_ptr<DeviceEvent> copied;
-    int64_t intersections = 0, longest_tile = 0;
   };
   StepOutputs run_budgeted(Kind& kind, const std::function<StepOutputs(const StepInputs&)>& work);
   // Queues the check of the step just replayed; returns its skip flag.
