@@ -23,6 +23,14 @@ std::string numbered(const char* format, int64_t index) {
   return name;
 }
 
+// The hand poses of an absolute pose made relative to the model's mean hand: how ExAvatar's fits and both layouts
+// store them, and how the avatar reads them by default (flat_hand_mean false, which adds the mean back).
+body::SmplxPose hands_relative_to_mean(body::SmplxPose p, const SyntheticVideo& video) {
+  p.left_hand_pose = p.left_hand_pose - video.hands_mean_left.to(p.left_hand_pose.scalar_type()).view({-1, 3});
+  p.right_hand_pose = p.right_hand_pose - video.hands_mean_right.to(p.right_hand_pose.scalar_type()).view({-1, 3});
+  return p;
+}
+
 // ExAvatar's convention: camera coordinates, hand poses relative to the mean hand.
 std::map<int64_t, body::SmplxPose> exavatar_fits(const SyntheticVideo& video, bool exact) {
   std::map<int64_t, body::SmplxPose> fits;
@@ -30,10 +38,8 @@ std::map<int64_t, body::SmplxPose> exavatar_fits(const SyntheticVideo& video, bo
     const FrameRecord& r = video.frames[i];
     const bool use_truth = exact && r.true_pose.has_value();
     const at::Tensor& pelvis = (use_truth ? video.true_rest_pelvis : video.rest_pelvis)[int64_t(i)];
-    body::SmplxPose p = pose_in_camera(use_truth ? *r.true_pose : r.pose, r.camera.world_to_camera, pelvis);
-    p.left_hand_pose = p.left_hand_pose - video.hands_mean_left.to(at::kFloat).view({-1, 3});
-    p.right_hand_pose = p.right_hand_pose - video.hands_mean_right.to(at::kFloat).view({-1, 3});
-    fits[int64_t(i)] = p;
+    fits[int64_t(i)] = hands_relative_to_mean(
+        pose_in_camera(use_truth ? *r.true_pose : r.pose, r.camera.world_to_camera, pelvis), video);
   }
   return fits;
 }
@@ -64,6 +70,10 @@ void write_sfgs_layout_index(const std::string& folder, const SyntheticVideo& vi
   d.betas = video.betas;
   d.true_betas = video.true_betas;
   d.frames = video.frames;
+  for (FrameRecord& r : d.frames) {
+    r.pose = hands_relative_to_mean(r.pose, video);
+    if (r.true_pose) r.true_pose = hands_relative_to_mean(*r.true_pose, video);
+  }
   d.splits = video.splits;
   write_sfgs_dataset(d, folder, overwrite);
 }
