@@ -347,10 +347,11 @@ fi
 # default 80, at SFGS_DEVICE_FITS_SIZE, default 540x960) in the NeuMan layout with exact fits ("exact"), the same video
 # with fits corrupted at SFGS_DEVICE_FITS_NOISE (default medium; "noisy"), and the fits `sfgs fit` makes on CUDA from
 # its detector-like keypoints ("fitted"); the data are made once per machine. Each variant of
-# SFGS_DEVICE_FITS_VARIANTS (default "exact noisy refined fitted"; "refined" is noisy with pose refinement at its
-# defaults: per-step corrections and two alignment passes of every training frame, docs/training.md) is trained for
-# SFGS_DEVICE_FITS_ITERATIONS (default 2000) with configs/device_anny.yaml and evaluated on its test frames plainly
-# and with test-time pose fitting (SFGS_DEVICE_FITS_FIT_ITERATIONS, default 100).
+# SFGS_DEVICE_FITS_VARIANTS (default "exact noisy refined fitted fitted-refined"; "refined" and "fitted-refined" are
+# noisy and fitted with pose refinement at its defaults, docs/training.md) is trained for SFGS_DEVICE_FITS_ITERATIONS
+# (default 2000) with configs/device_anny.yaml and evaluated on its test frames plainly and with test-time pose
+# fitting (SFGS_DEVICE_FITS_FIT_ITERATIONS, default the command's); the exact variant also with the test fits of each
+# dataset of SFGS_DEVICE_FITS_CROSS (default "noisy fitted"), the reference under the same test fits.
 if wants fits; then
   export SFGS_SHARED_DIR=$shared
   scene=/tmp/sfgs-fits
@@ -372,15 +373,28 @@ if wants fits; then
   fi
   sed "s|@SHARED@|$shared|g" "$root/configs/device_anny.yaml" >"$scene/config.yaml"
   { cat "$scene/config.yaml"; printf 'pose_refinement:\n  enabled: true\n'; } >"$scene/config-refined.yaml"
-  for variant in ${SFGS_DEVICE_FITS_VARIANTS:-exact noisy refined fitted}; do
+  fit_iterations=()
+  [ -n "${SFGS_DEVICE_FITS_FIT_ITERATIONS:-}" ] && fit_iterations=(--fit-iterations "$SFGS_DEVICE_FITS_FIT_ITERATIONS")
+  for variant in ${SFGS_DEVICE_FITS_VARIANTS:-exact noisy refined fitted fitted-refined}; do
     data=$scene/$variant config=$scene/config.yaml
-    [ "$variant" = refined ] && data=$scene/noisy config=$scene/config-refined.yaml
+    case $variant in
+      refined) data=$scene/noisy config=$scene/config-refined.yaml ;;
+      fitted-refined) data=$scene/fitted config=$scene/config-refined.yaml ;;
+    esac
     run "fits-$variant" 600 "$build/sfgs" train --data "$data" --out "$scene/run-$variant" --config "$config" \
       --iterations "${SFGS_DEVICE_FITS_ITERATIONS:-2000}" --force --quiet &&
-      run "fits-$variant" 300 "$build/sfgs" eval --run "$scene/run-$variant" --fit-test-poses \
-        --fit-iterations "${SFGS_DEVICE_FITS_FIT_ITERATIONS:-100}"
+      run "fits-$variant" 300 "$build/sfgs" eval --run "$scene/run-$variant" --fit-test-poses "${fit_iterations[@]}"
     grep -E "steps|PSNR|sfgs eval" "$out/fits-$variant.log" | grep -v "fitted the pose" | tail -n 8
     grep -h '"pose_alignment"' "$scene/run-$variant/log.jsonl" 2>/dev/null | cut -c1-200
+    grep -h '"validation"' "$scene/run-$variant/log.jsonl" 2>/dev/null | tail -n 1 | cut -c1-400
+    [ "$variant" = exact ] || continue
+    for cross in ${SFGS_DEVICE_FITS_CROSS:-noisy fitted}; do
+      [ -d "$scene/$cross" ] || continue
+      echo "exact avatar on the $cross test fits:"
+      run "fits-exact-on-$cross" 300 "$build/sfgs" eval --run "$scene/run-exact" --data "$scene/$cross" \
+        --fit-test-poses "${fit_iterations[@]}"
+      grep -E "PSNR" "$out/fits-exact-on-$cross.log" | tail -n 2
+    done
   done
 fi
 

@@ -226,6 +226,11 @@ WholeBodyKeypointMap WholeBodyKeypointMap::build(const SmplxModelData& model, co
   return m;
 }
 
+WholeBodyKeypointMap wholebody_keypoint_map(const SmplxModelData& model, const std::string& model_path) {
+  return WholeBodyKeypointMap::build(
+      model, model_path.empty() ? LandmarkEmbedding{} : read_landmark_embedding(model_path, model.faces.size(0)));
+}
+
 at::Tensor WholeBodyKeypointMap::on_surface() const { return joint_weight_ == 0; }
 
 WholeBodyKeypointMap WholeBodyKeypointMap::to(c10::Device device, at::ScalarType dtype) const {

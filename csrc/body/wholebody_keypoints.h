@@ -96,6 +96,11 @@ class WholeBodyKeypointMap {
   bool face_from_embedding_ = false;
 };
 
+// The map of a model read from the SMPL-X-layout .npz `model_path` (with the file's landmark embedding when it has
+// one), or of the built-in procedural body when the path is empty (the face placed geometrically): what `sfgs synth`
+// projects, `sfgs fit` fits to and pose fitting anchors on, by one definition.
+WholeBodyKeypointMap wholebody_keypoint_map(const SmplxModelData& model, const std::string& model_path);
+
 // The jaw-contour bin of each frame from the global rotation (B, 3, 3) of the neck joint in OpenCV camera
 // coordinates, as the SMPL-X reference bins the neck chain's yaw (-39..39 degrees, 79 bins) for a camera that looks
 // at the body's front: the contour follows the head's turn relative to the camera. (B) int64; zeros when the map

@@ -1,9 +1,11 @@
 // Commands that use a trained avatar: `sfgs eval` and `sfgs render` (views in novel poses, PNG and MP4).
+#include <algorithm>
 #include <array>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <optional>
 #include <stdexcept>
 #include <vector>
 
@@ -17,6 +19,7 @@
 #include "common/atomic_file.h"
 #include "common/folder_lock.h"
 #include "data/image_io.h"
+#include "train/avatar_keypoints.h"
 #include "train/evaluate.h"
 #include "train/pose_fit.h"
 #include "train/pose_refinement.h"
@@ -59,8 +62,11 @@ void write_text_atomically(const std::string& path, const std::string& text) {
 }  // namespace
 
 nlohmann::json evaluation_json(const train::AvatarEvaluation& e) {
-  nlohmann::json j{{"frames", e.summary.frames}, {"psnr", e.summary.psnr}, {"ssim", e.summary.ssim},
-                   {"lpips_status", e.summary.lpips_status}, {"render_ms", e.render_milliseconds}};
+  nlohmann::json j{{"frames", e.summary.frames},
+                   {"psnr", e.summary.psnr},
+                   {"ssim", e.summary.ssim},
+                   {"lpips_status", e.summary.lpips_status},
+                   {"render_ms", e.render_milliseconds}};
   if (e.summary.lpips) j["lpips"] = *e.summary.lpips;
   if (e.summary.tc_lpips) j["tc_lpips"] = *e.summary.tc_lpips;
   for (size_t i = 0; i < e.frames.size(); ++i) {
@@ -117,6 +123,7 @@ int run_eval(Arguments& args) {
   const bool fit_poses = args.flag("fit-test-poses");
   train::PoseFitOptions fit;
   fit.iterations = args.integer("fit-iterations", fit.iterations, 1, kMaxIterations);
+  fit.keypoint_weight = args.real("fit-keypoint-weight", fit.keypoint_weight, 0, kMaxLossWeight);
   const at::Device device = pick_device(args.text("device", ""), run);
   args.finish();
   const FolderLock lock(run.path, "eval");
@@ -137,11 +144,25 @@ int run_eval(Arguments& args) {
   std::printf("sfgs eval: fitting each frame's pose to its image (%lld iterations, the avatar frozen)\n",
               (long long)fit.iterations);
   fit.loss = t.config.loss;
-  const data::Dataset fitted = train::fit_poses(dataset, split, t.avatar, fit, true);
+  const auto& frames = dataset.split(split);
+  const int64_t with_keypoints = std::count_if(
+      frames.begin(), frames.end(), [&](int64_t f) { return !dataset.frames[size_t(f)].keypoints_path.empty(); });
+  const bool anchored = fit.keypoint_weight > 0 && with_keypoints > 0;
+  std::printf("  anchored on whole-body keypoints: %s\n",
+              anchored ? (std::to_string(with_keypoints) + " of " + std::to_string(frames.size()) + " frames").c_str()
+                       : (fit.keypoint_weight > 0 ? "none (the dataset has no keypoints_whole_body/)"
+                                                  : "no (--fit-keypoint-weight 0)"));
+  const std::optional<body::WholeBodyKeypointMap> keypoint_map =
+      anchored ? std::optional(train::body_keypoint_map(t.config.body.smplx)) : std::nullopt;
+  const data::Dataset fitted =
+      train::fit_poses(dataset, split, t.avatar, fit, keypoint_map ? &*keypoint_map : nullptr, true);
   const train::AvatarEvaluation f = train::evaluate_avatar(
       fitted, split, t.avatar, options, save ? (fs::path(run.path) / "eval_images_fitted_poses").string() : "", force);
-  write_text_atomically((fs::path(run.path) / "metrics_fitted_poses.json").string(),
-                        evaluation_json(f).dump(1) + "\n");
+  nlohmann::json fitted_json = evaluation_json(f);
+  fitted_json["pose_fitting"] = {{"iterations", fit.iterations},
+                                 {"keypoint_weight", anchored ? fit.keypoint_weight : 0.0},
+                                 {"frames_with_keypoints", anchored ? with_keypoints : 0}};
+  write_text_atomically((fs::path(run.path) / "metrics_fitted_poses.json").string(), fitted_json.dump(1) + "\n");
   std::printf("sfgs eval with fitted poses: %s\n  %s\n  metrics_fitted_poses.json in %s\n%s", dataset.source.c_str(),
               metrics::to_string(f.summary).c_str(), run.path.c_str(), group_lines(f).c_str());
   return 0;
@@ -191,8 +212,8 @@ double render_frames(train::TrainedAvatar& t, RenderRequest& request, WrittenFil
   const Camera lens = Camera::looking_forward(kRenderFocalPerHeight * double(height), width, height);
   // The dataset's camera orbits the training frame's body; the other cameras aim at the motion's first frame (orbit,
   // fixed) or at every frame's body (follow), from the front (+Z, where the body model faces).
-  const std::array<double, 3> first = request.camera.empty() ? centre_of(train::pose_avatar(t.avatar, trained_on, 0))
-                                                             : centre_of(pose_at(0));
+  const std::array<double, 3> first =
+      request.camera.empty() ? centre_of(train::pose_avatar(t.avatar, trained_on, 0)) : centre_of(pose_at(0));
   const auto camera_at = [&](int64_t i, const model::AvatarOutput& o) {
     const double angle = kTwoPi * double(i) / double(request.frames);
     if (request.camera.empty()) return orbit_camera(base, first, angle);
@@ -230,9 +251,9 @@ int run_render(Arguments& args) {
   request.data = args.text("data", "");
   request.force = args.flag("force");
   request.camera = args.text("camera", "");
-  TORCH_CHECK(request.camera.empty() || request.camera == "orbit" || request.camera == "fixed" ||
-                  request.camera == "follow",
-              "render: --camera must be orbit, fixed or follow, got '", request.camera, "'");
+  TORCH_CHECK(
+      request.camera.empty() || request.camera == "orbit" || request.camera == "fixed" || request.camera == "follow",
+      "render: --camera must be orbit, fixed or follow, got '", request.camera, "'");
   request.distance = args.real("distance", kRenderCameraDistance, 1e-3, 1e4);
   request.height = args.real("height", 0.0, -1e4, 1e4);
   request.fps = args.real("fps", kRenderFramesPerSecond, 1.0, 1000.0);

@@ -194,6 +194,9 @@ inline constexpr double kPoseAdamEpsilon = 1e-8;
 // measured 3.4 dB worse on noisy Anny test fits (the weakly seen depth drifts further). Middle: every joint at 1/2,
 // reaching past the medium level's 5 deg body errors. Fine: every joint at full resolution, the last centimetre and
 // degrees.
+// Iterations per frame of test-time fitting (`sfgs eval --fit-iterations`): anchored on keypoints, 300 measured 1.7 dB
+// above 100 on noisy Anny test fits (docs/results.md), 1,000 another 1.2 dB at 3.3 times the time.
+inline constexpr long kPoseFitIterations = 300;
 inline constexpr double kPoseFitCoarseShare = 0.3;
 inline constexpr long kPoseFitCoarseDownsample = 4;
 inline constexpr double kPoseFitCoarseRotationReach = 0.05;
@@ -210,6 +213,10 @@ inline constexpr double kPoseFitFineTranslationReach = 0.02;
 // soft edges would otherwise pull an exact fit away.
 inline constexpr double kPoseFitSilhouetteWeight = 1.0;
 inline constexpr double kPoseFitFineSilhouetteWeight = 0.1;
+// Weight of the whole-body keypoint reprojection term (train/avatar_keypoints.h) beside every stage's image loss when
+// the frame has detections: the image alone trades the body's placement against its joints, the detections pin
+// both. At the robust term's scale a body within a detector's noise costs about 0.01.
+inline constexpr double kPoseFitKeypointWeight = 1.0;
 inline constexpr double kMaxLossWeight = 1e9;
 inline constexpr long kMaxIterations = 100000000;
 inline constexpr long kMaxPlaneChannels = 1024;

@@ -57,7 +57,12 @@ SmplxPose pose_from_json(const json& j, const std::string& where) {
 }
 
 json camera_to_json(const Camera& c) {
-  return json{{"fx", c.fx}, {"fy", c.fy}, {"cx", c.cx}, {"cy", c.cy}, {"width", c.width}, {"height", c.height},
+  return json{{"fx", c.fx},
+              {"fy", c.fy},
+              {"cx", c.cx},
+              {"cy", c.cy},
+              {"width", c.width},
+              {"height", c.height},
               {"world_to_camera", std::vector<double>(c.world_to_camera.begin(), c.world_to_camera.end())}};
 }
 
@@ -79,7 +84,8 @@ Camera camera_from_json(const json& j, const std::string& where) {
 }
 
 const std::map<Split, const char*>& split_names() {
-  static const std::map<Split, const char*> names = {{Split::kTrain, "train"}, {Split::kVal, "val"}, {Split::kTest, "test"}};
+  static const std::map<Split, const char*> names = {
+      {Split::kTrain, "train"}, {Split::kVal, "val"}, {Split::kTest, "test"}};
   return names;
 }
 
@@ -195,7 +201,8 @@ std::string Dataset::fingerprint() const {
     add_double(r.time);
     add_double(double(r.sequence));
     for (double v : r.camera.world_to_camera) add_double(v);
-    for (double v : {r.camera.fx, r.camera.fy, r.camera.cx, r.camera.cy, double(r.camera.width), double(r.camera.height)})
+    for (double v :
+         {r.camera.fx, r.camera.fy, r.camera.cx, r.camera.cy, double(r.camera.width), double(r.camera.height)})
       add_double(v);
     for (const SmplxPose::Field& f : SmplxPose::fields()) crc = crc32_of((r.pose.*(f.member)).to(at::kFloat), crc);
     add_double(r.pose_in_camera_frame ? 1 : 0);
@@ -241,6 +248,7 @@ Dataset read_sfgs_dataset(const std::string& folder) {
       r.image_path = resolve(folder, f.at("image").get<std::string>());
       r.mask_path = resolve(folder, f.value("mask", ""));
       r.mesh_path = resolve(folder, f.value("mesh", ""));
+      r.keypoints_path = resolve(folder, f.value("keypoints", ""));
       d.frames.push_back(std::move(r));
     }
     for (const auto& [split, name] : split_names())
@@ -257,8 +265,8 @@ void write_sfgs_dataset(const Dataset& d, const std::string& folder, bool overwr
   d.validate();
   json frames = json::array();
   for (const FrameRecord& r : d.frames) {
-    TORCH_CHECK(r.eval_mask_path.empty() || r.eval_mask_path == r.mask_path,
-                "write_sfgs_dataset: frame '", r.name, "' has a separate evaluation mask, which the format cannot hold");
+    TORCH_CHECK(r.eval_mask_path.empty() || r.eval_mask_path == r.mask_path, "write_sfgs_dataset: frame '", r.name,
+                "' has a separate evaluation mask, which the format cannot hold");
     json f{{"name", r.name},
            {"time", r.time},
            {"sequence", r.sequence},
@@ -267,13 +275,15 @@ void write_sfgs_dataset(const Dataset& d, const std::string& folder, bool overwr
            {"image", relative_to(folder, r.image_path)}};
     if (!r.mask_path.empty()) f["mask"] = relative_to(folder, r.mask_path);
     if (!r.mesh_path.empty()) f["mesh"] = relative_to(folder, r.mesh_path);
+    if (!r.keypoints_path.empty()) f["keypoints"] = relative_to(folder, r.keypoints_path);
     if (r.true_pose) f["smplx_truth"] = pose_to_json(*r.true_pose, r.pose_in_camera_frame);
     frames.push_back(std::move(f));
   }
   json splits = json::object();
   for (const auto& [split, name] : split_names()) splits[name] = d.split(split);
-  json j{{"format", kFormatName}, {"version", kFormatVersion}, {"sequences", d.sequences},
-         {"betas", tensor_to_json(d.betas)}, {"frames", frames}, {"splits", splits}};
+  json j{{"format", kFormatName},    {"version", kFormatVersion},
+         {"sequences", d.sequences}, {"betas", tensor_to_json(d.betas)},
+         {"frames", frames},         {"splits", splits}};
   if (d.true_betas.defined()) j["betas_truth"] = tensor_to_json(d.true_betas);
   const std::string text = j.dump(1);
   write_file_atomically((fs::path(folder) / kIndexFile).string(), std::vector<unsigned char>(text.begin(), text.end()),
@@ -286,7 +296,8 @@ Dataset read_dataset(const std::string& folder) {
   if (fs::exists(fs::path(folder) / "sparse" / "cameras.txt")) return read_neuman(folder);
   if (fs::is_directory(fs::path(folder) / "train") || fs::is_directory(fs::path(folder) / "test"))
     return read_xhumans(folder);
-  TORCH_CHECK(false, "'", folder, "' is not a dataset folder: expected dataset.json (sfgs), sparse/cameras.txt "
+  TORCH_CHECK(false, "'", folder,
+              "' is not a dataset folder: expected dataset.json (sfgs), sparse/cameras.txt "
               "(NeuMan) or train/ and test/ takes (X-Humans)");
 }
 

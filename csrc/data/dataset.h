@@ -20,7 +20,7 @@ using body::SmplxPose;
 
 struct FrameRecord {
   std::string name;
-  double time = 0;  // seconds since the start of its sequence
+  double time = 0;       // seconds since the start of its sequence
   int64_t sequence = 0;  // index into Dataset::sequences (X-Humans takes; 0 otherwise)
   Camera camera;
   SmplxPose pose;
@@ -28,11 +28,13 @@ struct FrameRecord {
   // in world coordinates; render such a frame with an identity world_to_camera.
   bool pose_in_camera_frame = false;
   std::string image_path;
-  std::string mask_path;       // training mask; empty if none
+  std::string mask_path;  // training mask; empty if none
   MaskEncoding mask_encoding = MaskEncoding::kWhitePerson;
   std::string eval_mask_path;  // mask of the evaluation protocol; empty = the training mask
   MaskEncoding eval_mask_encoding = MaskEncoding::kWhitePerson;
-  std::string mesh_path;       // ground-truth posed vertices (.npy, float32 (V, 3)); empty if none
+  std::string mesh_path;  // ground-truth posed vertices (.npy, float32 (V, 3)); empty if none
+  // The frame's whole-body keypoint detections (data/keypoint_file.h; pose fitting anchors on them); empty if none.
+  std::string keypoints_path;
   // The exact parameters when `pose` was corrupted on purpose (`sfgs synth --pose-noise`), in the same frame; none
   // for every other dataset.
   std::optional<SmplxPose> true_pose;
@@ -48,13 +50,13 @@ enum class Split { kTrain, kVal, kTest };
 
 class Dataset {
  public:
-  std::string source;                      // folder it was read from
-  std::string format;                      // "sfgs", "neuman" or "xhumans"
+  std::string source;  // folder it was read from
+  std::string format;  // "sfgs", "neuman" or "xhumans"
   std::vector<FrameRecord> frames;
-  std::vector<std::string> sequences;      // names of the sequences (takes); at least one
+  std::vector<std::string> sequences;  // names of the sequences (takes); at least one
   std::map<Split, std::vector<int64_t>> splits;
-  at::Tensor betas;                        // (B) shared shape parameters, float32
-  at::Tensor true_betas;                   // the exact shape when `betas` was corrupted on purpose; else undefined
+  at::Tensor betas;                          // (B) shared shape parameters, float32
+  at::Tensor true_betas;                     // the exact shape when `betas` was corrupted on purpose; else undefined
   std::map<std::string, at::Tensor> extras;  // optional per-subject data (e.g. ExAvatar's joint_offset)
 
   int64_t size() const { return int64_t(frames.size()); }
@@ -88,7 +90,7 @@ class ReplayClock {
     double first, last;  // its sequence's earliest and latest training times
     double reach;        // how far past either end a frame still replays: half the largest gap between them
   };
-  double lo_ = 0, hi_ = 0;        // the span of every training frame: the time axis
+  double lo_ = 0, hi_ = 0;         // the span of every training frame: the time axis
   std::map<int64_t, Span> spans_;  // per sequence with training frames
 };
 

@@ -9,6 +9,7 @@
 
 #include "data/colmap.h"
 #include "data/json_values.h"
+#include "data/keypoint_file.h"
 
 namespace sfgs::data {
 namespace fs = std::filesystem;
@@ -20,8 +21,8 @@ constexpr double kNeumanFramesPerSecond = 30.0;
 
 int64_t frame_number(const std::string& image_name) {
   const std::string stem = fs::path(image_name).stem().string();
-  TORCH_CHECK(!stem.empty() && stem.find_first_not_of("0123456789") == std::string::npos,
-              "NeuMan image name '", image_name, "' is not a frame number like 00012.png");
+  TORCH_CHECK(!stem.empty() && stem.find_first_not_of("0123456789") == std::string::npos, "NeuMan image name '",
+              image_name, "' is not a frame number like 00012.png");
   return std::stoll(stem);
 }
 
@@ -119,6 +120,8 @@ Dataset read_neuman(const std::string& folder) {
       r.eval_mask_path = segmentation.string();
       r.eval_mask_encoding = MaskEncoding::kBlackPerson;
     }
+    const fs::path keypoints = root / kKeypointFolder / (std::to_string(number) + ".json");
+    if (fs::exists(keypoints)) r.keypoints_path = keypoints.string();
     r.pose = read_exavatar_pose((params / "smplx_params" / (std::to_string(number) + ".json")).string());
     r.pose_in_camera_frame = true;  // ExAvatar fits each frame in its camera's coordinates
     if (has_truth)

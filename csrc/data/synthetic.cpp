@@ -28,15 +28,15 @@ namespace fs = std::filesystem;
 namespace {
 
 constexpr double kTwoPi = 6.283185307179586;
-constexpr int64_t kSynthBetas = 10;          // shape coefficients drawn for the subject
-constexpr int64_t kSynthExpressions = 10;    // expression coefficients animated
-constexpr double kSubjectFill = 0.8;         // share of the image height the subject spans
-constexpr double kFocalPerPixel = 1.2;       // focal length in units of the larger image side
-constexpr double kOrbitRadians = 0.35;       // the camera drifts +-this far around the subject: mostly frontal
+constexpr int64_t kSynthBetas = 10;        // shape coefficients drawn for the subject
+constexpr int64_t kSynthExpressions = 10;  // expression coefficients animated
+constexpr double kSubjectFill = 0.8;       // share of the image height the subject spans
+constexpr double kFocalPerPixel = 1.2;     // focal length in units of the larger image side
+constexpr double kOrbitRadians = 0.35;     // the camera drifts +-this far around the subject: mostly frontal
 // The key light: from the front, above and the subject's left (world y up, the camera on +z), fixed in the world.
 constexpr std::array<double, 3> kKeyLight{0.45, 0.8, 0.6};
-constexpr double kHandShakeMetres = 0.02;    // amplitude of the camera's hand-held wobble
-constexpr int64_t kPatternSize = 256;        // side of the generated texture
+constexpr double kHandShakeMetres = 0.02;  // amplitude of the camera's hand-held wobble
+constexpr int64_t kPatternSize = 256;      // side of the generated texture
 
 // A hand-held camera: a smooth, seeded wobble from a few incommensurate sinusoids.
 struct HandShake {
@@ -75,7 +75,8 @@ std::array<double, 16> look_at(const std::array<double, 3>& eye, const std::arra
     m[size_t(4 + c)] = y[size_t(c)];
     m[size_t(8 + c)] = z[size_t(c)];
   }
-  for (int r = 0; r < 3; ++r) m[size_t(4 * r + 3)] = -(m[size_t(4 * r)] * eye[0] + m[size_t(4 * r + 1)] * eye[1] + m[size_t(4 * r + 2)] * eye[2]);
+  for (int r = 0; r < 3; ++r)
+    m[size_t(4 * r + 3)] = -(m[size_t(4 * r)] * eye[0] + m[size_t(4 * r + 1)] * eye[1] + m[size_t(4 * r + 2)] * eye[2]);
   m[15] = 1;
   return m;
 }
@@ -98,7 +99,8 @@ namespace {
 
 // The body model the video is posed with.
 body::SmplxModelData synthetic_body_model(const SyntheticVideoOptions& options) {
-  return options.body_model.empty() ? body::make_procedural_body().smplx : body::SmplxModelData::load(options.body_model);
+  return options.body_model.empty() ? body::make_procedural_body().smplx
+                                    : body::SmplxModelData::load(options.body_model);
 }
 
 // Its layer (axis-angle hands: the motion gives the hands' rotations).
@@ -130,7 +132,9 @@ TexturedMesh subject_mesh(const body::Smplx& smplx, const SyntheticVideoOptions&
 class SyntheticCamera {
  public:
   SyntheticCamera(const at::Tensor& all_vertices, const SyntheticVideoOptions& options, int64_t frames)
-      : options_(options), shake_(options.seed), duration_(double(frames) / options.frames_per_second),
+      : options_(options),
+        shake_(options.seed),
+        duration_(double(frames) / options.frames_per_second),
         focal_(kFocalPerPixel * double(std::max(options.width, options.height))) {
     const at::Tensor points = all_vertices.reshape({-1, 3});
     const at::Tensor lo = std::get<0>(points.min(0)), hi = std::get<0>(points.max(0));
@@ -149,8 +153,7 @@ class SyntheticCamera {
                                     target_[1] + 0.1 * distance_ * std::sin(0.5 * phase) + wobble[1],
                                     target_[2] + distance_ * std::cos(angle) + wobble[2]};
     Camera camera = Camera::looking_forward(focal_, options_.width, options_.height);
-    camera.world_to_camera =
-        look_at(eye, {target_[0] + 0.3 * wobble[0], target_[1] + 0.3 * wobble[1], target_[2]});
+    camera.world_to_camera = look_at(eye, {target_[0] + 0.3 * wobble[0], target_[1] + 0.3 * wobble[1], target_[2]});
     return camera;
   }
 
@@ -175,7 +178,8 @@ void count_visible_vertices(const at::Tensor& face_ids, const at::Tensor& faces,
 
 // The region of every model vertex (body::BodyPart codes): the model's own labels, or those its weights imply.
 at::Tensor vertex_regions(const body::SmplxModelData& model) {
-  return (model.part_labels.defined() ? model.part_labels : body::part_labels_from_weights(model.weights)).to(at::kLong);
+  return (model.part_labels.defined() ? model.part_labels : body::part_labels_from_weights(model.weights))
+      .to(at::kLong);
 }
 
 // Test blocks are all test; training blocks hold out every 10th frame (offset 4) for validation and, in the
@@ -189,9 +193,9 @@ Split split_of(bool test_block, int64_t index_in_block, bool interleaved) {
 
 void check_options(const SyntheticVideoOptions& options) {
   TORCH_CHECK(options.frames >= 1, "sfgs synth: --frames must be at least 1, got ", options.frames);
-  TORCH_CHECK(options.width >= 16 && options.height >= 16 && options.width <= kMaxImageSide &&
-                  options.height <= kMaxImageSide,
-              "sfgs synth: image sides must be in [16, ", kMaxImageSide, "], got ", options.width, " x ", options.height);
+  TORCH_CHECK(
+      options.width >= 16 && options.height >= 16 && options.width <= kMaxImageSide && options.height <= kMaxImageSide,
+      "sfgs synth: image sides must be in [16, ", kMaxImageSide, "], got ", options.width, " x ", options.height);
   TORCH_CHECK(options.frames_per_second > 0, "sfgs synth: frames per second must be positive");
   TORCH_CHECK(!options.motions.empty(), "sfgs synth: at least one training motion is needed");
   for (const auto* list : {&options.motions, &options.test_motions})
@@ -237,9 +241,7 @@ Dataset write_synthetic_video(const std::string& folder, const SyntheticVideoOpt
 
   const body::SmplxModelData model = synthetic_body_model(options);
   const body::Smplx smplx = synthetic_body_layer(model);
-  const body::WholeBodyKeypointMap keypoint_map = body::WholeBodyKeypointMap::build(
-      model, options.body_model.empty() ? body::LandmarkEmbedding{}
-                                        : body::read_landmark_embedding(options.body_model, model.faces.size(0)));
+  const body::WholeBodyKeypointMap keypoint_map = body::wholebody_keypoint_map(model, options.body_model);
   at::Generator gen = at::make_generator<at::CPUGeneratorImpl>(options.seed);
   const at::Tensor betas = at::empty({smplx->options().num_betas}).normal_(0.0, 0.6, gen);
   std::vector<std::string> blocks = options.motions;
@@ -248,8 +250,8 @@ Dataset write_synthetic_video(const std::string& folder, const SyntheticVideoOpt
   std::vector<SmplxPose> poses;
   for (const std::string& motion : blocks)
     for (int64_t i = 0; i < options.frames; ++i)
-      poses.push_back(motion_pose(motion, double(i) / options.frames_per_second,
-                                  smplx->options().num_expression_coeffs));
+      poses.push_back(
+          motion_pose(motion, double(i) / options.frames_per_second, smplx->options().num_expression_coeffs));
   body::SmplxInput input;
   input.betas = betas.unsqueeze(0).expand({total, -1}).contiguous();
   input.pose = SmplxPose::stack(poses);
@@ -276,6 +278,7 @@ Dataset write_synthetic_video(const std::string& folder, const SyntheticVideoOpt
     r.image_path = paths.image;
     r.mask_path = paths.mask;
     r.mesh_path = paths.mesh;
+    r.keypoints_path = paths.keypoints;
     video.frames.push_back(std::move(r));
   }
   const auto [rotations, translations] = camera_blocks(video.frames);
@@ -302,8 +305,7 @@ Dataset write_synthetic_video(const std::string& folder, const SyntheticVideoOpt
   int64_t training_frames = 0;
   at::Generator detector = at::make_generator<at::CPUGeneratorImpl>(stream_seed(options.seed, 2));
   const at::Tensor on_surface = keypoint_map.on_surface();
-  if (sfgs_layout)
-    io::write_npy((fs::path(folder) / "meshes" / "faces.npy").string(), mesh.faces, options.overwrite);
+  if (sfgs_layout) io::write_npy((fs::path(folder) / "meshes" / "faces.npy").string(), mesh.faces, options.overwrite);
   for (int64_t i = 0; i < total; ++i) {
     FrameRecord& r = video.frames[size_t(i)];
     r.pose = noisy.poses.frame(i);

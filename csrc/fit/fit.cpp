@@ -89,9 +89,7 @@ FitReport run_fit(const FitOptions& options) {
   const FitInput input = read_fit_input(options.data, options.focal);
   const body::SmplxModelData model =
       options.body_model.empty() ? body::make_procedural_body().smplx : body::SmplxModelData::load(options.body_model);
-  const body::WholeBodyKeypointMap keypoint_map = body::WholeBodyKeypointMap::build(
-      model, options.body_model.empty() ? body::LandmarkEmbedding{}
-                                        : body::read_landmark_embedding(options.body_model, model.faces.size(0)));
+  const body::WholeBodyKeypointMap keypoint_map = body::wholebody_keypoint_map(model, options.body_model);
   fs::create_directories(out);
   std::ofstream log((fs::path(out) / kLogFile).string(), std::ios::trunc);
   TORCH_CHECK(log.good(), "sfgs fit: cannot write '", (fs::path(out) / kLogFile).string(), "'");
@@ -110,7 +108,8 @@ FitReport run_fit(const FitOptions& options) {
     const fs::path given = fs::path(options.data) / kFitsFolder;
     std::vector<body::SmplxPose> fits;
     for (const FitFrame& f : input.frames)
-      fits.push_back(data::read_exavatar_pose((given / "smplx_params" / (std::to_string(f.number) + ".json")).string()));
+      fits.push_back(
+          data::read_exavatar_pose((given / "smplx_params" / (std::to_string(f.number) + ".json")).string()));
     TORCH_CHECK(input.betas.defined(), "--start-from-data: '", (given / "shape_param.json").string(), "' is missing");
     settings.initial_fits = body::SmplxPose::stack(fits);
     settings.initial_betas = input.betas;

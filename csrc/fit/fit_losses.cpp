@@ -45,6 +45,25 @@ at::Tensor geman_mcclure(const at::Tensor& squared, double sigma) {
   return s2 * squared / (squared + s2);
 }
 
+at::Tensor group_weights(const std::map<body::KeypointGroup, double>& weights, const at::TensorOptions& options) {
+  at::Tensor w = at::zeros({body::kWholeBodyKeypointCount}, options);
+  for (const auto& [group, weight] : weights) {
+    const body::KeypointRange r = body::keypoint_range(group);
+    w.narrow(0, r.begin, r.size()).fill_(weight);
+  }
+  return w;
+}
+
+at::Tensor whole_body_keypoint_weights(const at::TensorOptions& options) {
+  using body::KeypointGroup;
+  return group_weights({{KeypointGroup::kBody, 1.0},
+                        {KeypointGroup::kFeet, kFitFeetWeight},
+                        {KeypointGroup::kFace, kFitFaceWeight},
+                        {KeypointGroup::kLeftHand, 1.0},
+                        {KeypointGroup::kRightHand, 1.0}},
+                       options);
+}
+
 at::Tensor reprojection_loss(const at::Tensor& keypoints, const KeypointObservations& observed,
                              const at::Tensor& keypoint_weights, double sigma) {
   const at::Tensor residual =

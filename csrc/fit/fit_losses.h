@@ -4,7 +4,10 @@
 // silhouette term where person masks exist. All batched over the frames, differentiable, on any device.
 #include <ATen/core/Tensor.h>
 
+#include "body/wholebody_keypoints.h"
+
 #include <cstdint>
+#include <map>
 #include <utility>
 #include <vector>
 
@@ -26,6 +29,12 @@ at::Tensor project(const at::Tensor& points, const at::Tensor& intrinsics);
 
 // Geman-McClure of squared residuals: sigma^2 r^2 / (sigma^2 + r^2), about r^2 for r << sigma and at most sigma^2.
 at::Tensor geman_mcclure(const at::Tensor& squared, double sigma);
+
+// (133) weights that are `weights` on each named group's keypoints and 0 elsewhere.
+at::Tensor group_weights(const std::map<body::KeypointGroup, double>& weights, const at::TensorOptions& options);
+// (133) the weights of a fit that sees every keypoint: the body and hands fully, the feet and the face (whose
+// detections and definitions agree less well) lighter.
+at::Tensor whole_body_keypoint_weights(const at::TensorOptions& options);
 
 // Per frame (B), the sum over keypoints of weight * confidence * GM(|projection - detection| / person size).
 // `keypoint_weights` (133) selects and weighs the keypoints of a stage.

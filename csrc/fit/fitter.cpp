@@ -31,15 +31,6 @@ struct StagePlan {
   at::Tensor keypoint_weights;  // (133)
 };
 
-at::Tensor group_weights(const std::map<KeypointGroup, double>& weights, const at::TensorOptions& options) {
-  at::Tensor w = at::zeros({body::kWholeBodyKeypointCount}, options);
-  for (const auto& [group, weight] : weights) {
-    const body::KeypointRange r = body::keypoint_range(group);
-    w.narrow(0, r.begin, r.size()).fill_(weight);
-  }
-  return w;
-}
-
 std::vector<StagePlan> stage_plans(const FitStageLengths& lengths, bool silhouette, const at::TensorOptions& options) {
   at::Tensor torso = at::zeros({body::kWholeBodyKeypointCount}, options);
   for (int64_t k : {0, 1, 2, 3, 4, 5, 6, 11, 12}) torso[k] = 1.0;  // nose, eyes, ears, shoulders, hips
@@ -51,12 +42,7 @@ std::vector<StagePlan> stage_plans(const FitStageLengths& lengths, bool silhouet
                                   options);
   for (KeypointGroup hand : {KeypointGroup::kLeftHand, KeypointGroup::kRightHand})
     for (int64_t k : {0, 1, 5, 9, 13, 17}) body[body::keypoint_range(hand).begin + k] = 1.0;
-  const at::Tensor all = group_weights({{KeypointGroup::kBody, 1.0},
-                                        {KeypointGroup::kFeet, kFitFeetWeight},
-                                        {KeypointGroup::kFace, kFitFaceWeight},
-                                        {KeypointGroup::kLeftHand, 1.0},
-                                        {KeypointGroup::kRightHand, 1.0}},
-                                       options);
+  const at::Tensor all = whole_body_keypoint_weights(options);
   std::vector<StagePlan> plans = {
       {"global", lengths.global, kFitLearningRate, kFitGlobalRobustSigma, false, false, false, torso},
       {"body", lengths.body, kFitLearningRate, kFitRobustSigma, true, false, false, body},

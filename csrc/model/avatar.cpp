@@ -214,6 +214,7 @@ AvatarOutput AvatarImpl::posed(const body::SmplxPose& pose, FrameTime host_time,
     out.covariances = skinned.covariances;
     out.posed_vertices = skinned.posed_rest;
     out.skinning_transforms = body.skinning_transforms;
+    out.posed_joints = body.joints;
   }
   out.opacities = opacities_;
   out.canonical_means = canonical.means;
@@ -382,6 +383,7 @@ Gaussians to_gaussians(const AvatarOutput& out) {
 int64_t AvatarImpl::gaussian_count() const { return body_->point_count(); }
 const at::Tensor& AvatarImpl::part_labels() const { return body_->part_labels(); }
 const at::Tensor& AvatarImpl::faces() const { return body_->faces(); }
+int64_t AvatarImpl::model_vertex_count() const { return body_->coarse_vertex_count(); }
 const skin::SkinningWeights& AvatarImpl::skinning_weights() const { return body_->skinning_weights(); }
 at::Tensor AvatarImpl::shading_coefficients() const { return shading_ ? shading_->coefficients() : at::Tensor(); }
 const at::Tensor& AvatarImpl::hand_mean(body::Side side) const { return body_->hand_mean(side); }

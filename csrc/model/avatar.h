@@ -96,6 +96,7 @@ struct AvatarOutput {
   at::Tensor colours;              // (N, 3) non-negative: in [0, 1] without shading; shading may light them beyond 1
   at::Tensor albedo;               // (N, 3) in [0, 1]: the colours before shading (the colours themselves without it)
   at::Tensor skinning_transforms;  // (J, 4, 4) rest pose -> posed per joint: what skinned this frame's Gaussians
+  at::Tensor posed_joints;         // (J, 3) world: the body model's joints in this pose
   // Canonical quantities (before skinning) for regularisers and export.
   at::Tensor canonical_means;   // (N, 3): this frame's rest mesh plus every offset below
   at::Tensor log_scales;        // (N) isotropic log standard deviation (after the structure offset)
@@ -148,6 +149,9 @@ class AvatarImpl : public torch::nn::Module {
   int64_t gaussian_count() const;
   const at::Tensor& part_labels() const;  // (N) uint8 body::BodyPart, on the module's device
   const at::Tensor& faces() const;        // (F, 3) int64 of the subdivided mesh (Laplacian, export), likewise
+  // The body model's vertex count V: the first V points of the subdivided mesh (of AvatarOutput::posed_vertices)
+  // are the model's own vertices, where whole-body keypoints are defined (train/avatar_keypoints.h).
+  int64_t model_vertex_count() const;
   // Each Gaussian's joint influences: forward skins canonical means with these and skinning_transforms.
   const skin::SkinningWeights& skinning_weights() const;
   // (9, 3) the shading's coefficients over ShadingImpl::basis (colours = albedo x max(0, basis(n) coefficients));

@@ -81,8 +81,8 @@ CanonicalBodyImpl::CanonicalBodyImpl(const body::SmplxModelData& data, const Sha
                   coarse_part_labels.scalar_type() == at::kByte,
               "Avatar: part labels must be a uint8 (", v, ") tensor, got ", describe(coarse_part_labels));
   const int64_t expressions = std::min(num_expression_coeffs, data.exprdirs.size(2));
-  mesh_ = register_module("mesh", body::SkinnedMesh(subject_mesh(data, shaped, expressions), at::kFloat,
-                                                    subdivision_levels));
+  mesh_ = register_module("mesh",
+                          body::SkinnedMesh(subject_mesh(data, shaped, expressions), at::kFloat, subdivision_levels));
 
   // Per-point data on the subdivided mesh, in float64 until stored. Every buffer is a copy of its own: Module::to()
   // converts buffers in place, and must not drag the caller's model data along.
@@ -109,14 +109,15 @@ CanonicalBodyImpl::CanonicalBodyImpl(const body::SmplxModelData& data, const Sha
 FrameBody CanonicalBodyImpl::pose(const at::Tensor& rotations, const at::Tensor& expression,
                                   const at::Tensor& translation, const at::Tensor& coarse_point_offsets) const {
   const auto options = vertices_.options();
-  const at::Tensor coefficients = expression.defined() ? expression.unsqueeze(0)
-                                                       : at::zeros({1, expression_count()}, options);
+  const at::Tensor coefficients =
+      expression.defined() ? expression.unsqueeze(0) : at::zeros({1, expression_count()}, options);
   const body::BodyOutput out =
       mesh_->forward(coefficients, rotations.unsqueeze(0), translation.unsqueeze(0), at::Tensor(), at::Tensor(),
                      coarse_point_offsets, /*skin_vertices=*/false);
   FrameBody frame;
   frame.rest = out.rest_vertices.squeeze(0);
   frame.skinning_transforms = out.skinning_transforms.squeeze(0);
+  frame.joints = out.joints.squeeze(0);
   if (out.point_offsets.defined()) frame.point_offsets = out.point_offsets.squeeze(0);
   return frame;
 }

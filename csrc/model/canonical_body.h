@@ -31,6 +31,7 @@ ShapedModel shape_model(const body::SmplxModelData& data, const at::Tensor& beta
 struct FrameBody {
   at::Tensor rest;                 // (N, 3) the frame's rest mesh: subject shape, expression, pose correctives
   at::Tensor skinning_transforms;  // (J, 4, 4) rest pose -> posed, per joint (translation included)
+  at::Tensor joints;               // (J, 3) posed
   at::Tensor point_offsets;        // (N, 3) the coarse point offsets given to pose(), subdivided; or undefined
 };
 
@@ -51,8 +52,8 @@ class CanonicalBodyImpl : public torch::nn::Module {
   int64_t expression_count() const { return mesh_->coefficient_count(); }
   int64_t joint_count() const { return mesh_->joint_count(); }
 
-  const at::Tensor& vertices() const { return vertices_; }                      // (N, 3) shaped rest pose
-  const at::Tensor& weights() const { return mesh_->weights(); }                // (N, J) skinning weights
+  const at::Tensor& vertices() const { return vertices_; }        // (N, 3) shaped rest pose
+  const at::Tensor& weights() const { return mesh_->weights(); }  // (N, J) skinning weights
   // The same weights as each point's influences, for the fused skinning op; converted on first use after a move.
   const skin::SkinningWeights& skinning_weights() const;
   const at::Tensor& faces() const { return faces_; }                            // (F, 3) int64

@@ -11,6 +11,8 @@
 
 #include "body/rotations.h"
 #include "common/constants.h"
+#include "data/keypoint_file.h"
+#include "train/avatar_keypoints.h"
 #include "train/run_folder.h"
 
 namespace sfgs::train {
@@ -62,6 +64,8 @@ PoseFitTarget pose_fit_target(const data::Dataset& dataset, int64_t frame, at::D
   t.camera = render_camera(record);
   t.time = dataset.replay_time(frame);
   t.image = loaded.image.to(device);
+  if (!record.keypoints_path.empty())
+    t.keypoints = observe_frame_keypoints(data::read_wholebody_keypoints(record.keypoints_path).to(device), t.camera);
   if (!record.mask_path.empty()) {  // without a mask the whole image is the target and there is no silhouette
     t.mask = loaded.mask.to(device);
     const at::Tensor m = t.mask.unsqueeze(2);
@@ -70,8 +74,12 @@ PoseFitTarget pose_fit_target(const data::Dataset& dataset, int64_t frame, at::D
   return t;
 }
 
-PoseFitter::PoseFitter(const PoseFitOptions& options, at::Device device)
-    : options_(options), loss_(options.loss, device) {}
+PoseFitter::PoseFitter(const PoseFitOptions& options, at::Device device, const body::WholeBodyKeypointMap* keypoint_map)
+    : options_(options), loss_(options.loss, device) {
+  TORCH_CHECK(std::isfinite(options.keypoint_weight) && options.keypoint_weight >= 0,
+              "pose fitting: the keypoint weight must be finite and >= 0, got ", options.keypoint_weight);
+  if (keypoint_map && options.keypoint_weight > 0) keypoint_map_ = keypoint_map->to(device, at::kFloat);
+}
 
 PoseFitResult PoseFitter::fit(model::Avatar& avatar, const body::SmplxPose& pose, const PoseFitTarget& target,
                               const at::Tensor& start) const {
@@ -90,10 +98,8 @@ PoseFitResult PoseFitter::fit(model::Avatar& avatar, const body::SmplxPose& pose
                        : Level{downsampled(target.camera, d), downsample(target.image, d),
                                target.mask.defined() ? downsample(target.mask, d) : at::Tensor()};
   }
-  const auto loss_of = [&](const at::Tensor& correction, const StageSpec& spec) {
-    const Level& level = levels.at(spec.downsample);
-    const model::AvatarOutput out = avatar->forward_trusted_pose(corrected_pose(pose, correction), target.time);
-    const RenderResult r = render(model::to_gaussians(out), white, level.camera);
+  const bool anchored = keypoint_map_.has_value() && target.keypoints.pixels.defined();
+  const auto image_loss = [&](const RenderResult& r, const Level& level, const StageSpec& spec) {
     if (!spec.run_loss) {
       const at::Tensor loss = (r.image - level.image).abs().mean();
       return level.mask.defined() ? loss + kPoseFitSilhouetteWeight * (r.alpha - level.mask).abs().mean() : loss;
@@ -107,6 +113,14 @@ PoseFitResult PoseFitter::fit(model::Avatar& avatar, const body::SmplxPose& pose
     const at::Tensor m = level.mask.unsqueeze(2);
     loss_.add_terms(r.image * m + (1 - m), level.image, terms);
     return total_loss(terms) + kPoseFitFineSilhouetteWeight * (r.alpha - level.mask).abs().mean();
+  };
+  const auto loss_of = [&](const at::Tensor& correction, const StageSpec& spec) {
+    const Level& level = levels.at(spec.downsample);
+    const model::AvatarOutput out = avatar->forward_trusted_pose(corrected_pose(pose, correction), target.time);
+    const at::Tensor loss = image_loss(render(model::to_gaussians(out), white, level.camera), level, spec);
+    if (!anchored) return loss;
+    return loss + options_.keypoint_weight *
+                      keypoint_reprojection_loss(*keypoint_map_, avatar, out, target.camera, target.keypoints);
   };
 
   PoseFitResult result;
@@ -189,11 +203,11 @@ std::string to_string(const PoseError& e) {
 }
 
 data::Dataset fit_poses(const data::Dataset& dataset, data::Split split, model::Avatar& avatar,
-                        const PoseFitOptions& options, bool progress) {
+                        const PoseFitOptions& options, const body::WholeBodyKeypointMap* keypoint_map, bool progress) {
   data::Dataset fitted = dataset;
   const std::vector<int64_t>& frames = dataset.split(split);
   const at::Device device = avatar->part_labels().device();
-  const PoseFitter fitter(options, device);
+  const PoseFitter fitter(options, device, keypoint_map);
   const at::Tensor zero = at::zeros({kCorrectionWidth}, at::TensorOptions().device(device));
   for (size_t k = 0; k < frames.size(); ++k) {
     const int64_t f = frames[k];

@@ -11,6 +11,9 @@
 //  2. middle: every corrected field at 1/kPoseFitMiddleDownsample, the same loss;
 //  3. fine: every corrected field at full resolution, against the run's image loss inside the person (the
 //     evaluation protocol's view) plus a lighter silhouette term.
+// When the frame has whole-body keypoint detections (FrameRecord::keypoints_path) and the fitter a keypoint map, every
+// stage also minimises their robust reprojection error (train/avatar_keypoints.h), weighted by keypoint_weight: the
+// image alone trades the body's placement against its joints.
 // Each stage keeps its best iterate, and the fit returns its start when nothing beat it on the fine loss: a fit is
 // never worse than its start on the loss it minimises.
 #include <cstdint>
@@ -19,7 +22,11 @@
 
 #include <ATen/core/Tensor.h>
 
+#include "common/constants.h"
+
+#include "body/wholebody_keypoints.h"
 #include "data/dataset.h"
+#include "fit/fit_losses.h"
 #include "model/avatar.h"
 #include "splat/splat.h"
 #include "train/losses.h"
@@ -29,11 +36,13 @@
 namespace sfgs::train {
 
 struct PoseFitOptions {
-  int64_t iterations = 100;  // per frame, over the three stages
-  LossWeights loss;          // the image loss of the fine stage (regularisers are not used)
+  int64_t iterations = kPoseFitIterations;  // per frame, over the three stages
+  LossWeights loss;                         // the image loss of the fine stage (regularisers are not used)
   // Only the global orientation and translation move in every stage (the alignment of training fits: an avatar
   // still learning is sharp enough to place the body, not to pose its joints).
   bool global_only = false;
+  // Weight of the keypoint reprojection term where the target has detections; 0: the image alone.
+  double keypoint_weight = kPoseFitKeypointWeight;
 };
 
 // What a frame's pose is fitted to: its image on white outside the person, the person mask, its render camera and
@@ -43,6 +52,7 @@ struct PoseFitTarget {
   at::Tensor mask;   // (H, W)
   Camera camera;
   std::optional<double> time;
+  fit::KeypointObservations keypoints;  // the frame's detections; undefined pixels when it has none
 };
 PoseFitTarget pose_fit_target(const data::Dataset& dataset, int64_t frame, at::Device device);
 
@@ -55,13 +65,15 @@ struct PoseFitResult {
 // `loss` must be built from options.loss on the avatar's device (LPIPS loads once for many frames).
 class PoseFitter {
  public:
-  PoseFitter(const PoseFitOptions& options, at::Device device);
+  // `keypoint_map` (may be null: no keypoint term) must be built for the avatar's body model.
+  PoseFitter(const PoseFitOptions& options, at::Device device, const body::WholeBodyKeypointMap* keypoint_map);
   PoseFitResult fit(model::Avatar& avatar, const body::SmplxPose& pose, const PoseFitTarget& target,
                     const at::Tensor& start) const;
 
  private:
   PoseFitOptions options_;
   ImageLoss loss_;
+  std::optional<body::WholeBodyKeypointMap> keypoint_map_;  // on the device, float32
 };
 
 // How far a fit lies from the truth: the mean geodesic angle (degrees) of the global orientation, of the 21 body
@@ -73,8 +85,9 @@ PoseError pose_error(const body::SmplxPose& fit, const body::SmplxPose& truth);
 std::string to_string(const PoseError& e);
 
 // `dataset` with the poses of `split` fitted to their images with the avatar frozen: the same schedule for every
-// frame, from its given fit. `progress` prints one line per frame.
+// frame, from its given fit, anchored on the frames' keypoint detections where they have them and `keypoint_map` is
+// given. `progress` prints one line per frame.
 data::Dataset fit_poses(const data::Dataset& dataset, data::Split split, model::Avatar& avatar,
-                        const PoseFitOptions& options, bool progress);
+                        const PoseFitOptions& options, const body::WholeBodyKeypointMap* keypoint_map, bool progress);
 
 }  // namespace sfgs::train

@@ -12,6 +12,8 @@
 #include "common/atomic_file.h"
 #include "common/constants.h"
 #include "data/json_values.h"
+#include "data/keypoint_file.h"
+#include "train/avatar_keypoints.h"
 #include "train/pose_fit.h"
 #include "train/run_folder.h"
 
@@ -72,7 +74,7 @@ body::SmplxPose corrected_pose(const body::SmplxPose& base, const at::Tensor& co
 }
 
 PoseRefinement::PoseRefinement(const data::Dataset& dataset, const PoseRefinementConfig& config, int64_t iterations,
-                               at::Device device)
+                               at::Device device, const body::WholeBodyKeypointMap* keypoint_map)
     : dataset_(dataset),
       config_(config),
       start_iteration_(int64_t(std::ceil(config.start * double(iterations)))),
@@ -106,6 +108,30 @@ PoseRefinement::PoseRefinement(const data::Dataset& dataset, const PoseRefinemen
   steps_.assign(size_t(rows), 0);
   for (const double share : config.align_at)
     align_iterations_.push_back(int64_t(std::ceil(share * double(iterations))));
+  if (!keypoint_map || config.keypoint_weight <= 0) return;
+  keypoints_.resize(size_t(rows));
+  bool any = false;
+  for (int64_t r = 0; r < rows; ++r) {
+    const data::FrameRecord& record = dataset.frames[size_t(frames_[size_t(r)])];
+    if (record.keypoints_path.empty()) continue;
+    keypoints_[size_t(r)] = observe_frame_keypoints(data::read_wholebody_keypoints(record.keypoints_path).to(device),
+                                                    render_camera(record));
+    any = true;
+  }
+  if (any) keypoint_map_ = keypoint_map->to(device, at::kFloat);
+}
+
+void PoseRefinement::add_keypoint_term(int64_t frame, int64_t iteration, const model::Avatar& avatar,
+                                       const model::AvatarOutput& out, LossTerms& terms) const {
+  if (!keypoint_map_) return;
+  const fit::KeypointObservations& observed = keypoints_[size_t(row_of(frame))];
+  if (iteration < start_iteration_ || !observed.pixels.defined()) {
+    terms["pose_keypoints"] = at::zeros({}, base_.options());  // the same terms every step (the loss watch)
+    return;
+  }
+  terms["pose_keypoints"] =
+      config_.keypoint_weight *
+      keypoint_reprojection_loss(*keypoint_map_, avatar, out, render_camera(dataset_.frames[size_t(frame)]), observed);
 }
 
 int64_t PoseRefinement::row_of(int64_t frame) const {
@@ -160,8 +186,9 @@ nlohmann::json PoseRefinement::align(int64_t iteration, model::Avatar& avatar, c
   options.iterations = config_.align_iterations;
   options.loss = loss;
   options.global_only = true;
+  options.keypoint_weight = config_.keypoint_weight;
   const at::Device device = corrections_.device();
-  const PoseFitter fitter(options, device);
+  const PoseFitter fitter(options, device, keypoint_map_ ? &*keypoint_map_ : nullptr);
   // The parameters hold still meanwhile: the avatar's pose-independent features are computed once, not per step.
   avatar->eval();
   avatar->cache_static_features();

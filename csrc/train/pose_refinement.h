@@ -8,18 +8,23 @@
 //
 // PoseRefinement trains one correction per training frame with the avatar, through the image loss, held to the input
 // fit by an L2 prior and to a smooth motion by an acceleration penalty over each sequence's consecutive training
-// frames. A frame's correction moves only in the steps that draw the frame (row-sparse Adam): Adam's normalisation
-// would otherwise move every row at the full rate each step on the regularisers' gradients alone.
+// frames, and, where the frames have whole-body keypoint detections, to them (train/avatar_keypoints.h): the image
+// alone lets the refined fits drift together out of the camera's frame. A frame's correction moves only in the
+// steps that draw the frame (row-sparse Adam): Adam's normalisation would otherwise move every row at the full rate
+// each step on the regularisers' gradients alone.
 // Fitting a frame's pose to its image with the avatar frozen (test-time pose fitting, the alignment) is in
 // train/pose_fit.h.
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include <ATen/core/Tensor.h>
 #include <nlohmann/json.hpp>
 
+#include "body/wholebody_keypoints.h"
 #include "data/dataset.h"
+#include "fit/fit_losses.h"
 #include "model/avatar.h"
 #include "train/losses.h"
 #include "train/train_config.h"
@@ -35,13 +40,20 @@ body::SmplxPose corrected_pose(const body::SmplxPose& base, const at::Tensor& co
 
 class PoseRefinement {
  public:
+  // `keypoint_map` (may be null: no keypoint term) must be built for the avatar's body model; the training frames'
+  // keypoint files are read here.
   PoseRefinement(const data::Dataset& dataset, const PoseRefinementConfig& config, int64_t iterations,
-                 at::Device device);
+                 at::Device device, const body::WholeBodyKeypointMap* keypoint_map);
 
   // The pose training frame `frame` is trained with at `iteration`: its corrected fit (with a gradient to its
   // correction) from config.start on, adding the weighted "pose_prior" and "pose_smoothness" to `terms`; the input
   // fit (and zero terms) before.
   body::SmplxPose pose(int64_t frame, int64_t iteration, LossTerms& terms);
+  // With keypoints (keypoint_map given, config.keypoint_weight > 0, some training frame with detections): adds the
+  // weighted "pose_keypoints", the reprojection error of `out` (the avatar posed at pose(frame, ...)) against the
+  // frame's detections, from config.start on (zero before, and for a frame without detections); nothing otherwise.
+  void add_keypoint_term(int64_t frame, int64_t iteration, const model::Avatar& avatar, const model::AvatarOutput& out,
+                         LossTerms& terms) const;
   // After the backward pass: one Adam step of the frame's correction at the schedule's learning-rate factor.
   void step(int64_t frame, int64_t iteration, double rate_factor);
   // At an iteration of config.align_at (before its step): the global orientation and translation of every training
@@ -76,6 +88,8 @@ class PoseRefinement {
   at::Tensor exp_avg_, exp_avg_sq_;        // Adam moments, (F, kCorrectionWidth)
   at::Tensor rates_;                       // (kCorrectionWidth) learning rate per column (rotations, translation)
   std::vector<int64_t> steps_;             // Adam steps taken per row
+  std::optional<body::WholeBodyKeypointMap> keypoint_map_;  // on the device, float32; none: no keypoint term
+  std::vector<fit::KeypointObservations> keypoints_;        // per row; undefined pixels for a frame without any
 };
 
 // A copy of `frames`' poses replaced by the fits of a refined-fits JSON (PoseRefinement::write_fits) for the frames

@@ -22,24 +22,28 @@ struct Field {
   std::function<void(YAML::Emitter&)> write;
 };
 
-template <typename T> Field field(T& target) {
-  return Field{[&target](const YAML::Node& n) { target = n.as<T>(); },
-               [&target](YAML::Emitter& e) { e << target; }};
+template <typename T>
+Field field(T& target) {
+  return Field{[&target](const YAML::Node& n) { target = n.as<T>(); }, [&target](YAML::Emitter& e) { e << target; }};
 }
 
 Field parts_field(PartWeights& p) {
   return Field{[&p](const YAML::Node& n) {
                  for (const auto& kv : n) {
                    const std::string key = kv.first.as<std::string>();
-                   if (key == "body") p.body = kv.second.as<double>();
-                   else if (key == "face") p.face = kv.second.as<double>();
-                   else if (key == "hands") p.hands = kv.second.as<double>();
-                   else TORCH_CHECK(false, "unknown part '", key, "' (expected body, face or hands)");
+                   if (key == "body")
+                     p.body = kv.second.as<double>();
+                   else if (key == "face")
+                     p.face = kv.second.as<double>();
+                   else if (key == "hands")
+                     p.hands = kv.second.as<double>();
+                   else
+                     TORCH_CHECK(false, "unknown part '", key, "' (expected body, face or hands)");
                  }
                },
                [&p](YAML::Emitter& e) {
-                 e << YAML::Flow << YAML::BeginMap << YAML::Key << "body" << YAML::Value << p.body << YAML::Key << "face"
-                   << YAML::Value << p.face << YAML::Key << "hands" << YAML::Value << p.hands << YAML::EndMap;
+                 e << YAML::Flow << YAML::BeginMap << YAML::Key << "body" << YAML::Value << p.body << YAML::Key
+                   << "face" << YAML::Value << p.face << YAML::Key << "hands" << YAML::Value << p.hands << YAML::EndMap;
                }};
 }
 
@@ -63,37 +67,73 @@ std::vector<std::pair<std::string, Section>> sections(TrainConfig& c) {
   BodyFiles& b = c.body;
   PoseRefinementConfig& p = c.pose_refinement;
   return {
-      {"body", {{"smplx", field(b.smplx)}, {"mano_left", field(b.mano_left)}, {"mano_right", field(b.mano_right)},
-                {"hand_vertex_ids", field(b.hand_vertex_ids)}, {"face_vertex_ids", field(b.face_vertex_ids)}}},
-      {"run", {{"seed", field(c.seed)}, {"device", field(c.device)}, {"log_every", field(c.log_every)},
-               {"validate_every", field(c.validate_every)}, {"checkpoint_every", field(c.checkpoint_every)},
-               {"validation_frames", field(c.validation_frames)}}},
-      {"avatar", {{"subdivision_levels", field(a.subdivision_levels)}, {"plane_channels", field(a.plane_channels)},
-                  {"plane_resolution", field(a.plane_resolution)}, {"time_resolution", field(a.time_resolution)},
-                  {"face_plane_resolution", field(a.face_plane_resolution)}, {"hidden_width", field(a.hidden_width)},
-                  {"joint_embedding_size", field(a.joint_embedding_size)}, {"num_betas", field(a.num_betas)},
-                  {"num_expression_coeffs", field(a.num_expression_coeffs)}, {"use_hexplane", field(a.use_hexplane)},
-                  {"use_structure_offset", field(a.use_structure_offset)}, {"use_colour_offset", field(a.use_colour_offset)},
-                  {"use_hand_residual", field(a.use_hand_residual)}, {"use_face_planes", field(a.use_face_planes)},
-                  {"use_shading", field(a.use_shading)},
-                  {"colour_offset_on_new_motions", field(a.colour_offset_on_new_motions)}, {"time_dropout", field(a.time_dropout)}}},
-      {"loss", {{"image", field(l.image)}, {"lab", field(l.lab)}, {"gradient", field(l.gradient)},
-                {"use_lpips", field(l.use_lpips)}, {"lpips_weights", field(l.lpips_weights)},
-                {"lpips_every", field(l.lpips_every)}, {"lpips_bfloat16", field(l.lpips_bfloat16)},
-                {"mean_offset", field(l.mean_offset)}, {"mean_offset_parts", parts_field(l.mean_offset_parts)},
-                {"scale", field(l.scale)}, {"scale_parts", parts_field(l.scale_parts)},
-                {"laplacian_mean", field(l.laplacian_mean)}, {"laplacian_mean_parts", parts_field(l.laplacian_mean_parts)},
-                {"laplacian_scale", field(l.laplacian_scale)}}},
-      {"schedule", {{"iterations", field(s.iterations)}, {"warmup_iterations", field(s.warmup_iterations)},
-                    {"decay_at", field(s.decay_at)}, {"decay_factor", field(s.decay_factor)},
-                    {"learning_rate", field(s.learning_rate)}, {"colour_learning_rate", field(s.colour_learning_rate)},
-                    {"adam_epsilon", field(s.adam_epsilon)}, {"fused_adam", field(s.fused_adam)},
-                    {"tf32_matmul", field(s.tf32_matmul)}, {"cuda_graphs", field(s.cuda_graphs)}}},
-      {"pose_refinement", {{"enabled", field(p.enabled)}, {"learning_rate", field(p.learning_rate)},
-                           {"translation_learning_rate", field(p.translation_learning_rate)},
-                           {"start", field(p.start)}, {"prior", field(p.prior)},
-                           {"smoothness", field(p.smoothness)}, {"align_at", field(p.align_at)},
-                           {"align_iterations", field(p.align_iterations)}}},
+      {"body",
+       {{"smplx", field(b.smplx)},
+        {"mano_left", field(b.mano_left)},
+        {"mano_right", field(b.mano_right)},
+        {"hand_vertex_ids", field(b.hand_vertex_ids)},
+        {"face_vertex_ids", field(b.face_vertex_ids)}}},
+      {"run",
+       {{"seed", field(c.seed)},
+        {"device", field(c.device)},
+        {"log_every", field(c.log_every)},
+        {"validate_every", field(c.validate_every)},
+        {"checkpoint_every", field(c.checkpoint_every)},
+        {"validation_frames", field(c.validation_frames)}}},
+      {"avatar",
+       {{"subdivision_levels", field(a.subdivision_levels)},
+        {"plane_channels", field(a.plane_channels)},
+        {"plane_resolution", field(a.plane_resolution)},
+        {"time_resolution", field(a.time_resolution)},
+        {"face_plane_resolution", field(a.face_plane_resolution)},
+        {"hidden_width", field(a.hidden_width)},
+        {"joint_embedding_size", field(a.joint_embedding_size)},
+        {"num_betas", field(a.num_betas)},
+        {"num_expression_coeffs", field(a.num_expression_coeffs)},
+        {"use_hexplane", field(a.use_hexplane)},
+        {"use_structure_offset", field(a.use_structure_offset)},
+        {"use_colour_offset", field(a.use_colour_offset)},
+        {"use_hand_residual", field(a.use_hand_residual)},
+        {"use_face_planes", field(a.use_face_planes)},
+        {"use_shading", field(a.use_shading)},
+        {"colour_offset_on_new_motions", field(a.colour_offset_on_new_motions)},
+        {"time_dropout", field(a.time_dropout)}}},
+      {"loss",
+       {{"image", field(l.image)},
+        {"lab", field(l.lab)},
+        {"gradient", field(l.gradient)},
+        {"use_lpips", field(l.use_lpips)},
+        {"lpips_weights", field(l.lpips_weights)},
+        {"lpips_every", field(l.lpips_every)},
+        {"lpips_bfloat16", field(l.lpips_bfloat16)},
+        {"mean_offset", field(l.mean_offset)},
+        {"mean_offset_parts", parts_field(l.mean_offset_parts)},
+        {"scale", field(l.scale)},
+        {"scale_parts", parts_field(l.scale_parts)},
+        {"laplacian_mean", field(l.laplacian_mean)},
+        {"laplacian_mean_parts", parts_field(l.laplacian_mean_parts)},
+        {"laplacian_scale", field(l.laplacian_scale)}}},
+      {"schedule",
+       {{"iterations", field(s.iterations)},
+        {"warmup_iterations", field(s.warmup_iterations)},
+        {"decay_at", field(s.decay_at)},
+        {"decay_factor", field(s.decay_factor)},
+        {"learning_rate", field(s.learning_rate)},
+        {"colour_learning_rate", field(s.colour_learning_rate)},
+        {"adam_epsilon", field(s.adam_epsilon)},
+        {"fused_adam", field(s.fused_adam)},
+        {"tf32_matmul", field(s.tf32_matmul)},
+        {"cuda_graphs", field(s.cuda_graphs)}}},
+      {"pose_refinement",
+       {{"enabled", field(p.enabled)},
+        {"learning_rate", field(p.learning_rate)},
+        {"translation_learning_rate", field(p.translation_learning_rate)},
+        {"start", field(p.start)},
+        {"prior", field(p.prior)},
+        {"smoothness", field(p.smoothness)},
+        {"align_at", field(p.align_at)},
+        {"align_iterations", field(p.align_iterations)},
+        {"keypoint_weight", field(p.keypoint_weight)}}},
   };
 }
 
@@ -108,7 +148,8 @@ TrainConfig TrainConfig::from_yaml_text(const std::string& text, const std::stri
     TORCH_CHECK(false, "config '", source, "' is not valid YAML: ", e.what());
   }
   if (root.IsNull()) return c;
-  TORCH_CHECK(root.IsMap(), "config '", source, "' must be a mapping of sections (body, run, avatar, loss, schedule, pose_refinement)");
+  TORCH_CHECK(root.IsMap(), "config '", source,
+              "' must be a mapping of sections (body, run, avatar, loss, schedule, pose_refinement)");
   auto table = sections(c);
   for (const auto& kv : root) {
     const std::string section = kv.first.as<std::string>();
@@ -207,16 +248,18 @@ void TrainConfig::validate() const {
   for (size_t i = 0; i < schedule.decay_at.size(); ++i) {
     TORCH_CHECK(std::isfinite(schedule.decay_at[i]) && schedule.decay_at[i] > 0 && schedule.decay_at[i] < 1 &&
                     (i == 0 || schedule.decay_at[i] > schedule.decay_at[i - 1]),
-                "config: schedule.decay_at must rise strictly inside (0, 1), got ", schedule.decay_at[i], " at position ",
-                i);
+                "config: schedule.decay_at must rise strictly inside (0, 1), got ", schedule.decay_at[i],
+                " at position ", i);
     check_positive(schedule.decay_factor[i], 1.0, "schedule.decay_factor");
   }
   check_positive(schedule.learning_rate, kMaxLearningRate, "schedule.learning_rate");
   check_positive(schedule.colour_learning_rate, kMaxLearningRate, "schedule.colour_learning_rate");
   check_positive(schedule.adam_epsilon, 1.0, "schedule.adam_epsilon");
-  for (const auto& [value, key] : {std::pair{loss.image, "loss.image"}, {loss.lab, "loss.lab"},
+  for (const auto& [value, key] : {std::pair{loss.image, "loss.image"},
+                                   {loss.lab, "loss.lab"},
                                    {loss.gradient, "loss.gradient"},
-                                   {loss.mean_offset, "loss.mean_offset"}, {loss.scale, "loss.scale"},
+                                   {loss.mean_offset, "loss.mean_offset"},
+                                   {loss.scale, "loss.scale"},
                                    {loss.laplacian_mean, "loss.laplacian_mean"},
                                    {loss.laplacian_scale, "loss.laplacian_scale"}})
     check_range(value, 0, kMaxLossWeight, key);
@@ -245,6 +288,7 @@ void TrainConfig::validate() const {
   check_range(pose_refinement.start, 0, 1, "pose_refinement.start");
   check_range(pose_refinement.prior, 0, kMaxLossWeight, "pose_refinement.prior");
   check_range(pose_refinement.smoothness, 0, kMaxLossWeight, "pose_refinement.smoothness");
+  check_range(pose_refinement.keypoint_weight, 0, kMaxLossWeight, "pose_refinement.keypoint_weight");
   const std::vector<double>& align_at = pose_refinement.align_at;
   for (size_t i = 0; i < align_at.size(); ++i)
     TORCH_CHECK(std::isfinite(align_at[i]) && align_at[i] >= pose_refinement.start && align_at[i] < 1 &&
@@ -274,8 +318,8 @@ std::vector<ConfigChange> config_changes(const TrainConfig& before, const TrainC
 
 bool change_allowed_on_resume(const std::string& key) {
   if (key.rfind("schedule.", 0) == 0) return true;
-  for (const char* allowed : {"run.log_every", "run.validate_every", "run.checkpoint_every", "run.validation_frames",
-                              "run.device"})
+  for (const char* allowed :
+       {"run.log_every", "run.validate_every", "run.checkpoint_every", "run.validation_frames", "run.device"})
     if (key == allowed) return true;
   return false;
 }

@@ -4,6 +4,7 @@
 #include <string>
 #include <vector>
 
+#include "common/constants.h"
 #include "model/avatar.h"
 
 namespace sfgs::train {
@@ -69,6 +70,10 @@ struct PoseRefinementConfig {
   // `start` on, rising.
   std::vector<double> align_at{0.1};
   int64_t align_iterations = 60;
+  // Weight of the drawn frame's whole-body keypoint reprojection error (train/avatar_keypoints.h) where the training
+  // frames have detections (keypoints_whole_body/), also in the alignment passes; 0: the image alone. Without it the
+  // refined fits drift together out of the camera's frame and the avatar learns them in that drifted frame.
+  double keypoint_weight = kPoseFitKeypointWeight;
 };
 
 // Which body model drives the avatar: empty smplx means the built-in procedural body (with its MANO-layout hands).

@@ -1,8 +1,10 @@
 #include "train/training_session.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <map>
+#include <optional>
 #include <sstream>
 
 #include <ATen/ATen.h>
@@ -11,6 +13,7 @@
 #include "common/device_graph.h"
 #include "common/stage_timer.h"
 #include "metrics/image_metrics.h"
+#include "train/avatar_keypoints.h"
 
 namespace sfgs::train {
 
@@ -20,8 +23,7 @@ std::unique_ptr<torch::optim::Adam> make_optimizer(const model::Avatar& avatar, 
     (p.key().find("colour") != std::string::npos ? colour : other).push_back(p.value());
   std::vector<torch::optim::OptimizerParamGroup> groups;
   const auto options = [&](double rate) {
-    return std::make_unique<torch::optim::AdamOptions>(
-        torch::optim::AdamOptions(rate).eps(schedule.adam_epsilon));
+    return std::make_unique<torch::optim::AdamOptions>(torch::optim::AdamOptions(rate).eps(schedule.adam_epsilon));
   };
   groups.emplace_back(other, options(schedule.learning_rate));
   if (!colour.empty()) groups.emplace_back(colour, options(schedule.colour_learning_rate));
@@ -44,20 +46,34 @@ Tf32MatmulScope::~Tf32MatmulScope() { at::globalContext().setAllowTF32CuBLAS(pre
 
 TrainingSession::TrainingSession(const data::Dataset& dataset, const TrainConfig& config, const RunFolder& run,
                                  const TrainOptions& options)
-    : dataset_(dataset), config_(config), run_(run), options_(options),
+    : dataset_(dataset),
+      config_(config),
+      run_(run),
+      options_(options),
       device_(config.device == "cuda" ? at::kCUDA : at::kCPU),
-      tf32_(config.schedule.tf32_matmul), replay_clock_(dataset), rng_(config.seed) {
+      tf32_(config.schedule.tf32_matmul),
+      replay_clock_(dataset),
+      rng_(config.seed) {
   torch::manual_seed(config.seed);
   avatar_ = make_avatar(config, dataset.betas, device_);
   optimizer_ = make_optimizer(avatar_, config.schedule);
   adam_ = std::make_unique<AdamStepper>(*optimizer_, config.schedule.fused_adam);
-  for (size_t g = 0; g < optimizer_->param_groups().size(); ++g) base_rates_.push_back(adam_options(*optimizer_, g).lr());
+  for (size_t g = 0; g < optimizer_->param_groups().size(); ++g)
+    base_rates_.push_back(adam_options(*optimizer_, g).lr());
   image_loss_ = std::make_unique<ImageLoss>(config.loss, device_);
   regularisers_ = std::make_unique<Regularisers>(config.loss, avatar_->part_labels(), avatar_->faces(), device_);
   frames_ = std::make_unique<FrameCache>(dataset, dataset.split(data::Split::kTrain), device_.is_cuda());
   step_ = std::make_unique<TrainingStep>(avatar_, *image_loss_, *regularisers_);
-  if (config.pose_refinement.enabled)
-    refinement_ = std::make_unique<PoseRefinement>(dataset, config.pose_refinement, config.schedule.iterations, device_);
+  if (config.pose_refinement.enabled) {
+    const auto& frames = dataset.split(data::Split::kTrain);
+    const bool keypoints = config.pose_refinement.keypoint_weight > 0 &&
+                           std::any_of(frames.begin(), frames.end(),
+                                       [&](int64_t f) { return !dataset.frames[size_t(f)].keypoints_path.empty(); });
+    const std::optional<body::WholeBodyKeypointMap> map =
+        keypoints ? std::optional(body_keypoint_map(config.body.smplx)) : std::nullopt;
+    refinement_ = std::make_unique<PoseRefinement>(dataset, config.pose_refinement, config.schedule.iterations, device_,
+                                                   map ? &*map : nullptr);
+  }
   // A benchmark's stage recorder times stages by synchronising, which a graph cannot hold; pose refinement's
   // per-frame corrections and alignment passes are host-driven.
   if (device_.is_cuda() && config.schedule.cuda_graphs && device_graphs_available() && !refinement_ &&
@@ -90,9 +106,13 @@ void TrainingSession::restore(CheckpointReader& checkpoint) {
 
 void TrainingSession::open_log() {
   log_ = std::make_unique<JsonLinesLog>(run_.log_file());
-  log_->write({{"event", "start"}, {"iteration", last_checkpoint_ < 0 ? 0 : last_checkpoint_},
-               {"dataset", dataset_.source}, {"frames", dataset_.size()}, {"gaussians", avatar_->gaussian_count()},
-               {"device", config_.device}, {"lpips", image_loss_->lpips_status()}});
+  log_->write({{"event", "start"},
+               {"iteration", last_checkpoint_ < 0 ? 0 : last_checkpoint_},
+               {"dataset", dataset_.source},
+               {"frames", dataset_.size()},
+               {"gaussians", avatar_->gaussian_count()},
+               {"device", config_.device},
+               {"lpips", image_loss_->lpips_status()}});
 }
 
 void TrainingSession::step(int64_t it) {
@@ -138,7 +158,12 @@ void TrainingSession::step(int64_t it) {
     // With pose refinement the pose is the refined fit, with its gradient (a non-finite correction shows as a
     // non-finite loss).
     const body::SmplxPose pose = refinement_ ? refinement_->pose(f, it, terms) : inputs.pose;
-    outputs = step_->run(inputs, pose, data.lpips, std::move(terms));
+    TrainingStep::OutputTerms keypoint_term;
+    if (refinement_)
+      keypoint_term = [&](const model::AvatarOutput& out, LossTerms& t) {
+        refinement_->add_keypoint_term(f, it, avatar_, out, t);
+      };
+    outputs = step_->run(inputs, pose, data.lpips, std::move(terms), keypoint_term);
   }
   {
     const StageScope stage("train: optimizer");
@@ -146,13 +171,15 @@ void TrainingSession::step(int64_t it) {
     if (refinement_) refinement_->step(f, it, factor);
   }
   // A left-out step's record is of an incomplete image: it adds nothing (and still counts, one in thousands).
-  observation_sum_ += outputs.skip_update.defined() ? outputs.observation * (1 - outputs.skip_update)
-                                                    : outputs.observation;
+  observation_sum_ +=
+      outputs.skip_update.defined() ? outputs.observation * (1 - outputs.skip_update) : outputs.observation;
   ++observation_steps_;
   LossTerms& terms = outputs.terms;
   // A copy: a recorded step rewrites its outputs at every replay.
-  if (terms.count("lpips")) last_lpips_ = terms["lpips"].clone();
-  else if (last_lpips_.defined()) terms["lpips"] = last_lpips_;
+  if (terms.count("lpips"))
+    last_lpips_ = terms["lpips"].clone();
+  else if (last_lpips_.defined())
+    terms["lpips"] = last_lpips_;
   watch_.record(it + 1, terms, {{"psnr", outputs.psnr}});
 }
 
@@ -178,13 +205,18 @@ TrainSummary TrainingSession::run(int64_t start, int64_t end) {
   summary_.training_seconds = training_seconds_;
   summary_.step_seconds = training_seconds_ - seconds_before;
   summary_.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();
-  nlohmann::json entry{{"event", "end"}, {"iteration", summary_.iterations}, {"seconds", summary_.seconds},
+  nlohmann::json entry{{"event", "end"},
+                       {"iteration", summary_.iterations},
+                       {"seconds", summary_.seconds},
                        {"training_seconds", training_seconds_}};
   if (graphs_) {
     graphs_->settle();  // the last steps' counts, so that every overflow is counted
     const StepGraphStats& g = graphs_->stats();
-    entry["step_graphs"] = {{"captures", g.captures}, {"replays", g.replays}, {"eager_steps", g.eager_steps},
-                            {"budget_overflows", g.budget_overflows}, {"intersection_budget", g.intersection_budget}};
+    entry["step_graphs"] = {{"captures", g.captures},
+                            {"replays", g.replays},
+                            {"eager_steps", g.eager_steps},
+                            {"budget_overflows", g.budget_overflows},
+                            {"intersection_budget", g.intersection_budget}};
   }
   if (!std::isnan(summary_.validation_psnr)) entry["val_psnr"] = summary_.validation_psnr;
   log_->write(entry);
@@ -204,9 +236,11 @@ void TrainingSession::finish_step(int64_t done, int64_t end) {
     stop_diverged(e);
   }
   if (logs) {
-    nlohmann::json entry{{"event", "step"},        {"iteration", done},
+    nlohmann::json entry{{"event", "step"},
+                         {"iteration", done},
                          {"lr_factor", learning_rate_factor(config_.schedule, done - 1)},
-                         {"psnr", latest["psnr"]}, {"seconds", bar_->elapsed_seconds()},
+                         {"psnr", latest["psnr"]},
+                         {"seconds", bar_->elapsed_seconds()},
                          {"training_seconds", training_seconds_}};
     for (const auto& [name, value] : latest)
       if (name != "psnr") entry["loss"][name] = value;
@@ -270,8 +304,8 @@ void TrainingSession::checkpoint(int64_t done) {
     if (refinement_) refinement_->write_fits(run_.refined_fits_file());
   } catch (const std::runtime_error& e) {
     if (first_non_finite_tensor(*avatar_).empty()) throw;
-    stop_diverged(DivergenceError(done, std::string("training diverged by iteration ") + std::to_string(done) + ": " +
-                                            e.what()));
+    stop_diverged(
+        DivergenceError(done, std::string("training diverged by iteration ") + std::to_string(done) + ": " + e.what()));
   }
   last_checkpoint_ = done;
 }
@@ -282,8 +316,9 @@ void TrainingSession::stop_diverged(const DivergenceError& e) {
                                ? "no checkpoint had been written yet"
                                : "the run keeps its last good checkpoint (iteration " +
                                      std::to_string(last_checkpoint_) + ", " + run_.checkpoint_file() + ")";
-  const std::string message = std::string(e.what()) + "; " + kept +
-                              ". Lower schedule.learning_rate or check the data; then --resume, or --force to start over";
+  const std::string message =
+      std::string(e.what()) + "; " + kept +
+      ". Lower schedule.learning_rate or check the data; then --resume, or --force to start over";
   log_->write({{"event", "error"}, {"iteration", e.iteration()}, {"message", message}});
   throw DivergenceError(e.iteration(), message);
 }

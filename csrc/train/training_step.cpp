@@ -118,7 +118,8 @@ at::Tensor StepInputs::covariances_to_camera(const at::Tensor& covariances) cons
 TrainingStep::TrainingStep(model::Avatar avatar, const ImageLoss& image_loss, const Regularisers& regularisers)
     : avatar_(std::move(avatar)), image_loss_(image_loss), regularisers_(regularisers) {}
 
-StepOutputs TrainingStep::run(const StepInputs& in, const body::SmplxPose& pose, bool lpips, LossTerms terms) {
+StepOutputs TrainingStep::run(const StepInputs& in, const body::SmplxPose& pose, bool lpips, LossTerms terms,
+                              const OutputTerms& output_terms) {
   at::Tensor target;
   {
     const StageScope stage("train: target");
@@ -154,6 +155,7 @@ StepOutputs TrainingStep::run(const StepInputs& in, const body::SmplxPose& pose,
   {
     const StageScope stage("train: regularisers");
     regularisers_.add_terms(out, terms);
+    if (output_terms) output_terms(out, terms);
     loss = total_loss(terms);
   }
   {

@@ -4,6 +4,7 @@
 // (StepInputs), and it reads nothing back to the host, so a CUDA step can be recorded once as a graph and replayed
 // (train/step_graphs.h); the same code runs eagerly on the CPU, with pose refinement, or with graphs switched off.
 #include <array>
+#include <functional>
 #include <optional>
 #include <string>
 
@@ -77,7 +78,10 @@ class TrainingStep {
   // Forward, losses and backward of one step on `inputs`, posed at `pose` (inputs.pose, or pose refinement's fit
   // with its gradient) and adding to `terms` (pose refinement's). The parameters' gradients are set, not
   // accumulated: those the step does not reach (the time planes in a step without a time) are left undefined.
-  StepOutputs run(const StepInputs& inputs, const body::SmplxPose& pose, bool lpips, LossTerms terms = {});
+  // `output_terms`, when given, adds terms of the posed avatar (pose refinement's keypoint term) before the backward.
+  using OutputTerms = std::function<void(const model::AvatarOutput&, LossTerms&)>;
+  StepOutputs run(const StepInputs& inputs, const body::SmplxPose& pose, bool lpips, LossTerms terms = {},
+                  const OutputTerms& output_terms = {});
 
  private:
   model::Avatar avatar_;

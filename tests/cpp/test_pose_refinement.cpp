@@ -17,6 +17,9 @@
 #include "test_body_utils.h"
 #include "test_files.h"
 #include "test_trainer_utils.h"
+#include "data/keypoint_file.h"
+#include "data/synthetic.h"
+#include "train/avatar_keypoints.h"
 #include "train/checkpoint.h"
 #include "train/pose_fit.h"
 #include "train/pose_refinement.h"
@@ -49,6 +52,16 @@ void step_on_regularisers(train::PoseRefinement& r, int64_t f, int steps) {
   }
 }
 
+// A video of the procedural body whose keypoint files hold the exact projections (score 1).
+data::Dataset video_with_exact_keypoints(const TempFolder& folder, int64_t frames, int64_t side) {
+  data::SyntheticVideoOptions o;
+  o.frames = frames;
+  o.width = side;
+  o.height = side;
+  o.keypoint_noise.exact = true;
+  return data::write_synthetic_video(folder / "video", o);
+}
+
 TEST(TrainPoseRefinement, CorrectionAddsToItsFieldsOnly) {
   body::SmplxPose base = test_pose(41, 0.3, true);
   const at::Tensor correction = at::arange(kCorrectionWidth, at::kFloat) * 1e-3;
@@ -69,7 +82,7 @@ TEST(TrainPoseRefinement, CorrectionAddsToItsFieldsOnly) {
 TEST(TrainPoseRefinement, PriorPullsACorrectionBackToTheFit) {
   TempFolder folder;
   const data::Dataset dataset = tiny_video(folder, 10, 16);
-  train::PoseRefinement r(dataset, refinement(1.0, 0.0), 100, at::kCPU);
+  train::PoseRefinement r(dataset, refinement(1.0, 0.0), 100, at::kCPU, nullptr);
   const int64_t f = dataset.split(data::Split::kTrain)[2];
   at::Tensor state = r.state();
   state.narrow(1, 0, kCorrectionWidth).fill_(0.05);
@@ -89,7 +102,7 @@ TEST(TrainPoseRefinement, SmoothnessEvensOutAJitteredFrame) {
   const std::vector<int64_t>& train_frames = dataset.split(data::Split::kTrain);
   const int64_t f = train_frames[3];
   dataset.frames[size_t(f)].pose.body_pose = dataset.frames[size_t(f)].pose.body_pose + 0.1;  // an estimator's jump
-  train::PoseRefinement r(dataset, refinement(0.0, 1.0), 100, at::kCPU);
+  train::PoseRefinement r(dataset, refinement(0.0, 1.0), 100, at::kCPU, nullptr);
   const auto jump = [&](const data::Dataset& d) {
     const auto body = [&](int64_t k) { return d.frames[size_t(train_frames[size_t(k)])].pose.body_pose; };
     return (body(3) - 0.5 * (body(2) + body(4))).abs().mean().item<double>();
@@ -101,6 +114,49 @@ TEST(TrainPoseRefinement, SmoothnessEvensOutAJitteredFrame) {
   data::Dataset refined = dataset;
   train::apply_refined_fits(refined, out / "fits.json");
   EXPECT_LT(jump(refined), 0.3 * before) << "before " << before;
+}
+
+// The keypoint term holds the refined fits to the detections: the reprojection error of a frame's fit shifted 6 cm
+// sideways and 10 cm deep falls tenfold by the term's gradient alone (no image, no prior), its translation back
+// towards the truth; a frame before `start` gets a zero term, and without a keypoint map there is no term.
+TEST(TrainPoseRefinement, KeypointsPullAShiftedFitBackToTheDetections) {
+  TempFolder folder;
+  const data::Dataset dataset = video_with_exact_keypoints(folder, 10, 64);
+  model::Avatar avatar(procedural_avatar_body(), dataset.betas, small_config());
+  const body::WholeBodyKeypointMap map = train::body_keypoint_map("");
+  train::PoseRefinementConfig config = refinement(0.0, 0.0);
+  config.start = 0.5;
+  train::PoseRefinement r(dataset, config, 100, at::kCPU, &map);
+  const int64_t f = dataset.split(data::Split::kTrain)[2];
+  const std::vector<int64_t>& train_frames = dataset.split(data::Split::kTrain);
+  const int64_t row = std::find(train_frames.begin(), train_frames.end(), f) - train_frames.begin();
+  at::Tensor state = r.state();
+  state[row][kCorrectionWidth - 3] = 0.06;  // translation x
+  state[row][kCorrectionWidth - 1] = 0.1;   // and z: the depth, which keypoints see through the body's size
+  r.restore(state);
+  const auto keypoint_term = [&](int64_t iteration) {
+    train::LossTerms terms;
+    const body::SmplxPose pose = r.pose(f, iteration, terms);
+    r.add_keypoint_term(f, iteration, avatar, avatar->forward(pose, dataset.replay_time(f)), terms);
+    return terms;
+  };
+  EXPECT_EQ(keypoint_term(10).at("pose_keypoints").item<double>(), 0.0) << "before start";
+  const double before = keypoint_term(50).at("pose_keypoints").item<double>();
+  EXPECT_GT(before, 0.0);
+  for (int k = 0; k < 60; ++k) {
+    train::LossTerms terms = keypoint_term(50);
+    train::total_loss(terms).backward();
+    r.step(f, 50, 1.0);
+  }
+  const at::Tensor corrected = r.state()[row].narrow(0, 0, kCorrectionWidth);
+  // Every joint moves too (Adam normalises each column), so the translation undoes only part of the shift.
+  EXPECT_LT(std::abs(corrected[kCorrectionWidth - 3].item<double>()), 0.045) << "the sideways shift shrinks";
+  EXPECT_LT(std::abs(corrected[kCorrectionWidth - 1].item<double>()), 0.095) << "the depth shrinks";
+  EXPECT_LT(keypoint_term(50).at("pose_keypoints").item<double>(), 0.1 * before);
+  train::PoseRefinement without(dataset, config, 100, at::kCPU, nullptr);
+  train::LossTerms terms;
+  without.add_keypoint_term(f, 50, avatar, avatar->forward(dataset.frames[size_t(f)].pose, 0.0), terms);
+  EXPECT_EQ(terms.count("pose_keypoints"), 0u);
 }
 
 // A real (tiny) training run: the image's gradient moves the corrections of the frames it drew, the refined fits
@@ -206,7 +262,7 @@ TEST(TrainPoseFitting, LowersTheImageErrorOfAPerturbedPose) {
   data::FrameRecord& record = dataset.frames[size_t(f)];
   const body::SmplxPose truth = record.pose;
   record.pose = perturbed(truth, 0.1f, 0.15f, 0.04f, 0.0f);
-  const data::Dataset fitted = train::fit_poses(dataset, data::Split::kTest, avatar, fit_options(60), false);
+  const data::Dataset fitted = train::fit_poses(dataset, data::Split::kTest, avatar, fit_options(60), nullptr, false);
   const train::PoseError before = train::pose_error(record.pose, truth),
                          after = train::pose_error(fitted.frames[size_t(f)].pose, truth);
   EXPECT_LT(after.body, 6.0) << train::to_string(before) << " -> " << train::to_string(after);
@@ -231,7 +287,7 @@ TEST(TrainPoseFitting, StaysAtTheExactPoseAndNeverEndsWorseThanItsStart) {
   data::Dataset dataset = tiny_video(folder, 10, 64);
   const int64_t f = dataset.split(data::Split::kTest)[0];
   model::Avatar avatar = render_frames_with_avatar(dataset, {f});
-  const train::PoseFitter fitter(fit_options(30), at::kCPU);
+  const train::PoseFitter fitter(fit_options(30), at::kCPU, nullptr);
   const body::SmplxPose& truth = dataset.frames[size_t(f)].pose;
   const train::PoseFitTarget target = train::pose_fit_target(dataset, f, at::kCPU);
   const train::PoseFitResult exact = fitter.fit(avatar, truth, target, at::zeros({kCorrectionWidth}));
@@ -248,6 +304,66 @@ TEST(TrainPoseFitting, StaysAtTheExactPoseAndNeverEndsWorseThanItsStart) {
   EXPECT_LE(lost.loss, lost.start_loss);
 }
 
+// The avatar's keypoints (read from its posed model vertices and joints) land where `sfgs synth` projected the
+// body's: one definition, the same body, so an exact fit reprojects onto exact detections and the term is 0.
+TEST(TrainPoseFitting, AvatarKeypointsReprojectOntoExactDetections) {
+  TempFolder folder;
+  const data::Dataset dataset = video_with_exact_keypoints(folder, 4, 96);
+  model::Avatar avatar(procedural_avatar_body(), dataset.betas, small_config());
+  const body::WholeBodyKeypointMap map = train::body_keypoint_map("");
+  for (int64_t f = 0; f < dataset.size(); ++f) {
+    const data::FrameRecord& record = dataset.frames[size_t(f)];
+    ASSERT_FALSE(record.keypoints_path.empty()) << "the synthetic video lists its keypoint files";
+    const at::Tensor detections = data::read_wholebody_keypoints(record.keypoints_path);
+    const Camera camera = train::render_camera(record);
+    at::NoGradGuard no_grad;
+    const model::AvatarOutput out = avatar->forward(record.pose, dataset.replay_time(f));
+    const at::Tensor points = train::avatar_camera_keypoints(map, avatar, out, camera);
+    const at::Tensor pixels =
+        points.narrow(1, 0, 2) / points.narrow(1, 2, 1) * at::tensor({camera.fx, camera.fy}, at::kFloat) +
+        at::tensor({camera.cx, camera.cy}, at::kFloat);
+    const at::Tensor seen = detections.select(1, 2) > 0;
+    ASSERT_GT(seen.sum().item<int64_t>(), 100) << "most keypoints lie in the image";
+    const at::Tensor error = (pixels - detections.narrow(1, 0, 2)).norm(2, 1).masked_select(seen);
+    EXPECT_LT(error.max().item<double>(), 0.05) << "frame " << f << ": pixels (files hold 1/100 px)";
+    const at::Tensor loss =
+        train::keypoint_reprojection_loss(map, avatar, out, camera, train::observe_frame_keypoints(detections, camera));
+    EXPECT_LT(loss.item<double>(), 1e-6);
+  }
+  expect_error(
+      [&] {
+        train::observe_frame_keypoints(at::zeros({17, 3}), train::render_camera(dataset.frames[0]));
+      },
+      {"(133, 3)", "[17, 3]"});
+}
+
+// Where the image alone trades the body's placement against its joints (on this random-parameter avatar it turns a
+// sideways shift into depth), exact detections pin it: from a turned, bent and shifted fit the anchored fit ends
+// nearer the truth's translation than its start and than the image alone, with the joints less disturbed. (A turn
+// about the vertical hardly moves a frontal body's keypoints; the turn is not asserted.)
+TEST(TrainPoseFitting, KeypointsPinThePlacementTheImageTradesAway) {
+  TempFolder folder;
+  data::Dataset dataset = video_with_exact_keypoints(folder, 10, 128);
+  const int64_t f = dataset.split(data::Split::kTest)[0];
+  model::Avatar avatar = render_frames_with_avatar(dataset, {f});
+  data::FrameRecord& record = dataset.frames[size_t(f)];
+  const body::SmplxPose truth = record.pose;
+  record.pose = perturbed(truth, 0.1f, 0.15f, 0.04f, 0.0f);
+  const body::WholeBodyKeypointMap map = train::body_keypoint_map("");
+  const auto fitted_error = [&](const body::WholeBodyKeypointMap* keypoints) {
+    const data::Dataset fitted =
+        train::fit_poses(dataset, data::Split::kTest, avatar, fit_options(100), keypoints, false);
+    return train::pose_error(fitted.frames[size_t(f)].pose, truth);
+  };
+  const train::PoseError before = train::pose_error(record.pose, truth);
+  const train::PoseError image_alone = fitted_error(nullptr), anchored = fitted_error(&map);
+  const std::string report = train::to_string(before) + " -> image alone " + train::to_string(image_alone) +
+                             ", anchored " + train::to_string(anchored);
+  EXPECT_LT(anchored.translation, 0.5 * before.translation) << report;
+  EXPECT_LT(anchored.translation, 0.25 * image_alone.translation) << report;
+  EXPECT_LT(anchored.body, image_alone.body) << report;
+}
+
 // Pose refinement's alignment: at an iteration of align_at the global orientation and translation of every
 // training fit are fitted to its image with the avatar as it is (never ending above the start's loss), the joints
 // left alone, and the error against the truth logged (error_against_truth); at other iterations nothing happens.
@@ -261,7 +377,7 @@ TEST(TrainPoseRefinement, AlignmentFitsTheGlobalPlacementOfTheTrainingFits) {
   train::PoseRefinementConfig config = refinement(0.01, 0.05);
   config.align_at = {0.5};
   config.align_iterations = 40;
-  train::PoseRefinement r(dataset, config, 10, at::kCPU);
+  train::PoseRefinement r(dataset, config, 10, at::kCPU, nullptr);
   train::LossWeights loss;
   loss.use_lpips = false;
   EXPECT_TRUE(r.align(4, avatar, loss).empty()) << "not an alignment iteration";
