@@ -150,7 +150,7 @@ int run_eval(Arguments& args) {
   const bool anchored = fit.keypoint_weight > 0 && with_keypoints > 0;
   std::printf("  anchored on whole-body keypoints: %s\n",
               anchored ? (std::to_string(with_keypoints) + " of " + std::to_string(frames.size()) + " frames").c_str()
-                       : (fit.keypoint_weight > 0 ? "none (the dataset has no keypoints_whole_body/)"
+                       : (fit.keypoint_weight > 0 ? "none (no frame of the split has a keypoint file)"
                                                   : "no (--fit-keypoint-weight 0)"));
   const std::optional<body::WholeBodyKeypointMap> keypoint_map =
       anchored ? std::optional(train::body_keypoint_map(t.config.body.smplx)) : std::nullopt;

@@ -45,7 +45,9 @@ body::SmplxPose MotionSource::pose(model::Avatar& avatar, int64_t i) const {
   TORCH_CHECK(i >= 0 && i < frames_, "motion '", name_, "': frame ", i, " is not in [0, ", frames_, ")");
   if (clip_) return train::clip_pose(avatar, *clip_, i);
   if (dataset_) return dataset_->frames[size_t(i % dataset_->size())].pose;
-  return data::motion_pose(name_, double(i) / frames_per_second_, avatar->config().num_expression_coeffs);
+  // The library's hand poses are absolute (data/motions.h).
+  return train::hands_for_avatar(
+      avatar, data::motion_pose(name_, double(i) / frames_per_second_, avatar->config().num_expression_coeffs), true);
 }
 
 model::FrameTime MotionSource::replay_time(int64_t i) const {

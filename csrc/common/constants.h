@@ -186,6 +186,9 @@ inline constexpr double kMaxLearningRate = 1.0;
 inline constexpr double kPoseAdamBeta1 = 0.9;
 inline constexpr double kPoseAdamBeta2 = 0.999;
 inline constexpr double kPoseAdamEpsilon = 1e-8;
+// Iterations per frame of test-time fitting (`sfgs eval --fit-iterations`): anchored on keypoints, 300 measured 1.7 dB
+// above 100 on noisy Anny test fits (docs/results.md), 1,000 another 1.2 dB at 3.3 times the time.
+inline constexpr long kPoseFitIterations = 300;
 // Fitting a pose to an image with the avatar frozen (train/pose_fit.h): three stages, each with a cosine-decayed
 // Adam whose rates follow from how far it may move the parameters (its reach, radians and metres), whatever the
 // iteration count. Coarse (the share kPoseFitCoarseShare of the iterations): the global orientation and translation
@@ -194,9 +197,6 @@ inline constexpr double kPoseAdamEpsilon = 1e-8;
 // measured 3.4 dB worse on noisy Anny test fits (the weakly seen depth drifts further). Middle: every joint at 1/2,
 // reaching past the medium level's 5 deg body errors. Fine: every joint at full resolution, the last centimetre and
 // degrees.
-// Iterations per frame of test-time fitting (`sfgs eval --fit-iterations`): anchored on keypoints, 300 measured 1.7 dB
-// above 100 on noisy Anny test fits (docs/results.md), 1,000 another 1.2 dB at 3.3 times the time.
-inline constexpr long kPoseFitIterations = 300;
 inline constexpr double kPoseFitCoarseShare = 0.3;
 inline constexpr long kPoseFitCoarseDownsample = 4;
 inline constexpr double kPoseFitCoarseRotationReach = 0.05;

@@ -108,7 +108,7 @@ std::optional<ReferenceFits> find_reference_fits(const std::string& data, const 
   const bool exact = d.true_betas.defined();
   r.source = (fs::path(data) / "dataset.json").string() + (exact ? " (exact fits)" : " (its fits)");
   r.betas = exact ? d.true_betas : d.betas;
-  r.hands_relative_to_mean = false;  // sfgs synth writes absolute hand poses
+  r.hands_relative_to_mean = true;  // as sfgs synth writes them (docs/dataset_format.md)
   for (int64_t i = 0; i < d.size(); ++i) {
     const data::FrameRecord& f = d.frames[size_t(i)];
     r.poses[i] = f.true_pose ? *f.true_pose : f.pose;

@@ -18,7 +18,7 @@ struct ReferenceFits {
   std::string source;
   std::map<int64_t, body::SmplxPose> poses;
   at::Tensor betas;
-  bool hands_relative_to_mean = true;             // ExAvatar's convention; false: absolute (sfgs synth's)
+  bool hands_relative_to_mean = true;             // ExAvatar's and sfgs synth's convention; false: absolute
   std::map<int64_t, at::Tensor> world_to_camera;  // (4, 4) per frame when the poses are in world coordinates
 };
 

@@ -57,15 +57,15 @@ const std::array<StageSpec, 3> kStages{{{kPoseFitCoarseShare, kPoseFitCoarseDown
 
 }  // namespace
 
-PoseFitTarget pose_fit_target(const data::Dataset& dataset, int64_t frame, at::Device device) {
+PoseFitTarget pose_fit_target(const data::Dataset& dataset, int64_t frame, at::Device device, bool with_keypoints) {
   const data::FrameRecord& record = dataset.frames[size_t(frame)];
   const data::Frame loaded = dataset.load(frame);
   PoseFitTarget t;
   t.camera = render_camera(record);
   t.time = dataset.replay_time(frame);
   t.image = loaded.image.to(device);
-  if (!record.keypoints_path.empty())
-    t.keypoints = observe_frame_keypoints(data::read_wholebody_keypoints(record.keypoints_path).to(device), t.camera);
+  if (with_keypoints && !record.keypoints_path.empty())
+    t.keypoints = frame_keypoints(data::read_wholebody_keypoints(record.keypoints_path).to(device), t.camera);
   if (!record.mask_path.empty()) {  // without a mask the whole image is the target and there is no silhouette
     t.mask = loaded.mask.to(device);
     const at::Tensor m = t.mask.unsqueeze(2);
@@ -98,7 +98,7 @@ PoseFitResult PoseFitter::fit(model::Avatar& avatar, const body::SmplxPose& pose
                        : Level{downsampled(target.camera, d), downsample(target.image, d),
                                target.mask.defined() ? downsample(target.mask, d) : at::Tensor()};
   }
-  const bool anchored = keypoint_map_.has_value() && target.keypoints.pixels.defined();
+  const bool anchored = keypoint_map_.has_value() && target.keypoints.defined();
   const auto image_loss = [&](const RenderResult& r, const Level& level, const StageSpec& spec) {
     if (!spec.run_loss) {
       const at::Tensor loss = (r.image - level.image).abs().mean();
@@ -119,8 +119,7 @@ PoseFitResult PoseFitter::fit(model::Avatar& avatar, const body::SmplxPose& pose
     const model::AvatarOutput out = avatar->forward_trusted_pose(corrected_pose(pose, correction), target.time);
     const at::Tensor loss = image_loss(render(model::to_gaussians(out), white, level.camera), level, spec);
     if (!anchored) return loss;
-    return loss + options_.keypoint_weight *
-                      keypoint_reprojection_loss(*keypoint_map_, avatar, out, target.camera, target.keypoints);
+    return loss + options_.keypoint_weight * keypoint_reprojection_loss(*keypoint_map_, avatar, out, target.keypoints);
   };
 
   PoseFitResult result;
@@ -212,7 +211,8 @@ data::Dataset fit_poses(const data::Dataset& dataset, data::Split split, model::
   for (size_t k = 0; k < frames.size(); ++k) {
     const int64_t f = frames[k];
     const data::FrameRecord& record = dataset.frames[size_t(f)];
-    const PoseFitResult r = fitter.fit(avatar, record.pose, pose_fit_target(dataset, f, device), zero);
+    const PoseFitResult r =
+        fitter.fit(avatar, record.pose, pose_fit_target(dataset, f, device, fitter.uses_keypoints()), zero);
     body::SmplxPose p = corrected_pose(record.pose, r.correction.cpu());
     fitted.frames[size_t(f)].pose = p;
     if (!progress) continue;

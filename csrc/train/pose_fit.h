@@ -22,13 +22,12 @@
 
 #include <ATen/core/Tensor.h>
 
-#include "common/constants.h"
-
 #include "body/wholebody_keypoints.h"
+#include "common/constants.h"
 #include "data/dataset.h"
-#include "fit/fit_losses.h"
 #include "model/avatar.h"
 #include "splat/splat.h"
+#include "train/avatar_keypoints.h"
 #include "train/losses.h"
 #include "train/pose_refinement.h"
 #include "train/train_config.h"
@@ -52,9 +51,10 @@ struct PoseFitTarget {
   at::Tensor mask;   // (H, W)
   Camera camera;
   std::optional<double> time;
-  fit::KeypointObservations keypoints;  // the frame's detections; undefined pixels when it has none
+  FrameKeypoints keypoints;  // the frame's detections; undefined when it has none or they were not asked for
 };
-PoseFitTarget pose_fit_target(const data::Dataset& dataset, int64_t frame, at::Device device);
+// `with_keypoints`: read the frame's keypoint file, when it has one (only a fit with a keypoint term reads it).
+PoseFitTarget pose_fit_target(const data::Dataset& dataset, int64_t frame, at::Device device, bool with_keypoints);
 
 struct PoseFitResult {
   at::Tensor correction;            // (kCorrectionWidth), detached
@@ -69,6 +69,8 @@ class PoseFitter {
   PoseFitter(const PoseFitOptions& options, at::Device device, const body::WholeBodyKeypointMap* keypoint_map);
   PoseFitResult fit(model::Avatar& avatar, const body::SmplxPose& pose, const PoseFitTarget& target,
                     const at::Tensor& start) const;
+  // Whether fit() adds the keypoint term to a target with detections (a map was given and the weight is positive).
+  bool uses_keypoints() const { return keypoint_map_.has_value(); }
 
  private:
   PoseFitOptions options_;

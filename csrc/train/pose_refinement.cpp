@@ -114,8 +114,8 @@ PoseRefinement::PoseRefinement(const data::Dataset& dataset, const PoseRefinemen
   for (int64_t r = 0; r < rows; ++r) {
     const data::FrameRecord& record = dataset.frames[size_t(frames_[size_t(r)])];
     if (record.keypoints_path.empty()) continue;
-    keypoints_[size_t(r)] = observe_frame_keypoints(data::read_wholebody_keypoints(record.keypoints_path).to(device),
-                                                    render_camera(record));
+    keypoints_[size_t(r)] =
+        frame_keypoints(data::read_wholebody_keypoints(record.keypoints_path).to(device), render_camera(record));
     any = true;
   }
   if (any) keypoint_map_ = keypoint_map->to(device, at::kFloat);
@@ -124,14 +124,13 @@ PoseRefinement::PoseRefinement(const data::Dataset& dataset, const PoseRefinemen
 void PoseRefinement::add_keypoint_term(int64_t frame, int64_t iteration, const model::Avatar& avatar,
                                        const model::AvatarOutput& out, LossTerms& terms) const {
   if (!keypoint_map_) return;
-  const fit::KeypointObservations& observed = keypoints_[size_t(row_of(frame))];
-  if (iteration < start_iteration_ || !observed.pixels.defined()) {
+  const FrameKeypoints& keypoints = keypoints_[size_t(row_of(frame))];
+  if (iteration < start_iteration_ || !keypoints.defined()) {
     terms["pose_keypoints"] = at::zeros({}, base_.options());  // the same terms every step (the loss watch)
     return;
   }
   terms["pose_keypoints"] =
-      config_.keypoint_weight *
-      keypoint_reprojection_loss(*keypoint_map_, avatar, out, render_camera(dataset_.frames[size_t(frame)]), observed);
+      config_.keypoint_weight * keypoint_reprojection_loss(*keypoint_map_, avatar, out, keypoints);
 }
 
 int64_t PoseRefinement::row_of(int64_t frame) const {
@@ -195,7 +194,8 @@ nlohmann::json PoseRefinement::align(int64_t iteration, model::Avatar& avatar, c
   double before = 0, after = 0;
   for (size_t r = 0; r < frames_.size(); ++r) {
     const int64_t f = frames_[r];
-    const PoseFitResult fit = fitter.fit(avatar, dataset_.frames[size_t(f)].pose, pose_fit_target(dataset_, f, device),
+    const PoseFitResult fit = fitter.fit(avatar, dataset_.frames[size_t(f)].pose,
+                                         pose_fit_target(dataset_, f, device, fitter.uses_keypoints()),
                                          corrections_[int64_t(r)].detach().clone());
     at::NoGradGuard no_grad;
     corrections_[int64_t(r)].copy_(fit.correction);

@@ -24,8 +24,8 @@
 
 #include "body/wholebody_keypoints.h"
 #include "data/dataset.h"
-#include "fit/fit_losses.h"
 #include "model/avatar.h"
+#include "train/avatar_keypoints.h"
 #include "train/losses.h"
 #include "train/train_config.h"
 
@@ -89,7 +89,7 @@ class PoseRefinement {
   at::Tensor rates_;                       // (kCorrectionWidth) learning rate per column (rotations, translation)
   std::vector<int64_t> steps_;             // Adam steps taken per row
   std::optional<body::WholeBodyKeypointMap> keypoint_map_;  // on the device, float32; none: no keypoint term
-  std::vector<fit::KeypointObservations> keypoints_;        // per row; undefined pixels for a frame without any
+  std::vector<FrameKeypoints> keypoints_;                   // per row; undefined for a frame without any
 };
 
 // A copy of `frames`' poses replaced by the fits of a refined-fits JSON (PoseRefinement::write_fits) for the frames

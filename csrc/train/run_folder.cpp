@@ -34,12 +34,17 @@ model::AvatarOutput pose_avatar(model::Avatar& avatar, const data::Dataset& data
 body::SmplxPose clip_pose(model::Avatar& avatar, const data::MotionClip& clip, int64_t frame) {
   TORCH_CHECK(frame >= 0 && frame < static_cast<int64_t>(clip.poses.size()), "motion '", clip.source, "': frame ",
               frame, " is not in [0, ", clip.poses.size(), ")");
-  body::SmplxPose p = clip.poses[size_t(frame)];
-  const bool avatar_absolute = avatar->config().flat_hand_mean;
-  if (clip.absolute_hands != avatar_absolute) {
-    const double sign = clip.absolute_hands ? -1.0 : 1.0;
-    p.left_hand_pose = p.left_hand_pose + sign * avatar->hand_mean(body::Side::kLeft).cpu().to(at::kDouble);
-    p.right_hand_pose = p.right_hand_pose + sign * avatar->hand_mean(body::Side::kRight).cpu().to(at::kDouble);
+  return hands_for_avatar(avatar, clip.poses[size_t(frame)], clip.absolute_hands);
+}
+
+body::SmplxPose hands_for_avatar(const model::Avatar& avatar, body::SmplxPose p, bool absolute_hands) {
+  if (absolute_hands == avatar->config().flat_hand_mean) return p;
+  const double sign = absolute_hands ? -1.0 : 1.0;
+  for (const auto& [field, side] : {std::make_pair(&body::SmplxPose::left_hand_pose, body::Side::kLeft),
+                                    std::make_pair(&body::SmplxPose::right_hand_pose, body::Side::kRight)}) {
+    at::Tensor& hand = p.*field;
+    if (hand.defined())
+      hand = hand + sign * avatar->hand_mean(side).to(hand.device(), hand.scalar_type()).view_as(hand);
   }
   return p;
 }
@@ -69,8 +74,7 @@ TrainedAvatar load_trained_avatar(const RunFolder& run, at::Device device) {
 }
 
 data::Dataset read_run_dataset(const TrainedAvatar& trained, const std::string& folder) {
-  TORCH_CHECK(!folder.empty() || fs::is_directory(trained.dataset), "the run was trained on dataset '",
-              trained.dataset,
+  TORCH_CHECK(!folder.empty() || fs::is_directory(trained.dataset), "the run was trained on dataset '", trained.dataset,
               "', which is not there (moved, deleted, or a relative path from another working directory); give ",
               "the dataset's folder (--data; in Python, load_avatar(run, data=...))");
   data::Dataset dataset = data::read_dataset(folder.empty() ? trained.dataset : folder);

@@ -28,6 +28,9 @@ model::AvatarOutput pose_avatar(model::Avatar& avatar, const data::Dataset& data
 // Frame `frame` of a motion clip as `avatar` takes it: hand poses in the avatar's convention (relative to the model's
 // mean hand when the avatar adds that mean, absolute otherwise); the avatar poses it without a time.
 body::SmplxPose clip_pose(model::Avatar& avatar, const data::MotionClip& clip, int64_t frame);
+// `pose` with its hand poses, given absolute (`absolute_hands`: relative to a flat hand, as the motion library and
+// AMASS give them) or relative to the model's mean hand, in the avatar's convention.
+body::SmplxPose hands_for_avatar(const model::Avatar& avatar, body::SmplxPose pose, bool absolute_hands);
 // The camera to render that frame with (identity extrinsics for poses given in camera coordinates).
 Camera render_camera(const data::FrameRecord& frame);
 
@@ -38,7 +41,7 @@ struct TrainedAvatar {
   std::string dataset;  // the folder it was trained on (absolute, for runs trained by this version)
   int64_t iteration = 0;
   std::string dataset_fingerprint;  // data::Dataset::fingerprint() of it (empty for runs of the first format)
-  std::string refined_fits;  // the run's refined-fits file when it refined its poses; empty otherwise
+  std::string refined_fits;         // the run's refined-fits file when it refined its poses; empty otherwise
 };
 
 // Reads the run's checkpoint.pt and builds its avatar on `device`. The checkpoint is verified (checksums, finite

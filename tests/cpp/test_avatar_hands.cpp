@@ -12,8 +12,10 @@
 #include "body/procedural_body.h"
 #include "body/rotations.h"
 #include "body/skeleton.h"
+#include "data/motions.h"
 #include "model/avatar.h"
 #include "model/hand_residual.h"
+#include "train/run_folder.h"
 #include "test_avatar_utils.h"
 #include "test_body_utils.h"
 
@@ -44,6 +46,31 @@ BumpedHand bumped_right_hand() {
   right.v_template.select(1, 1).index_add_(0, b.bumped, at::full({20}, kBump, at::kDouble));
   right.shapedirs = at::zeros_like(right.shapedirs);
   return b;
+}
+
+// A motion's absolute hand poses (the library's, AMASS's) reach an avatar in its own convention: an avatar that adds
+// the body's mean hand (the default) and one that takes absolute hands pose the same fingers; poses relative to the
+// mean reach the absolute one with the mean added back. The built-in body's mean hand is not zero.
+TEST(AvatarHands, AbsoluteHandPosesArePutInTheAvatarsConvention) {
+  const model::AvatarBody body = procedural_avatar_body();
+  ASSERT_GT(body.smplx.hands_mean_left.abs().max().item<double>(), 0.05);
+  model::AvatarConfig relative = small_config(), absolute = small_config();
+  absolute.flat_hand_mean = true;
+  const at::Tensor betas = at::zeros({10});
+  torch::manual_seed(3);
+  model::Avatar a(body, betas, relative);
+  torch::manual_seed(3);
+  model::Avatar b(body, betas, absolute);
+  const body::SmplxPose wave = data::motion_pose("wave", 0.5, relative.num_expression_coeffs);
+  at::NoGradGuard no_grad;
+  const auto fingers = [](model::Avatar& avatar, const body::SmplxPose& pose) {
+    return avatar->forward(pose, std::nullopt).posed_vertices;
+  };
+  const at::Tensor expected = fingers(b, train::hands_for_avatar(b, wave, true));
+  EXPECT_LT((fingers(a, train::hands_for_avatar(a, wave, true)) - expected).abs().max().item<double>(), 1e-5);
+  EXPECT_GT((fingers(a, wave) - expected).abs().max().item<double>(), 1e-3) << "unconverted, the mean is added twice";
+  const body::SmplxPose to_mean = train::hands_for_avatar(a, wave, true);
+  EXPECT_LT((fingers(b, train::hands_for_avatar(b, to_mean, false)) - expected).abs().max().item<double>(), 1e-5);
 }
 
 TEST(AvatarHands, ResidualIsMANOMinusSMPLXInTheCanonicalFrame) {
@@ -95,7 +122,9 @@ TEST(AvatarHands, LeftShapedirsAreRepaired) {
   Avatar repaired(broken, subject_betas(), small_config());
   copy_parameters(*good, *repaired);
   const body::SmplxPose pose = test_pose(33, 0.5, true);
-  EXPECT_LT(max_abs_difference(good->forward(pose, kTestTime).hand_residual, repaired->forward(pose, kTestTime).hand_residual), 1e-6);
+  EXPECT_LT(max_abs_difference(good->forward(pose, kTestTime).hand_residual,
+                               repaired->forward(pose, kTestTime).hand_residual),
+            1e-6);
 }
 
 TEST(AvatarHands, LoadsTheOfficialFileLayouts) {

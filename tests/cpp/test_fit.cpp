@@ -153,6 +153,33 @@ TEST(FitAccuracy, MeasuresJointAndVertexErrorsAgainstTheReference) {
   EXPECT_LT(farther.mpjpe_mm + farther.vertex_error_mm, 1e-3) << "pelvis-aligned errors ignore the shift";
 }
 
+// One synthetic video written in both layouts: the NeuMan layout's fits (camera coordinates, hands relative to the
+// mean hand) measured against the sfgs layout's dataset.json (world coordinates, the same hand convention) are the
+// same body, frame by frame: the reference reads the sfgs layout's hands as sfgs synth writes them.
+TEST(FitAccuracy, AnSfgsDatasetsFitsAreTheSameBodyAsItsNeumanTwin) {
+  testing::TempFolder folder;
+  data::SyntheticVideoOptions o;
+  o.frames = 3;
+  o.width = o.height = 48;
+  const data::Dataset sfgs = data::write_synthetic_video(folder / "sfgs", o);
+  o.layout = data::DatasetLayout::kNeuman;
+  const data::Dataset neuman = data::write_synthetic_video(folder / "neuman", o);
+  const std::optional<ReferenceFits> reference = find_reference_fits(folder / "sfgs", "");
+  ASSERT_TRUE(reference.has_value());
+  std::map<int64_t, body::SmplxPose> fits;
+  for (int64_t i = 0; i < neuman.size(); ++i) fits[i] = neuman.frames[size_t(i)].pose;
+  const FitAccuracy a = measure_accuracy(testing::procedural_body().smplx, fits, neuman.betas, *reference);
+  EXPECT_EQ(a.frames, 3);
+  EXPECT_LT(a.mpjpe_absolute_mm + a.hand_mpjpe_mm + a.vertex_error_absolute_mm, 0.1)
+      << "hands " << a.hand_mpjpe_mm << " mm, vertices " << a.vertex_error_absolute_mm << " mm";
+  EXPECT_EQ(std::filesystem::path(sfgs.frames[1].keypoints_path),
+            std::filesystem::path(folder / "sfgs") / "keypoints_whole_body" / "1.json")
+      << "dataset.json lists each frame's keypoint file";
+  EXPECT_EQ(std::filesystem::path(neuman.frames[1].keypoints_path),
+            std::filesystem::path(folder / "neuman") / "keypoints_whole_body" / "1.json")
+      << "the NeuMan reader finds keypoints_whole_body/<frame number>.json";
+}
+
 TEST(FitSmplx, RecoversAKnownPoseFromExactKeypoints) {
   const body::SmplxModelData& model = testing::procedural_body().smplx;
   const body::WholeBodyKeypointMap map = body::WholeBodyKeypointMap::build(model, {});

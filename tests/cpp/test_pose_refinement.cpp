@@ -289,7 +289,7 @@ TEST(TrainPoseFitting, StaysAtTheExactPoseAndNeverEndsWorseThanItsStart) {
   model::Avatar avatar = render_frames_with_avatar(dataset, {f});
   const train::PoseFitter fitter(fit_options(30), at::kCPU, nullptr);
   const body::SmplxPose& truth = dataset.frames[size_t(f)].pose;
-  const train::PoseFitTarget target = train::pose_fit_target(dataset, f, at::kCPU);
+  const train::PoseFitTarget target = train::pose_fit_target(dataset, f, at::kCPU, false);
   const train::PoseFitResult exact = fitter.fit(avatar, truth, target, at::zeros({kCorrectionWidth}));
   EXPECT_LE(exact.loss, exact.start_loss);
   const train::PoseError e = train::pose_error(train::corrected_pose(truth, exact.correction), truth);
@@ -309,7 +309,9 @@ TEST(TrainPoseFitting, StaysAtTheExactPoseAndNeverEndsWorseThanItsStart) {
 TEST(TrainPoseFitting, AvatarKeypointsReprojectOntoExactDetections) {
   TempFolder folder;
   const data::Dataset dataset = video_with_exact_keypoints(folder, 4, 96);
-  model::Avatar avatar(procedural_avatar_body(), dataset.betas, small_config());
+  model::AvatarConfig config = small_config();
+  config.subdivision_levels = 1;  // the model's vertices are the first of the subdivided mesh's points
+  model::Avatar avatar(procedural_avatar_body(), dataset.betas, config);
   const body::WholeBodyKeypointMap map = train::body_keypoint_map("");
   for (int64_t f = 0; f < dataset.size(); ++f) {
     const data::FrameRecord& record = dataset.frames[size_t(f)];
@@ -318,7 +320,8 @@ TEST(TrainPoseFitting, AvatarKeypointsReprojectOntoExactDetections) {
     const Camera camera = train::render_camera(record);
     at::NoGradGuard no_grad;
     const model::AvatarOutput out = avatar->forward(record.pose, dataset.replay_time(f));
-    const at::Tensor points = train::avatar_camera_keypoints(map, avatar, out, camera);
+    const train::FrameKeypoints keypoints = train::frame_keypoints(detections, camera);
+    const at::Tensor points = train::avatar_camera_keypoints(map, avatar, out, keypoints.world_to_camera);
     const at::Tensor pixels =
         points.narrow(1, 0, 2) / points.narrow(1, 2, 1) * at::tensor({camera.fx, camera.fy}, at::kFloat) +
         at::tensor({camera.cx, camera.cy}, at::kFloat);
@@ -326,15 +329,14 @@ TEST(TrainPoseFitting, AvatarKeypointsReprojectOntoExactDetections) {
     ASSERT_GT(seen.sum().item<int64_t>(), 100) << "most keypoints lie in the image";
     const at::Tensor error = (pixels - detections.narrow(1, 0, 2)).norm(2, 1).masked_select(seen);
     EXPECT_LT(error.max().item<double>(), 0.05) << "frame " << f << ": pixels (files hold 1/100 px)";
-    const at::Tensor loss =
-        train::keypoint_reprojection_loss(map, avatar, out, camera, train::observe_frame_keypoints(detections, camera));
-    EXPECT_LT(loss.item<double>(), 1e-6);
+    EXPECT_LT(train::keypoint_reprojection_loss(map, avatar, out, keypoints).item<double>(), 1e-6);
   }
-  expect_error(
-      [&] {
-        train::observe_frame_keypoints(at::zeros({17, 3}), train::render_camera(dataset.frames[0]));
-      },
-      {"(133, 3)", "[17, 3]"});
+  const Camera camera = train::render_camera(dataset.frames[0]);
+  expect_error([&] { train::frame_keypoints(at::zeros({17, 3}), camera); }, {"(133, 3)", "[17, 3]"});
+  at::NoGradGuard no_grad;
+  const model::AvatarOutput out = avatar->forward(dataset.frames[0].pose, dataset.replay_time(0));
+  expect_error([&] { train::keypoint_reprojection_loss(map, avatar, out, train::FrameKeypoints{}); },
+               {"no detections"});
 }
 
 // Where the image alone trades the body's placement against its joints (on this random-parameter avatar it turns a

@@ -82,3 +82,36 @@ def test_bad_options_and_keypoint_files_are_clear_errors(video, tmp_path):
     result = sfgs_run("fit", "--data", str(broken), "--out", str(tmp_path / "z"))
     assert result.returncode != 0
     assert "2.json" in result.stderr and "expected 133 keypoints" in result.stderr
+
+
+def test_refinement_and_test_time_fitting_anchor_on_the_keypoints(video, tmp_path):
+    config = tmp_path / "refine.yaml"
+    config.write_text(TINY.replace("iterations: 1,", "iterations: 2,") +
+                      "pose_refinement: {enabled: true, start: 0, align_at: [], keypoint_weight: 2}\n")
+    run = str(tmp_path / "run")
+    result = sfgs_run("train", "--data", video, "--out", run, "--config", str(config), "--quiet")
+    assert result.returncode == 0, result.stderr
+    steps = [json.loads(line) for line in open(os.path.join(run, "log.jsonl")) if '"step"' in line]
+    assert steps and all(s["terms"]["pose_keypoints"] > 0 for s in steps if "terms" in s), steps[:1]
+
+    # The four-frame video has no test frames: its training frames are fitted instead.
+    fit = ["--split", "train", "--fit-test-poses", "--fit-iterations", "3"]
+    result = sfgs_run("eval", "--run", run, *fit)
+    assert result.returncode == 0, result.stderr
+    fitted = json.load(open(os.path.join(run, "metrics_fitted_poses.json")))
+    frames = fitted["frames"]
+    assert frames > 0 and f"anchored on whole-body keypoints: {frames} of {frames} frames" in result.stdout
+    assert fitted["pose_fitting"] == {"iterations": 3, "keypoint_weight": 1.0, "frames_with_keypoints": frames}
+
+    # Without the term the files are not read: a broken one does not stop the image-only protocol.
+    broken = tmp_path / "broken"
+    shutil.copytree(video, broken)
+    for name in os.listdir(broken / "keypoints_whole_body"):
+        (broken / "keypoints_whole_body" / name).write_text("[]")
+    result = sfgs_run("eval", "--run", run, "--data", str(broken), *fit, "--fit-keypoint-weight", "0")
+    assert result.returncode == 0, result.stderr
+    assert "anchored on whole-body keypoints: no (--fit-keypoint-weight 0)" in result.stdout
+    result = sfgs_run("eval", "--run", run, "--data", str(broken), *fit)
+    assert result.returncode != 0 and "expected 133 keypoints" in result.stderr, result.stderr
+    result = sfgs_run("eval", "--run", run, *fit, "--fit-keypoint-weight", "-1")
+    assert result.returncode != 0 and "fit-keypoint-weight" in result.stderr, result.stderr
