@@ -123,6 +123,10 @@ void cut_mano_hands(ProceduralBody& out, const procedural::HandPoseSpace& hand_p
 
 }  // namespace
 
+SmplxModelData smplx_model_or_procedural(const std::string& path) {
+  return path.empty() ? make_procedural_body().smplx : SmplxModelData::load(path);
+}
+
 ProceduralBody make_procedural_body() {
   const procedural::CageBuild build = procedural::build_cage();
   const Smoothed body = procedural::smooth(build.cage);

@@ -26,6 +26,10 @@ struct ProceduralBody {
 // Deterministic: every call returns the same body (a few hundred milliseconds).
 ProceduralBody make_procedural_body();
 
+// The SMPL-X-layout model of the .npz at `path`, or the built-in procedural body's when the path is empty (how every
+// command names its body: synth --body, fit --body, a run's body.smplx).
+SmplxModelData smplx_model_or_procedural(const std::string& path);
+
 // Writes the body in the official on-disk formats: procedural_smplx.npz, procedural_mano_{left,right}.npz,
 // procedural_MANO_SMPLX_vertex_ids.npz and procedural_face_vertex_ids.npy.
 void write_procedural_body(const ProceduralBody& body, const std::string& folder, bool overwrite);

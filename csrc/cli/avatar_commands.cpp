@@ -1,5 +1,4 @@
 // Commands that use a trained avatar: `sfgs eval` and `sfgs render` (views in novel poses, PNG and MP4).
-#include <algorithm>
 #include <array>
 #include <chrono>
 #include <cmath>
@@ -144,14 +143,14 @@ int run_eval(Arguments& args) {
   std::printf("sfgs eval: fitting each frame's pose to its image (%lld iterations, the avatar frozen)\n",
               (long long)fit.iterations);
   fit.loss = t.config.loss;
-  const auto& frames = dataset.split(split);
-  const int64_t with_keypoints = std::count_if(
-      frames.begin(), frames.end(), [&](int64_t f) { return !dataset.frames[size_t(f)].keypoints_path.empty(); });
+  const int64_t with_keypoints = dataset.frames_with_keypoints(split);
   const bool anchored = fit.keypoint_weight > 0 && with_keypoints > 0;
-  std::printf("  anchored on whole-body keypoints: %s\n",
-              anchored ? (std::to_string(with_keypoints) + " of " + std::to_string(frames.size()) + " frames").c_str()
-                       : (fit.keypoint_weight > 0 ? "none (no frame of the split has a keypoint file)"
-                                                  : "no (--fit-keypoint-weight 0)"));
+  std::printf(
+      "  anchored on whole-body keypoints: %s\n",
+      anchored
+          ? (std::to_string(with_keypoints) + " of " + std::to_string(dataset.split(split).size()) + " frames").c_str()
+          : (fit.keypoint_weight > 0 ? "none (no frame of the split has a keypoint file)"
+                                     : "no (--fit-keypoint-weight 0)"));
   const std::optional<body::WholeBodyKeypointMap> keypoint_map =
       anchored ? std::optional(train::body_keypoint_map(t.config.body.smplx)) : std::nullopt;
   const data::Dataset fitted =

@@ -105,6 +105,12 @@ const std::vector<int64_t>& Dataset::split(Split s) const {
   return it == splits.end() ? empty : it->second;
 }
 
+int64_t Dataset::frames_with_keypoints(Split s) const {
+  const std::vector<int64_t>& indices = split(s);
+  return std::count_if(indices.begin(), indices.end(),
+                       [&](int64_t f) { return !frames[size_t(f)].keypoints_path.empty(); });
+}
+
 Frame Dataset::load(int64_t index) const {
   TORCH_CHECK(index >= 0 && index < size(), "Dataset::load: frame ", index, " out of range [0, ", size(), ")");
   const FrameRecord& r = frames[size_t(index)];

@@ -61,6 +61,8 @@ class Dataset {
 
   int64_t size() const { return int64_t(frames.size()); }
   const std::vector<int64_t>& split(Split s) const;
+  // How many frames of the split have a keypoint file (FrameRecord::keypoints_path).
+  int64_t frames_with_keypoints(Split s) const;
   // Reads the frame's image and masks; errors name the file.
   Frame load(int64_t index) const;
   // The frame's time on the avatar's time axis (model/frame_time.h) when the frame replays what training saw: its

@@ -97,12 +97,6 @@ at::Tensor generated_texture() {
 
 namespace {
 
-// The body model the video is posed with.
-body::SmplxModelData synthetic_body_model(const SyntheticVideoOptions& options) {
-  return options.body_model.empty() ? body::make_procedural_body().smplx
-                                    : body::SmplxModelData::load(options.body_model);
-}
-
 // Its layer (axis-angle hands: the motion gives the hands' rotations).
 body::Smplx synthetic_body_layer(const body::SmplxModelData& model) {
   body::SmplxOptions layer_options;
@@ -239,7 +233,7 @@ Dataset write_synthetic_video(const std::string& folder, const SyntheticVideoOpt
   for (const char* sub : {"images", "masks", kKeypointFolder}) fs::create_directories(fs::path(folder) / sub);
   if (sfgs_layout) fs::create_directories(fs::path(folder) / "meshes");
 
-  const body::SmplxModelData model = synthetic_body_model(options);
+  const body::SmplxModelData model = body::smplx_model_or_procedural(options.body_model);
   const body::Smplx smplx = synthetic_body_layer(model);
   const body::WholeBodyKeypointMap keypoint_map = body::wholebody_keypoint_map(model, options.body_model);
   at::Generator gen = at::make_generator<at::CPUGeneratorImpl>(options.seed);

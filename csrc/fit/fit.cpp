@@ -87,8 +87,7 @@ FitReport run_fit(const FitOptions& options) {
   TORCH_CHECK(options.overwrite || !fs::exists(fits), "sfgs fit: '", fits.string(),
               "' exists; pass --force to replace it, or --out another folder");
   const FitInput input = read_fit_input(options.data, options.focal);
-  const body::SmplxModelData model =
-      options.body_model.empty() ? body::make_procedural_body().smplx : body::SmplxModelData::load(options.body_model);
+  const body::SmplxModelData model = body::smplx_model_or_procedural(options.body_model);
   const body::WholeBodyKeypointMap keypoint_map = body::wholebody_keypoint_map(model, options.body_model);
   fs::create_directories(out);
   std::ofstream log((fs::path(out) / kLogFile).string(), std::ios::trunc);

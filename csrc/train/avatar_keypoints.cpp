@@ -10,9 +10,7 @@
 namespace sfgs::train {
 
 body::WholeBodyKeypointMap body_keypoint_map(const std::string& smplx_path) {
-  const body::SmplxModelData model =
-      smplx_path.empty() ? body::make_procedural_body().smplx : body::SmplxModelData::load(smplx_path);
-  return body::wholebody_keypoint_map(model, smplx_path);
+  return body::wholebody_keypoint_map(body::smplx_model_or_procedural(smplx_path), smplx_path);
 }
 
 FrameKeypoints frame_keypoints(const at::Tensor& detections, const Camera& camera) {

@@ -194,9 +194,11 @@ nlohmann::json PoseRefinement::align(int64_t iteration, model::Avatar& avatar, c
   double before = 0, after = 0;
   for (size_t r = 0; r < frames_.size(); ++r) {
     const int64_t f = frames_[r];
-    const PoseFitResult fit = fitter.fit(avatar, dataset_.frames[size_t(f)].pose,
-                                         pose_fit_target(dataset_, f, device, fitter.uses_keypoints()),
-                                         corrections_[int64_t(r)].detach().clone());
+    // The frame's detections as the constructor read them (a pass reads no keypoint file).
+    PoseFitTarget target = pose_fit_target(dataset_, f, device, false);
+    if (keypoint_map_) target.keypoints = keypoints_[r];
+    const PoseFitResult fit =
+        fitter.fit(avatar, dataset_.frames[size_t(f)].pose, target, corrections_[int64_t(r)].detach().clone());
     at::NoGradGuard no_grad;
     corrections_[int64_t(r)].copy_(fit.correction);
     exp_avg_[int64_t(r)].zero_();

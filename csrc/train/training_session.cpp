@@ -65,10 +65,8 @@ TrainingSession::TrainingSession(const data::Dataset& dataset, const TrainConfig
   frames_ = std::make_unique<FrameCache>(dataset, dataset.split(data::Split::kTrain), device_.is_cuda());
   step_ = std::make_unique<TrainingStep>(avatar_, *image_loss_, *regularisers_);
   if (config.pose_refinement.enabled) {
-    const auto& frames = dataset.split(data::Split::kTrain);
-    const bool keypoints = config.pose_refinement.keypoint_weight > 0 &&
-                           std::any_of(frames.begin(), frames.end(),
-                                       [&](int64_t f) { return !dataset.frames[size_t(f)].keypoints_path.empty(); });
+    const bool keypoints =
+        config.pose_refinement.keypoint_weight > 0 && dataset.frames_with_keypoints(data::Split::kTrain) > 0;
     const std::optional<body::WholeBodyKeypointMap> map =
         keypoints ? std::optional(body_keypoint_map(config.body.smplx)) : std::nullopt;
     refinement_ = std::make_unique<PoseRefinement>(dataset, config.pose_refinement, config.schedule.iterations, device_,
