@@ -243,6 +243,22 @@ body::SmplxPose perturbed(const body::SmplxPose& truth, float turn, float hips, 
   return p;
 }
 
+// The first test frame of `dataset` as the target of a fit: rendered by a random-parameter avatar (returned), its
+// fit turned by 0.1 rad, its hips bent by 0.15 rad and shifted 4 cm sideways; the exact fit is returned beside it.
+struct PerturbedFrame {
+  int64_t frame;
+  model::Avatar avatar;
+  body::SmplxPose truth;
+};
+PerturbedFrame perturbed_test_frame(data::Dataset& dataset) {
+  const int64_t f = dataset.split(data::Split::kTest)[0];
+  model::Avatar avatar = render_frames_with_avatar(dataset, {f});
+  data::FrameRecord& record = dataset.frames[size_t(f)];
+  const body::SmplxPose truth = record.pose;
+  record.pose = perturbed(truth, 0.1f, 0.15f, 0.04f, 0.0f);
+  return {f, avatar, truth};
+}
+
 train::PoseFitOptions fit_options(int64_t iterations) {
   train::PoseFitOptions options;
   options.iterations = iterations;
@@ -257,11 +273,11 @@ train::PoseFitOptions fit_options(int64_t iterations) {
 TEST(TrainPoseFitting, LowersTheImageErrorOfAPerturbedPose) {
   TempFolder folder;
   data::Dataset dataset = tiny_video(folder, 10, 128);
-  const int64_t f = dataset.split(data::Split::kTest)[0];
-  model::Avatar avatar = render_frames_with_avatar(dataset, {f});
-  data::FrameRecord& record = dataset.frames[size_t(f)];
-  const body::SmplxPose truth = record.pose;
-  record.pose = perturbed(truth, 0.1f, 0.15f, 0.04f, 0.0f);
+  PerturbedFrame setup = perturbed_test_frame(dataset);
+  const int64_t f = setup.frame;
+  model::Avatar& avatar = setup.avatar;
+  const body::SmplxPose& truth = setup.truth;
+  const data::FrameRecord& record = dataset.frames[size_t(f)];
   const data::Dataset fitted = train::fit_poses(dataset, data::Split::kTest, avatar, fit_options(60), nullptr, false);
   const train::PoseError before = train::pose_error(record.pose, truth),
                          after = train::pose_error(fitted.frames[size_t(f)].pose, truth);
@@ -346,11 +362,11 @@ TEST(TrainPoseFitting, AvatarKeypointsReprojectOntoExactDetections) {
 TEST(TrainPoseFitting, KeypointsPinThePlacementTheImageTradesAway) {
   TempFolder folder;
   data::Dataset dataset = video_with_exact_keypoints(folder, 10, 128);
-  const int64_t f = dataset.split(data::Split::kTest)[0];
-  model::Avatar avatar = render_frames_with_avatar(dataset, {f});
-  data::FrameRecord& record = dataset.frames[size_t(f)];
-  const body::SmplxPose truth = record.pose;
-  record.pose = perturbed(truth, 0.1f, 0.15f, 0.04f, 0.0f);
+  PerturbedFrame setup = perturbed_test_frame(dataset);
+  const int64_t f = setup.frame;
+  model::Avatar& avatar = setup.avatar;
+  const body::SmplxPose& truth = setup.truth;
+  const data::FrameRecord& record = dataset.frames[size_t(f)];
   const body::WholeBodyKeypointMap map = train::body_keypoint_map("");
   const auto fitted_error = [&](const body::WholeBodyKeypointMap* keypoints) {
     const data::Dataset fitted =
