@@ -140,7 +140,7 @@ int run_eval(Arguments& args) {
               group_lines(e).c_str());
   if (!fit_poses) return 0;
   // The NeuMan protocol's test-time pose fitting, reported beside the plain protocol, never instead of it.
-  std::printf("sfgs eval: fitting each frame's pose to its image (%lld iterations, the avatar frozen)\n",
+  std::printf("sfgs eval: fitting each frame's pose to its image (%lld loss evaluations, the avatar frozen)\n",
               (long long)fit.iterations);
   fit.loss = t.config.loss;
   const int64_t with_keypoints = dataset.frames_with_keypoints(split);

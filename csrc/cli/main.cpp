@@ -47,7 +47,7 @@ commands:
            --no-observation-prior (trust every Gaussian's learned colour and offsets: the ablation)
            --fit-test-poses: also fit each frame's pose to its image with the avatar frozen (NeuMan protocol;
            coarse to fine, never ending worse than the given fit on its loss), reported separately
-           (metrics_fitted_poses.json)  --fit-iterations N (300)
+           (metrics_fitted_poses.json)  --fit-iterations N (300 loss evaluations)
            --fit-keypoint-weight W (1; 0: the image alone) of the frames' keypoints_whole_body/ detections
   render   novel poses to PNG frames and an MP4: --run RUN --out DIR  --frames N (48; a file: all of it)
            --motion MOTION|DATASET|FILE.npz|FOLDER (overhead; motions: sway walk wave overhead bend guard turn

@@ -186,27 +186,25 @@ inline constexpr double kMaxLearningRate = 1.0;
 inline constexpr double kPoseAdamBeta1 = 0.9;
 inline constexpr double kPoseAdamBeta2 = 0.999;
 inline constexpr double kPoseAdamEpsilon = 1e-8;
-// Iterations per frame of test-time fitting (`sfgs eval --fit-iterations`): anchored on keypoints, 300 measured 1.7 dB
-// above 100 on noisy Anny test fits (docs/results.md), 1,000 another 1.2 dB at 3.3 times the time.
+// Loss evaluations (a render and its gradient) per frame of test-time fitting (`sfgs eval --fit-iterations`): with
+// L-BFGS, exact-fit Anny avatar on medium-level test fits at 540 x 960, 300 reach 33.7 dB of the 34.9 exact test fits
+// give (docs/results.md, "L-BFGS"); 600 gave 33.0 at the earlier stage shares against 32.1-32.7 at 300, within the
+// runs' spread, at twice the time.
 inline constexpr long kPoseFitIterations = 300;
-// Fitting a pose to an image with the avatar frozen (train/pose_fit.h): three stages, each with a cosine-decayed
-// Adam whose rates follow from how far it may move the parameters (its reach, radians and metres), whatever the
-// iteration count. Coarse (the share kPoseFitCoarseShare of the iterations): the global orientation and translation
-// at 1/4 of the resolution (a 4 px blur widens the basin to the centimetres of an estimator's depth and lateral error,
-// on 16 x fewer pixels), reaching about the medium noise level (4 deg, 6 cm; docs/fitting.md): twice these reaches
-// measured 3.4 dB worse on noisy Anny test fits (the weakly seen depth drifts further). Middle: every joint at 1/2,
-// reaching past the medium level's 5 deg body errors. Fine: every joint at full resolution, the last centimetre and
-// degrees.
-inline constexpr double kPoseFitCoarseShare = 0.3;
+// Fitting a pose to an image with the avatar frozen (train/pose_fit.h): L-BFGS with a strong-Wolfe line search in
+// three stages, each a share of the evaluations. Coarse: the global orientation and translation at 1/4 of the
+// resolution (a 4 px blur widens the basin to the centimetres of an estimator's depth and lateral error, on 16 x fewer
+// pixels); middle: every joint at 1/2; fine: every joint at full resolution. L-BFGS converges where the image is
+// sharp, so most of the budget goes to the fine stage: shares of 0.3 / 0.3 measured 1-1.6 dB below 0.05 / 0.1 on the
+// benchmark above, and with keypoints the coarse stages could go (33.8 dB without them), but without keypoints they
+// are what reaches a far start.
+inline constexpr double kPoseFitCoarseShare = 0.05;
 inline constexpr long kPoseFitCoarseDownsample = 4;
-inline constexpr double kPoseFitCoarseRotationReach = 0.05;
-inline constexpr double kPoseFitCoarseTranslationReach = 0.07;
-inline constexpr double kPoseFitMiddleShare = 0.3;
+inline constexpr double kPoseFitMiddleShare = 0.1;
 inline constexpr long kPoseFitMiddleDownsample = 2;
-inline constexpr double kPoseFitMiddleRotationReach = 0.1;
-inline constexpr double kPoseFitMiddleTranslationReach = 0.04;
-inline constexpr double kPoseFitFineRotationReach = 0.05;
-inline constexpr double kPoseFitFineTranslationReach = 0.02;
+// Curvature pairs L-BFGS keeps: enough to model how the 53 corrected rotations couple along the kinematic chain
+// (what Adam, moving each number on its own, could not resolve: 29.4 dB on the benchmark above).
+inline constexpr long kPoseFitHistory = 20;
 // Weight of the silhouette term, the mean |alpha - person mask|, beside the image L1 of the downsampled stages: a
 // share of misplaced pixels weighs about as much as the image error over them, and it pulls where the image is flat
 // (white on white). The fine stage's is lighter: there the image inside the person decides, and the avatar's own
@@ -214,8 +212,9 @@ inline constexpr double kPoseFitFineTranslationReach = 0.02;
 inline constexpr double kPoseFitSilhouetteWeight = 1.0;
 inline constexpr double kPoseFitFineSilhouetteWeight = 0.1;
 // Weight of the whole-body keypoint reprojection term (train/avatar_keypoints.h) beside every stage's image loss when
-// the frame has detections: the image alone trades the body's placement against its joints, the detections pin
-// both. At the robust term's scale a body within a detector's noise costs about 0.01.
+// the frame has detections: they pull a far start into the image's basin and pin the placement a frontal image sees
+// poorly (with L-BFGS, 32.1-32.7 dB against 31.8 for the image alone; docs/results.md). At the robust term's scale a
+// body within a detector's noise costs about 0.01.
 inline constexpr double kPoseFitKeypointWeight = 1.0;
 inline constexpr double kMaxLossWeight = 1e9;
 inline constexpr long kMaxIterations = 100000000;

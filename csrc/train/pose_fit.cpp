@@ -7,7 +7,7 @@
 #include <string>
 
 #include <ATen/ATen.h>
-#include <torch/csrc/autograd/autograd.h>
+#include <torch/optim/lbfgs.h>
 
 #include "body/rotations.h"
 #include "common/constants.h"
@@ -39,21 +39,21 @@ Camera downsampled(const Camera& camera, int64_t factor) {
   return c;
 }
 
-// One stage of a fit: its share of the iterations, resolution, which correction columns move and how far they can
-// reach, and its loss.
+// One stage of a fit: its share of the evaluations, resolution, which correction columns move, and its loss.
 struct StageSpec {
   double share;
   int64_t downsample;
   bool all_columns;  // else the global orientation and the translation alone
-  double rotation_reach, translation_reach;
-  bool run_loss;  // the run's image loss inside the person (else L1 of the whole image) plus the silhouette
+  bool run_loss;     // the run's image loss inside the person (else L1 of the whole image) plus the silhouette
 };
-const std::array<StageSpec, 3> kStages{{{kPoseFitCoarseShare, kPoseFitCoarseDownsample, false,
-                                         kPoseFitCoarseRotationReach, kPoseFitCoarseTranslationReach, false},
-                                        {kPoseFitMiddleShare, kPoseFitMiddleDownsample, true,
-                                         kPoseFitMiddleRotationReach, kPoseFitMiddleTranslationReach, false},
-                                        {1 - kPoseFitCoarseShare - kPoseFitMiddleShare, 1, true,
-                                         kPoseFitFineRotationReach, kPoseFitFineTranslationReach, true}}};
+const std::array<StageSpec, 3> kStages{{{kPoseFitCoarseShare, kPoseFitCoarseDownsample, false, false},
+                                        {kPoseFitMiddleShare, kPoseFitMiddleDownsample, true, false},
+                                        {1 - kPoseFitCoarseShare - kPoseFitMiddleShare, 1, true, true}}};
+
+// Thrown by a stage's loss when its evaluations are spent or the loss is not finite: ends the stage's L-BFGS run
+// where it stands (the stage keeps its best iterate), so a fit costs exactly its evaluations and a NaN from a wild
+// line-search trial never becomes an iterate.
+struct StageEnded {};
 
 }  // namespace
 
@@ -134,34 +134,43 @@ PoseFitResult PoseFitter::fit(model::Avatar& avatar, const body::SmplxPose& pose
     const int64_t end = s + 1 == kStages.size()
                             ? options_.iterations
                             : done + int64_t(std::llround(spec.share * double(options_.iterations)));
-    const int64_t iterations = end - done;
+    const int64_t evaluations = end - done;
     done = end;
-    if (iterations <= 0) continue;
-    // Adam moves a parameter by about its rate per step, so a cosine from `rate` covers rate * iterations / 2.
-    const double per_step = 2.0 / double(iterations);
-    const bool all_columns = spec.all_columns && !options_.global_only;
-    at::Tensor rates = at::full({kCorrectionWidth}, all_columns ? spec.rotation_reach * per_step : 0.0, options);
-    rates.narrow(0, 0, 3).fill_(spec.rotation_reach * per_step);
-    rates.narrow(0, kCorrectionWidth - 3, 3).fill_(spec.translation_reach * per_step);
+    if (evaluations <= 0) continue;
+    // L-BFGS models how the joints' corrections couple along the kinematic chain (a turned root and a twisted spine
+    // move the same pixels); its line search picks each step's length, so no rate needs tuning to the noise level.
+    at::Tensor moving = at::full({kCorrectionWidth}, spec.all_columns && !options_.global_only ? 1.0 : 0.0, options);
+    moving.narrow(0, 0, 3).fill_(1.0);
+    moving.narrow(0, kCorrectionWidth - 3, 3).fill_(1.0);
     at::Tensor correction = best.clone().requires_grad_(true);
-    at::Tensor m = at::zeros_like(best), v = at::zeros_like(best);
+    torch::optim::LBFGS optimizer({correction}, torch::optim::LBFGSOptions(1.0)
+                                                    .max_iter(evaluations)
+                                                    .max_eval(evaluations)
+                                                    .history_size(kPoseFitHistory)
+                                                    .tolerance_grad(0)
+                                                    .tolerance_change(0)
+                                                    .line_search_fn("strong_wolfe"));
     double best_loss = INFINITY;
-    for (int64_t it = 0; it < iterations; ++it) {
+    int64_t spent = 0;
+    const auto stage_loss = [&]() -> at::Tensor {
+      if (spent == evaluations) throw StageEnded{};
+      ++spent;
+      optimizer.zero_grad();
       const at::Tensor loss = loss_of(correction, spec);
-      const at::Tensor g = torch::autograd::grad({loss}, {correction})[0];
-      at::NoGradGuard no_grad;
       const double value = loss.item<double>();
+      if (!std::isfinite(value)) throw StageEnded{};
+      loss.backward();
+      at::NoGradGuard no_grad;
+      correction.mutable_grad().mul_(moving);  // a stage that moves the placement alone sees no joint gradient
       if (value < best_loss) {
         best_loss = value;
         best = correction.detach().clone();
       }
-      // Adam at a rate decaying from the stage's to zero (a cosine over the stage).
-      const int64_t t = it + 1;
-      m.mul_(kPoseAdamBeta1).add_(g, 1 - kPoseAdamBeta1);
-      v.mul_(kPoseAdamBeta2).addcmul_(g, g, 1 - kPoseAdamBeta2);
-      const double c1 = 1 - std::pow(kPoseAdamBeta1, double(t)), c2 = 1 - std::pow(kPoseAdamBeta2, double(t));
-      const double decay = 0.5 * (1 + std::cos(M_PI * double(it) / double(iterations)));
-      correction.sub_(rates * (decay / c1) * m / (v / c2).sqrt().add_(kPoseAdamEpsilon));
+      return loss.detach();
+    };
+    try {
+      optimizer.step(stage_loss);
+    } catch (const StageEnded&) {
     }
     if (s + 1 == kStages.size()) result.loss = best_loss;
   }

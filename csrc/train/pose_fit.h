@@ -3,17 +3,17 @@
 // protocol's test-time pose fitting (fit_poses) and the alignment of the training frames' fits in pose refinement
 // (PoseRefinement::align). Only the pose correction (train/pose_refinement.h) moves.
 //
-// Three stages, each from a fresh Adam whose rate decays to zero over the stage (a cosine), so the fit settles
-// instead of jittering every parameter by the rate; the rates follow from how far each stage may reach
-// (kPoseFit*Reach, common/constants.h), whatever the number of iterations:
+// Three stages, each a fresh L-BFGS with a strong-Wolfe line search over its share of the loss evaluations (a render
+// and its gradient; kPoseFit*Share, common/constants.h): the joints' corrections couple along the kinematic chain,
+// which a quasi-Newton model resolves and a per-number Adam does not (docs/results.md, "L-BFGS"):
 //  1. coarse: the global orientation and the translation alone, against the image and the person mask at
 //     1/kPoseFitCoarseDownsample of the resolution (a wide basin: centimetres of depth and lateral error);
 //  2. middle: every corrected field at 1/kPoseFitMiddleDownsample, the same loss;
 //  3. fine: every corrected field at full resolution, against the run's image loss inside the person (the
 //     evaluation protocol's view) plus a lighter silhouette term.
 // When the frame has whole-body keypoint detections (FrameRecord::keypoints_path) and the fitter a keypoint map, every
-// stage also minimises their robust reprojection error (train/avatar_keypoints.h), weighted by keypoint_weight: the
-// image alone trades the body's placement against its joints.
+// stage also minimises their robust reprojection error (train/avatar_keypoints.h), weighted by keypoint_weight: they
+// pull a far start into the image's basin and pin the placement a frontal image sees poorly.
 // Each stage keeps its best iterate, and the fit returns its start when nothing beat it on the fine loss: a fit is
 // never worse than its start on the loss it minimises.
 #include <cstdint>
@@ -35,7 +35,7 @@
 namespace sfgs::train {
 
 struct PoseFitOptions {
-  int64_t iterations = kPoseFitIterations;  // per frame, over the three stages
+  int64_t iterations = kPoseFitIterations;  // loss evaluations per frame, over the three stages
   LossWeights loss;                         // the image loss of the fine stage (regularisers are not used)
   // Only the global orientation and translation move in every stage (the alignment of training fits: an avatar
   // still learning is sharp enough to place the body, not to pose its joints).

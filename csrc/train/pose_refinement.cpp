@@ -108,6 +108,7 @@ PoseRefinement::PoseRefinement(const data::Dataset& dataset, const PoseRefinemen
   steps_.assign(size_t(rows), 0);
   for (const double share : config.align_at)
     align_iterations_.push_back(int64_t(std::ceil(share * double(iterations))));
+  align_joints_from_ = int64_t(std::ceil(config.align_joints_from * double(iterations)));
   if (!keypoint_map || config.keypoint_weight <= 0) return;
   keypoints_.resize(size_t(rows));
   bool any = false;
@@ -184,7 +185,7 @@ nlohmann::json PoseRefinement::align(int64_t iteration, model::Avatar& avatar, c
   PoseFitOptions options;
   options.iterations = config_.align_iterations;
   options.loss = loss;
-  options.global_only = true;
+  options.global_only = iteration < align_joints_from_;
   options.keypoint_weight = config_.keypoint_weight;
   const at::Device device = corrections_.device();
   const PoseFitter fitter(options, device, keypoint_map_ ? &*keypoint_map_ : nullptr);

@@ -80,6 +80,7 @@ class PoseRefinement {
   PoseRefinementConfig config_;
   int64_t start_iteration_;
   std::vector<int64_t> align_iterations_;  // the iterations of config.align_at
+  int64_t align_joints_from_;              // alignment passes from this iteration on fit every joint
   std::vector<int64_t> frames_;            // training frames, by sequence and time; row r corrects frames_[r]
   std::vector<int64_t> row_;               // dataset frame -> row, -1 for frames that are not trained on
   std::vector<int64_t> previous_, next_;   // row -> neighbouring row in its sequence, -1 at an end

@@ -133,6 +133,7 @@ std::vector<std::pair<std::string, Section>> sections(TrainConfig& c) {
         {"smoothness", field(p.smoothness)},
         {"align_at", field(p.align_at)},
         {"align_iterations", field(p.align_iterations)},
+        {"align_joints_from", field(p.align_joints_from)},
         {"keypoint_weight", field(p.keypoint_weight)}}},
   };
 }
@@ -296,6 +297,7 @@ void TrainConfig::validate() const {
                 "config: pose_refinement.align_at must rise strictly from pose_refinement.start (",
                 pose_refinement.start, ") to below 1, got ", align_at[i], " at position ", i);
   check_count(pose_refinement.align_iterations, 1, kMaxIterations, "pose_refinement.align_iterations");
+  check_range(pose_refinement.align_joints_from, 0, 1, "pose_refinement.align_joints_from");
 }
 
 std::vector<ConfigChange> config_changes(const TrainConfig& before, const TrainConfig& after) {

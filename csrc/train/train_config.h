@@ -68,8 +68,11 @@ struct PoseRefinementConfig {
   // Shares of the run at which every training frame's refined fit is aligned to its image with the avatar as it is
   // then (train/pose_fit.h, align_iterations each): centimetres the per-step corrections cannot cover. From
   // `start` on, rising.
-  std::vector<double> align_at{0.1};
+  std::vector<double> align_at{0.1, 0.5};
   int64_t align_iterations = 60;
+  // The alignment passes at or after this share of the run fit every joint as well (the avatar is sharp enough by
+  // then to pose them); the earlier ones the global orientation and translation alone.
+  double align_joints_from = 0.5;
   // Weight of the drawn frame's whole-body keypoint reprojection error (train/avatar_keypoints.h) where the training
   // frames have detections (keypoints_whole_body/), also in the alignment passes; 0: the image alone. Without it the
   // refined fits drift together out of the camera's frame and the avatar learns them in that drifted frame.
