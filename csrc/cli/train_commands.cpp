@@ -111,7 +111,9 @@ int run_train(Arguments& args) {
     const train::CheckpointReader checkpoint(run.checkpoint_file());
     const std::string own = fs::exists(run.config_file()) ? run.config_file() : "";
     const std::string file = args.text("config", own);
-    config = file.empty() ? checkpoint.info().config : train::TrainConfig::from_yaml_file(file);
+    config = file.empty()  ? checkpoint.info().config
+             : file == own ? train::TrainConfig::from_stored_yaml_file(own)  // written with the run, as its checkpoint
+                           : train::TrainConfig::from_yaml_file(file);
     apply_overrides(args, config);
     if (data_folder.empty()) {
       data_folder = checkpoint.info().dataset;

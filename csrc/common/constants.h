@@ -205,6 +205,9 @@ inline constexpr long kPoseFitMiddleDownsample = 2;
 // Curvature pairs L-BFGS keeps: enough to model how the 53 corrected rotations couple along the kinematic chain
 // (what Adam, moving each number on its own, could not resolve: 29.4 dB on the benchmark above).
 inline constexpr long kPoseFitHistory = 20;
+// Fewest evaluations a coarser stage runs with: one would render once and never step (its share goes to the fine
+// stage).
+inline constexpr long kPoseFitMinStageEvaluations = 2;
 // Weight of the silhouette term, the mean |alpha - person mask|, beside the image L1 of the downsampled stages: a
 // share of misplaced pixels weighs about as much as the image error over them, and it pulls where the image is flat
 // (white on white). The fine stage's is lighter: there the image inside the person decides, and the avatar's own

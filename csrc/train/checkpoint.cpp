@@ -152,7 +152,7 @@ CheckpointReader::CheckpointReader(const std::string& path) : path_(path) {
   if (info_.version >= 2)
     TORCH_CHECK(checksums_.value("betas", uint32_t(0)) == crc32_of(info_.betas), "checkpoint '", path,
                 "' is damaged: its betas do not match the checksum written with them");
-  info_.config = TrainConfig::from_yaml_text(tensor_string(read("config")), path + " (its config)");
+  info_.config = TrainConfig::from_stored_yaml_text(tensor_string(read("config")), path + " (its config)");
 }
 
 void CheckpointReader::load_avatar(model::Avatar& avatar) {

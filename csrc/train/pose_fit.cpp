@@ -7,6 +7,7 @@
 #include <string>
 
 #include <ATen/ATen.h>
+#include <torch/csrc/autograd/autograd.h>
 #include <torch/optim/lbfgs.h>
 
 #include "body/rotations.h"
@@ -51,8 +52,9 @@ const std::array<StageSpec, 3> kStages{{{kPoseFitCoarseShare, kPoseFitCoarseDown
                                         {1 - kPoseFitCoarseShare - kPoseFitMiddleShare, 1, true, true}}};
 
 // Thrown by a stage's loss when its evaluations are spent or the loss is not finite: ends the stage's L-BFGS run
-// where it stands (the stage keeps its best iterate), so a fit costs exactly its evaluations and a NaN from a wild
-// line-search trial never becomes an iterate.
+// where it stands (the stage keeps its best iterate), so a fit costs at most its evaluations (L-BFGS may also stop
+// early, at a zero gradient or a failed line search) and a NaN from a wild line-search trial never becomes an
+// iterate.
 struct StageEnded {};
 
 }  // namespace
@@ -131,12 +133,13 @@ PoseFitResult PoseFitter::fit(model::Avatar& avatar, const body::SmplxPose& pose
   int64_t done = 0;
   for (size_t s = 0; s < kStages.size(); ++s) {
     const StageSpec& spec = kStages[s];
-    const int64_t end = s + 1 == kStages.size()
-                            ? options_.iterations
-                            : done + int64_t(std::llround(spec.share * double(options_.iterations)));
+    const bool last = s + 1 == kStages.size();
+    const int64_t end =
+        last ? options_.iterations : done + int64_t(std::llround(spec.share * double(options_.iterations)));
     const int64_t evaluations = end - done;
+    // A coarser stage of one evaluation would render once and never step: its share goes to the fine stage.
+    if (evaluations <= 0 || (!last && evaluations < kPoseFitMinStageEvaluations)) continue;
     done = end;
-    if (evaluations <= 0) continue;
     // L-BFGS models how the joints' corrections couple along the kinematic chain (a turned root and a twisted spine
     // move the same pixels); its line search picks each step's length, so no rate needs tuning to the noise level.
     at::Tensor moving = at::full({kCorrectionWidth}, spec.all_columns && !options_.global_only ? 1.0 : 0.0, options);
@@ -155,13 +158,14 @@ PoseFitResult PoseFitter::fit(model::Avatar& avatar, const body::SmplxPose& pose
     const auto stage_loss = [&]() -> at::Tensor {
       if (spent == evaluations) throw StageEnded{};
       ++spent;
-      optimizer.zero_grad();
       const at::Tensor loss = loss_of(correction, spec);
       const double value = loss.item<double>();
       if (!std::isfinite(value)) throw StageEnded{};
-      loss.backward();
+      // The gradient of the correction alone (the frozen avatar's parameters accumulate none); a stage that moves
+      // the placement alone sees no joint gradient.
+      const at::Tensor gradient = torch::autograd::grad({loss}, {correction})[0];
       at::NoGradGuard no_grad;
-      correction.mutable_grad().mul_(moving);  // a stage that moves the placement alone sees no joint gradient
+      correction.mutable_grad() = gradient * moving;
       if (value < best_loss) {
         best_loss = value;
         best = correction.detach().clone();
@@ -172,7 +176,7 @@ PoseFitResult PoseFitter::fit(model::Avatar& avatar, const body::SmplxPose& pose
       optimizer.step(stage_loss);
     } catch (const StageEnded&) {
     }
-    if (s + 1 == kStages.size()) result.loss = best_loss;
+    if (last) result.loss = best_loss;
   }
   if (!(result.loss < result.start_loss)) {  // nothing beat the start
     best = start.detach().clone();

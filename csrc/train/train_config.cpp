@@ -140,8 +140,9 @@ std::vector<std::pair<std::string, Section>> sections(TrainConfig& c) {
 
 }  // namespace
 
-TrainConfig TrainConfig::from_yaml_text(const std::string& text, const std::string& source) {
-  TrainConfig c;
+namespace {
+// Reads `text` over `c` (keys it lacks keep c's values) and validates the result.
+TrainConfig read_yaml_over(TrainConfig c, const std::string& text, const std::string& source) {
   YAML::Node root;
   try {
     root = YAML::Load(text);
@@ -190,13 +191,34 @@ TrainConfig TrainConfig::from_yaml_text(const std::string& text, const std::stri
   }
   return c;
 }
+}  // namespace
 
-TrainConfig TrainConfig::from_yaml_file(const std::string& path) {
+TrainConfig TrainConfig::from_yaml_text(const std::string& text, const std::string& source) {
+  return read_yaml_over(TrainConfig{}, text, source);
+}
+
+TrainConfig TrainConfig::from_stored_yaml_text(const std::string& text, const std::string& source) {
+  TrainConfig before_the_keys;
+  before_the_keys.pose_refinement.align_at = {};
+  before_the_keys.pose_refinement.align_joints_from = 1.0;
+  before_the_keys.pose_refinement.keypoint_weight = 0.0;
+  return read_yaml_over(before_the_keys, text, source);
+}
+
+namespace {
+std::string config_text(const std::string& path) {
   std::ifstream in(path);
   TORCH_CHECK(in.good(), "cannot open config '", path, "'");
   std::stringstream text;
   text << in.rdbuf();
-  return from_yaml_text(text.str(), path);
+  return text.str();
+}
+}  // namespace
+
+TrainConfig TrainConfig::from_yaml_file(const std::string& path) { return from_yaml_text(config_text(path), path); }
+
+TrainConfig TrainConfig::from_stored_yaml_file(const std::string& path) {
+  return from_stored_yaml_text(config_text(path), path);
 }
 
 std::string TrainConfig::to_yaml() const {

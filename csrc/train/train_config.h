@@ -100,6 +100,11 @@ struct TrainConfig {
 
   static TrainConfig from_yaml_file(const std::string& path);
   static TrainConfig from_yaml_text(const std::string& text, const std::string& source = "<text>");
+  // A run's stored config (its checkpoint's, which lists every key of its time): a key it lacks did not exist when the
+  // run was made, so it takes the value that reproduces what the run did then, not today's default (a resumed run
+  // must not change its objective): no alignment passes, placement-only passes, no keypoint term.
+  static TrainConfig from_stored_yaml_text(const std::string& text, const std::string& source);
+  static TrainConfig from_stored_yaml_file(const std::string& path);  // a run folder's config.yaml
   std::string to_yaml() const;
   // Every value finite and in its range; errors name the key, the range and the value.
   void validate() const;
