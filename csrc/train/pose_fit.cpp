@@ -66,14 +66,18 @@ PoseFitTarget pose_fit_target(const data::Dataset& dataset, int64_t frame, at::D
   t.camera = render_camera(record);
   t.time = dataset.replay_time(frame);
   t.image = loaded.image.to(device);
-  if (with_keypoints && !record.keypoints_path.empty())
-    t.keypoints = frame_keypoints(data::read_wholebody_keypoints(record.keypoints_path).to(device), t.camera);
+  if (with_keypoints) t.keypoints = record_keypoints(record, device);
   if (!record.mask_path.empty()) {  // without a mask the whole image is the target and there is no silhouette
     t.mask = loaded.mask.to(device);
     const at::Tensor m = t.mask.unsqueeze(2);
     t.image = t.image * m + (1 - m);
   }
   return t;
+}
+
+FrameKeypoints record_keypoints(const data::FrameRecord& record, at::Device device) {
+  if (record.keypoints_path.empty()) return {};
+  return frame_keypoints(data::read_wholebody_keypoints(record.keypoints_path).to(device), render_camera(record));
 }
 
 PoseFitter::PoseFitter(const PoseFitOptions& options, at::Device device, const body::WholeBodyKeypointMap* keypoint_map)

@@ -55,6 +55,9 @@ struct PoseFitTarget {
 };
 // `with_keypoints`: read the frame's keypoint file, when it has one (only a fit with a keypoint term reads it).
 PoseFitTarget pose_fit_target(const data::Dataset& dataset, int64_t frame, at::Device device, bool with_keypoints);
+// The detections of `record`'s keypoint file on `device`, in the pixels of its render camera; undefined when the frame
+// has no keypoint file.
+FrameKeypoints record_keypoints(const data::FrameRecord& record, at::Device device);
 
 struct PoseFitResult {
   at::Tensor correction;            // (kCorrectionWidth), detached

@@ -12,7 +12,6 @@
 #include "common/atomic_file.h"
 #include "common/constants.h"
 #include "data/json_values.h"
-#include "data/keypoint_file.h"
 #include "train/avatar_keypoints.h"
 #include "train/pose_fit.h"
 #include "train/run_folder.h"
@@ -113,11 +112,8 @@ PoseRefinement::PoseRefinement(const data::Dataset& dataset, const PoseRefinemen
   keypoints_.resize(size_t(rows));
   bool any = false;
   for (int64_t r = 0; r < rows; ++r) {
-    const data::FrameRecord& record = dataset.frames[size_t(frames_[size_t(r)])];
-    if (record.keypoints_path.empty()) continue;
-    keypoints_[size_t(r)] =
-        frame_keypoints(data::read_wholebody_keypoints(record.keypoints_path).to(device), render_camera(record));
-    any = true;
+    keypoints_[size_t(r)] = record_keypoints(dataset.frames[size_t(frames_[size_t(r)])], device);
+    any = any || keypoints_[size_t(r)].defined();
   }
   if (any) keypoint_map_ = keypoint_map->to(device, at::kFloat);
 }

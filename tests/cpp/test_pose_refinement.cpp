@@ -244,18 +244,20 @@ body::SmplxPose perturbed(const body::SmplxPose& truth, float turn, float hips, 
 }
 
 // The first test frame of `dataset` as the target of a fit: rendered by a random-parameter avatar (returned), its
-// fit turned by 0.1 rad, its hips bent by 0.15 rad and shifted 4 cm sideways; the exact fit is returned beside it.
+// fit perturbed as `perturbed` says (by default turned 0.1 rad, hips bent 0.15 rad, shifted 4 cm sideways); the exact
+// fit is returned beside it.
 struct PerturbedFrame {
   int64_t frame;
   model::Avatar avatar;
   body::SmplxPose truth;
 };
-PerturbedFrame perturbed_test_frame(data::Dataset& dataset) {
+PerturbedFrame perturbed_test_frame(data::Dataset& dataset, float turn = 0.1f, float hips = 0.15f, float shift = 0.04f,
+                                    float depth = 0.0f) {
   const int64_t f = dataset.split(data::Split::kTest)[0];
   model::Avatar avatar = render_frames_with_avatar(dataset, {f});
   data::FrameRecord& record = dataset.frames[size_t(f)];
   const body::SmplxPose truth = record.pose;
-  record.pose = perturbed(truth, 0.1f, 0.15f, 0.04f, 0.0f);
+  record.pose = perturbed(truth, turn, hips, shift, depth);
   return {f, avatar, truth};
 }
 
@@ -367,12 +369,11 @@ TEST(TrainPoseFitting, AvatarKeypointsReprojectOntoExactDetections) {
 TEST(TrainPoseFitting, KeypointsPinThePlacementFromAFarStart) {
   TempFolder folder;
   data::Dataset dataset = video_with_exact_keypoints(folder, 10, 128);
-  PerturbedFrame setup = perturbed_test_frame(dataset);
+  PerturbedFrame setup = perturbed_test_frame(dataset, 0.5f, 0.3f, 0.1f, 0.6f);
   const int64_t f = setup.frame;
   model::Avatar& avatar = setup.avatar;
   const body::SmplxPose& truth = setup.truth;
-  data::FrameRecord& record = dataset.frames[size_t(f)];
-  record.pose = perturbed(truth, 0.5f, 0.3f, 0.1f, 0.6f);
+  const data::FrameRecord& record = dataset.frames[size_t(f)];
   const body::WholeBodyKeypointMap map = train::body_keypoint_map("");
   const data::Dataset fitted = train::fit_poses(dataset, data::Split::kTest, avatar, fit_options(100), &map, false);
   const train::PoseError before = train::pose_error(record.pose, truth),
