@@ -9,6 +9,7 @@
 #include <torch/csrc/autograd/autograd.h>
 #include <nlohmann/json.hpp>
 
+#include "body/rotations.h"
 #include "common/atomic_file.h"
 #include "common/constants.h"
 #include "data/json_values.h"
@@ -51,6 +52,24 @@ at::Tensor column_rates(double rotation, double translation, at::Device device) 
   at::Tensor rates = at::full({kCorrectionWidth}, rotation, at::kFloat);
   rates.narrow(0, kTranslationColumn, 3).fill_(translation);
   return rates.to(device);
+}
+
+// A refined fit as a motion: the rotation matrices of its corrected joints (kCorrectedJoints, 3, 3) and its
+// translation (3). Its acceleration is taken on these, not on the axis-angles: a camera-frame root (NeuMan's, with
+// the camera's y axis down) turns about pi, where an estimator's axis-angle flips sign between frames that turn alike
+// (3.1 and -3.1 rad about x), and the axis-angles' acceleration would pull such frames through a half turn.
+struct RefinedMotion {
+  at::Tensor rotations, translation;
+};
+RefinedMotion refined_motion(const at::Tensor& refined) {
+  return {body::axis_angle_to_matrix(refined.narrow(0, 0, kTranslationColumn).view({kCorrectedJoints, 3})),
+          refined.narrow(0, kTranslationColumn, 3)};
+}
+// Half the squared Frobenius norm of the rotations' second difference (the squared angle for small turns, as the
+// axis-angles' term was) plus the translation's squared second difference.
+at::Tensor squared_acceleration(const RefinedMotion& a, const RefinedMotion& b, const RefinedMotion& c) {
+  return 0.5 * (a.rotations - 2 * b.rotations + c.rotations).pow(2).sum() +
+         (a.translation - 2 * b.translation + c.translation).pow(2).sum();
 }
 
 }  // namespace
@@ -146,13 +165,17 @@ body::SmplxPose PoseRefinement::pose(int64_t frame, int64_t iteration, LossTerms
   const int64_t r = row_of(frame);
   const at::Tensor correction = corrections_[r];
   terms["pose_prior"] = config_.prior * correction.pow(2).sum();
-  // The acceleration of the refined fits at every triple of consecutive training frames that holds this one.
-  const auto refined = [&](int64_t row) { return base_[row] + corrections_[row]; };
-  at::Tensor smoothness = at::zeros({}, correction.options());
+  // The acceleration of the refined fits at every triple of consecutive training frames that holds this one: the
+  // rows two before to two after it (-1 past a sequence's end), each row's motion made once.
   const int64_t p = previous_[size_t(r)], n = next_[size_t(r)];
-  const int64_t pp = p >= 0 ? previous_[size_t(p)] : -1, nn = n >= 0 ? next_[size_t(n)] : -1;
-  for (const auto& [a, b, c] : {std::array<int64_t, 3>{pp, p, r}, {p, r, n}, {r, n, nn}})
-    if (a >= 0 && b >= 0 && c >= 0) smoothness = smoothness + (refined(a) - 2 * refined(b) + refined(c)).pow(2).sum();
+  const std::array<int64_t, 5> rows{p >= 0 ? previous_[size_t(p)] : -1, p, r, n, n >= 0 ? next_[size_t(n)] : -1};
+  std::array<RefinedMotion, 5> motions;
+  for (size_t k = 0; k < rows.size(); ++k)
+    if (rows[k] >= 0) motions[k] = refined_motion(base_[rows[k]] + corrections_[rows[k]]);
+  at::Tensor smoothness = at::zeros({}, correction.options());
+  for (size_t k = 0; k + 2 < rows.size(); ++k)
+    if (rows[k] >= 0 && rows[k + 1] >= 0 && rows[k + 2] >= 0)
+      smoothness = smoothness + squared_acceleration(motions[k], motions[k + 1], motions[k + 2]);
   terms["pose_smoothness"] = config_.smoothness * smoothness;
   return corrected_pose(record.pose, correction);
 }
@@ -188,6 +211,7 @@ nlohmann::json PoseRefinement::align(int64_t iteration, model::Avatar& avatar, c
   // The parameters hold still meanwhile: the avatar's pose-independent features are computed once, not per step.
   avatar->eval();
   avatar->cache_static_features();
+  const nlohmann::json error_before = error_against_truth();
   double before = 0, after = 0;
   for (size_t r = 0; r < frames_.size(); ++r) {
     const int64_t f = frames_[r];
@@ -213,7 +237,10 @@ nlohmann::json PoseRefinement::align(int64_t iteration, model::Avatar& avatar, c
                        {"loss_before", before / rows},
                        {"loss_after", after / rows}};
   const nlohmann::json error = error_against_truth();
-  if (!error.empty()) entry["pose_error"] = error;
+  if (!error.empty()) {
+    entry["pose_error_before"] = error_before;
+    entry["pose_error"] = error;
+  }
   return entry;
 }
 

@@ -8,11 +8,11 @@
 //
 // PoseRefinement trains one correction per training frame with the avatar, through the image loss, held to the input
 // fit by an L2 prior and to a smooth motion by an acceleration penalty over each sequence's consecutive training
-// frames, and, where the frames have whole-body keypoint detections, to them (train/avatar_keypoints.h): the image
-// alone lets the refined fits drift together out of the camera's frame. A frame's correction moves only in the
-// steps that draw the frame (row-sparse Adam): Adam's normalisation would otherwise move every row at the full rate
-// each step on the regularisers' gradients alone.
-// Fitting a frame's pose to its image with the avatar frozen (test-time pose fitting, the alignment) is in
+// frames (on the joints' rotation matrices, not their axis-angles, and the translation), and, where the frames have
+// whole-body keypoint detections, to them (train/avatar_keypoints.h): the image alone lets the refined fits drift
+// together out of the camera's frame. A frame's correction moves only in the steps that draw the frame (row-sparse
+// Adam): Adam's normalisation would otherwise move every row at the full rate each step on the regularisers' gradients
+// alone. Fitting a frame's pose to its image with the avatar frozen (test-time pose fitting, the alignment) is in
 // train/pose_fit.h.
 #include <cstdint>
 #include <optional>
@@ -56,11 +56,11 @@ class PoseRefinement {
                          LossTerms& terms) const;
   // After the backward pass: one Adam step of the frame's correction at the schedule's learning-rate factor.
   void step(int64_t frame, int64_t iteration, double rate_factor);
-  // At an iteration of config.align_at (before its step): the global orientation and translation of every training
-  // frame's correction fitted to its image with `avatar` as it is (train/pose_fit.h, the run's image loss `loss`),
-  // its Adam state restarted. Returns the
-  // log entry (event "pose_alignment": the mean fitting loss before and after, the error against the exact fits
-  // where the dataset has them); an empty object at other iterations.
+  // At an iteration of config.align_at (before its step): every training frame's correction fitted to its image with
+  // `avatar` as it is (train/pose_fit.h, the run's image loss `loss`; the global orientation and translation alone
+  // before config.align_joints_from), its Adam state restarted. Returns the log entry (event "pose_alignment": the
+  // mean fitting loss before and after, and where the dataset has exact fits the error against them before and after
+  // the pass, "pose_error_before" and "pose_error"); an empty object at other iterations.
   nlohmann::json align(int64_t iteration, model::Avatar& avatar, const LossWeights& loss);
   // The mean error of the refined and of the input training fits against the exact ones (FrameRecord::true_pose,
   // train/pose_fit.h PoseError) as {"input": ..., "refined": ...}; an empty object when the dataset has none.

@@ -116,6 +116,38 @@ TEST(TrainPoseRefinement, SmoothnessEvensOutAJitteredFrame) {
   EXPECT_LT(jump(refined), 0.3 * before) << "before " << before;
 }
 
+// A camera-frame root turns about pi (NeuMan's camera looks along +z with y down), where an estimator writes frames
+// that turn alike as axis-angles of opposite sign (3.1 and -3.1 rad about x). The smoothness term measures the turns:
+// with every other frame's root written the other way round it is the same (on the axis-angles it would be about
+// 150 and pull those frames through a half turn).
+TEST(TrainPoseRefinement, SmoothnessMeasuresTurnsNotTheirAxisAngles) {
+  TempFolder folder;
+  data::Dataset dataset = tiny_video(folder, 10, 16);
+  const std::vector<int64_t>& train_frames = dataset.split(data::Split::kTrain);
+  ASSERT_GE(train_frames.size(), 5u);
+  const auto set_roots = [&](data::Dataset& d, bool alternate) {
+    for (size_t k = 0; k < train_frames.size(); ++k) {
+      const double angle = M_PI - 0.05 + 0.004 * double(k);  // a slow turn near pi about x
+      const bool flipped = alternate && k % 2 == 1;
+      // The same rotation: angle about +x, or 2 pi - angle about -x.
+      d.frames[size_t(train_frames[k])].pose.global_orient =
+          at::tensor({flipped ? -(2 * M_PI - angle) : angle, 0.0, 0.0}, at::kFloat);
+    }
+  };
+  const auto smoothness = [&](const data::Dataset& d) {
+    train::PoseRefinement r(d, refinement(0.0, 1.0), 100, at::kCPU, nullptr);
+    train::LossTerms terms;
+    r.pose(train_frames[2], 0, terms);
+    return terms.at("pose_smoothness").item<double>();
+  };
+  data::Dataset alike = dataset, alternating = dataset;
+  set_roots(alike, false);
+  set_roots(alternating, true);
+  const double alike_term = smoothness(alike);
+  EXPECT_NEAR(smoothness(alternating), alike_term, 1e-5) << "one motion, however its axis-angles are written";
+  EXPECT_LT(alike_term, 1.0);
+}
+
 // The keypoint term holds the refined fits to the detections: the reprojection error of a frame's fit shifted 6 cm
 // sideways and 10 cm deep falls tenfold by the term's gradient alone (no image, no prior), its translation back
 // towards the truth; a frame before `start` gets a zero term, and without a keypoint map there is no term.
