@@ -146,8 +146,8 @@ PoseFitResult PoseFitter::fit(model::Avatar& avatar, const body::SmplxPose& pose
     done = end;
     // L-BFGS models how the joints' corrections couple along the kinematic chain (a turned root and a twisted spine
     // move the same pixels); its line search picks each step's length, so no rate needs tuning to the noise level.
-    at::Tensor moving = at::full({kCorrectionWidth}, spec.all_columns && !options_.global_only ? 1.0 : 0.0, options);
-    moving.narrow(0, 0, 3).fill_(1.0);
+    at::Tensor moving = at::full({kCorrectionWidth}, spec.all_columns && options_.fit_joints ? 1.0 : 0.0, options);
+    moving.narrow(0, 0, 3).fill_(options_.fit_orientation ? 1.0 : 0.0);
     moving.narrow(0, kCorrectionWidth - 3, 3).fill_(1.0);
     at::Tensor correction = best.clone().requires_grad_(true);
     torch::optim::LBFGS optimizer({correction}, torch::optim::LBFGSOptions(1.0)

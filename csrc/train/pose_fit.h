@@ -37,9 +37,10 @@ namespace sfgs::train {
 struct PoseFitOptions {
   int64_t iterations = kPoseFitIterations;  // loss evaluations per frame, over the three stages
   LossWeights loss;                         // the image loss of the fine stage (regularisers are not used)
-  // Only the global orientation and translation move in every stage (the alignment of training fits: an avatar
-  // still learning is sharp enough to place the body, not to pose its joints).
-  bool global_only = false;
+  // What moves besides the translation (the alignment of training fits: an avatar still learning is sharp enough to
+  // place the body before it can turn it or pose its joints). The coarse stage never fits the joints.
+  bool fit_orientation = true;
+  bool fit_joints = true;
   // Weight of the keypoint reprojection term where the target has detections; 0: the image alone.
   double keypoint_weight = kPoseFitKeypointWeight;
 };

@@ -127,6 +127,7 @@ PoseRefinement::PoseRefinement(const data::Dataset& dataset, const PoseRefinemen
   for (const double share : config.align_at)
     align_iterations_.push_back(int64_t(std::ceil(share * double(iterations))));
   align_joints_from_ = int64_t(std::ceil(config.align_joints_from * double(iterations)));
+  align_orientation_from_ = int64_t(std::ceil(config.align_orientation_from * double(iterations)));
   if (!keypoint_map || config.keypoint_weight <= 0) return;
   keypoints_.resize(size_t(rows));
   bool any = false;
@@ -204,7 +205,8 @@ nlohmann::json PoseRefinement::align(int64_t iteration, model::Avatar& avatar, c
   PoseFitOptions options;
   options.iterations = config_.align_iterations;
   options.loss = loss;
-  options.global_only = iteration < align_joints_from_;
+  options.fit_orientation = iteration >= align_orientation_from_;
+  options.fit_joints = iteration >= align_joints_from_;
   options.keypoint_weight = config_.keypoint_weight;
   const at::Device device = corrections_.device();
   const PoseFitter fitter(options, device, keypoint_map_ ? &*keypoint_map_ : nullptr);

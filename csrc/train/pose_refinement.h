@@ -57,10 +57,11 @@ class PoseRefinement {
   // After the backward pass: one Adam step of the frame's correction at the schedule's learning-rate factor.
   void step(int64_t frame, int64_t iteration, double rate_factor);
   // At an iteration of config.align_at (before its step): every training frame's correction fitted to its image with
-  // `avatar` as it is (train/pose_fit.h, the run's image loss `loss`; the global orientation and translation alone
-  // before config.align_joints_from), its Adam state restarted. Returns the log entry (event "pose_alignment": the
-  // mean fitting loss before and after, and where the dataset has exact fits the error against them before and after
-  // the pass, "pose_error_before" and "pose_error"); an empty object at other iterations.
+  // `avatar` as it is (train/pose_fit.h, the run's image loss `loss`; the joints from config.align_joints_from on,
+  // the global orientation from config.align_orientation_from on, the translation always), its Adam state restarted.
+  // Returns the log entry (event "pose_alignment": the mean fitting loss before and after, and where the dataset has
+  // exact fits the error against them before and after the pass, "pose_error_before" and "pose_error"); an empty object
+  // at other iterations.
   nlohmann::json align(int64_t iteration, model::Avatar& avatar, const LossWeights& loss);
   // The mean error of the refined and of the input training fits against the exact ones (FrameRecord::true_pose,
   // train/pose_fit.h PoseError) as {"input": ..., "refined": ...}; an empty object when the dataset has none.
@@ -81,6 +82,7 @@ class PoseRefinement {
   int64_t start_iteration_;
   std::vector<int64_t> align_iterations_;  // the iterations of config.align_at
   int64_t align_joints_from_;              // alignment passes from this iteration on fit every joint
+  int64_t align_orientation_from_;         // and from this one the global orientation
   std::vector<int64_t> frames_;            // training frames, by sequence and time; row r corrects frames_[r]
   std::vector<int64_t> row_;               // dataset frame -> row, -1 for frames that are not trained on
   std::vector<int64_t> previous_, next_;   // row -> neighbouring row in its sequence, -1 at an end

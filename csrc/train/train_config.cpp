@@ -134,6 +134,7 @@ std::vector<std::pair<std::string, Section>> sections(TrainConfig& c) {
         {"align_at", field(p.align_at)},
         {"align_iterations", field(p.align_iterations)},
         {"align_joints_from", field(p.align_joints_from)},
+        {"align_orientation_from", field(p.align_orientation_from)},
         {"keypoint_weight", field(p.keypoint_weight)}}},
   };
 }
@@ -201,6 +202,7 @@ TrainConfig TrainConfig::from_stored_yaml_text(const std::string& text, const st
   TrainConfig before_the_keys;
   before_the_keys.pose_refinement.align_at = {};
   before_the_keys.pose_refinement.align_joints_from = 1.0;
+  before_the_keys.pose_refinement.align_orientation_from = 0.0;
   before_the_keys.pose_refinement.keypoint_weight = 0.0;
   return read_yaml_over(before_the_keys, text, source);
 }
@@ -320,6 +322,7 @@ void TrainConfig::validate() const {
                 pose_refinement.start, ") to below 1, got ", align_at[i], " at position ", i);
   check_count(pose_refinement.align_iterations, 1, kMaxIterations, "pose_refinement.align_iterations");
   check_range(pose_refinement.align_joints_from, 0, 1, "pose_refinement.align_joints_from");
+  check_range(pose_refinement.align_orientation_from, 0, 1, "pose_refinement.align_orientation_from");
 }
 
 std::vector<ConfigChange> config_changes(const TrainConfig& before, const TrainConfig& after) {

@@ -73,6 +73,10 @@ struct PoseRefinementConfig {
   // The alignment passes at or after this share of the run fit every joint as well (the avatar is sharp enough by
   // then to pose them); the earlier ones the global orientation and translation alone.
   double align_joints_from = 0.5;
+  // The alignment passes at or after this share fit the global orientation; the earlier ones the translation alone:
+  // against an avatar still a blur a turn towards the camera or about the vertical is nearly free, and a pass at 10 %
+  // that fitted it turned the roots from 4 to 6-9 degrees off (docs/results.md, "Smoothness on rotations").
+  double align_orientation_from = 0.5;
   // Weight of the drawn frame's whole-body keypoint reprojection error (train/avatar_keypoints.h) where the training
   // frames have detections (keypoints_whole_body/), also in the alignment passes; 0: the image alone. Without it the
   // refined fits drift together out of the camera's frame and the avatar learns them in that drifted frame.
@@ -102,7 +106,8 @@ struct TrainConfig {
   static TrainConfig from_yaml_text(const std::string& text, const std::string& source = "<text>");
   // A run's stored config (its checkpoint's, which lists every key of its time): a key it lacks did not exist when the
   // run was made, so it takes the value that reproduces what the run did then, not today's default (a resumed run
-  // must not change its objective): no alignment passes, placement-only passes, no keypoint term.
+  // must not change its objective): no alignment passes, placement-only passes that fit the orientation, no keypoint
+  // term.
   static TrainConfig from_stored_yaml_text(const std::string& text, const std::string& source);
   static TrainConfig from_stored_yaml_file(const std::string& path);  // a run folder's config.yaml
   std::string to_yaml() const;

@@ -417,8 +417,8 @@ TEST(TrainPoseFitting, KeypointsPinThePlacementFromAFarStart) {
 
 // Pose refinement's alignment: at an iteration of align_at every training fit is fitted to its image with the avatar
 // as it is (never ending above the start's loss) and the error against the truth logged (error_against_truth); at
-// other iterations nothing happens. Passes before align_joints_from move the global orientation and translation
-// alone, the joints left to the per-step corrections; passes from it on fit the joints too.
+// other iterations nothing happens. Passes before align_orientation_from and align_joints_from move the translation
+// alone, the orientation and joints left to the per-step corrections; passes from them on fit those too.
 TEST(TrainPoseRefinement, AlignmentFitsThePlacementThenTheJointsOfTheTrainingFits) {
   TempFolder folder;
   data::Dataset dataset = tiny_video(folder, 6, 128);
@@ -438,15 +438,24 @@ TEST(TrainPoseRefinement, AlignmentFitsThePlacementThenTheJointsOfTheTrainingFit
   ASSERT_EQ(placement.value("event", ""), "pose_alignment");
   EXPECT_LE(placement.at("loss_after").get<double>(), placement.at("loss_before").get<double>());
   const nlohmann::json& error = placement.at("pose_error");
-  for (const char* key : {"body_deg", "hands_deg"})  // the joints stay with the per-step corrections
+  for (const char* key : {"root_deg", "body_deg", "hands_deg"})  // they stay with the per-step corrections
     EXPECT_EQ(error.at("refined").at(key), error.at("input").at(key)) << key;
-  EXPECT_LT(error.at("refined").at("translation_cm").get<double>(),
-            error.at("input").at("translation_cm").get<double>());
+  EXPECT_NE(error.at("refined").at("translation_cm"), error.at("input").at("translation_cm"));
   const nlohmann::json joints = r.align(5, avatar, loss);
   ASSERT_EQ(joints.value("event", ""), "pose_alignment");
   EXPECT_LT(joints.at("loss_after").get<double>(), joints.at("loss_before").get<double>());
-  EXPECT_NE(joints.at("pose_error").at("refined").at("body_deg"), error.at("input").at("body_deg"))
-      << "the joints are fitted too";
+  for (const char* key : {"root_deg", "body_deg"})
+    EXPECT_NE(joints.at("pose_error").at("refined").at(key), error.at("input").at(key)) << key << " is fitted too";
+
+  // A pass from align_orientation_from on but before align_joints_from turns the body and leaves its joints; with
+  // the turn free the translation comes nearer the truth (held to it, it covered part of the turn).
+  config.align_orientation_from = 0.3;
+  train::PoseRefinement turning(dataset, config, 10, at::kCPU, nullptr);
+  const nlohmann::json turned = turning.align(3, avatar, loss).at("pose_error");
+  EXPECT_NE(turned.at("refined").at("root_deg"), turned.at("input").at("root_deg"));
+  EXPECT_EQ(turned.at("refined").at("body_deg"), turned.at("input").at("body_deg"));
+  EXPECT_LT(turned.at("refined").at("translation_cm").get<double>(),
+            turned.at("input").at("translation_cm").get<double>());
 }
 
 TEST(TrainPoseRefinement, AlignmentSettingsAreChecked) {
@@ -459,6 +468,7 @@ TEST(TrainPoseRefinement, AlignmentSettingsAreChecked) {
   expect_error([&] { config("  align_at: [1.0]\n"); }, {"pose_refinement.align_at"});
   expect_error([&] { config("  align_iterations: 0\n"); }, {"pose_refinement.align_iterations"});
   expect_error([&] { config("  align_joints_from: 1.5\n"); }, {"pose_refinement.align_joints_from", "1.5"});
+  expect_error([&] { config("  align_orientation_from: -0.1\n"); }, {"pose_refinement.align_orientation_from", "-0.1"});
 }
 
 TEST(TrainPoseRefinement, BadRefinedFitsFilesAreRefused) {
