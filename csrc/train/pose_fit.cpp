@@ -44,7 +44,7 @@ Camera downsampled(const Camera& camera, int64_t factor) {
 struct StageSpec {
   double share;
   int64_t downsample;
-  bool all_columns;  // else the global orientation and the translation alone
+  bool all_columns;  // else the placement alone (the translation, and the global orientation where it is fitted)
   bool run_loss;     // the run's image loss inside the person (else L1 of the whole image) plus the silhouette
 };
 const std::array<StageSpec, 3> kStages{{{kPoseFitCoarseShare, kPoseFitCoarseDownsample, false, false},

@@ -323,6 +323,10 @@ void TrainConfig::validate() const {
   check_count(pose_refinement.align_iterations, 1, kMaxIterations, "pose_refinement.align_iterations");
   check_range(pose_refinement.align_joints_from, 0, 1, "pose_refinement.align_joints_from");
   check_range(pose_refinement.align_orientation_from, 0, 1, "pose_refinement.align_orientation_from");
+  TORCH_CHECK(pose_refinement.align_orientation_from <= pose_refinement.align_joints_from,
+              "config: pose_refinement.align_orientation_from (", pose_refinement.align_orientation_from,
+              ") must not exceed pose_refinement.align_joints_from (", pose_refinement.align_joints_from,
+              "): joints fitted under a held root would take up its error");
 }
 
 std::vector<ConfigChange> config_changes(const TrainConfig& before, const TrainConfig& after) {

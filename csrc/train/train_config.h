@@ -71,11 +71,12 @@ struct PoseRefinementConfig {
   std::vector<double> align_at{0.1, 0.5};
   int64_t align_iterations = 60;
   // The alignment passes at or after this share of the run fit every joint as well (the avatar is sharp enough by
-  // then to pose them); the earlier ones the global orientation and translation alone.
+  // then to pose them); the earlier ones leave the joints.
   double align_joints_from = 0.5;
   // The alignment passes at or after this share fit the global orientation; the earlier ones the translation alone:
   // against an avatar still a blur a turn towards the camera or about the vertical is nearly free, and a pass at 10 %
-  // that fitted it turned the roots from 4 to 6-9 degrees off (docs/results.md, "Smoothness on rotations").
+  // that fitted it turned the roots from 4 to 6-9 degrees off (docs/results.md, "Smoothness on rotations"). At most
+  // align_joints_from: joints fitted under a held root would take up its error.
   double align_orientation_from = 0.5;
   // Weight of the drawn frame's whole-body keypoint reprojection error (train/avatar_keypoints.h) where the training
   // frames have detections (keypoints_whole_body/), also in the alignment passes; 0: the image alone. Without it the

@@ -118,8 +118,8 @@ TEST(TrainPoseRefinement, SmoothnessEvensOutAJitteredFrame) {
 
 // A camera-frame root turns about pi (NeuMan's camera looks along +z with y down), where an estimator writes frames
 // that turn alike as axis-angles of opposite sign (3.1 and -3.1 rad about x). The smoothness term measures the turns:
-// with every other frame's root written the other way round it is the same (on the axis-angles it would be about
-// 150 and pull those frames through a half turn).
+// with every other frame's root written the other way round it is the same (on the axis-angles it would be in the
+// hundreds and pull those frames through a half turn).
 TEST(TrainPoseRefinement, SmoothnessMeasuresTurnsNotTheirAxisAngles) {
   TempFolder folder;
   data::Dataset dataset = tiny_video(folder, 10, 16);
@@ -438,12 +438,14 @@ TEST(TrainPoseRefinement, AlignmentFitsThePlacementThenTheJointsOfTheTrainingFit
   ASSERT_EQ(placement.value("event", ""), "pose_alignment");
   EXPECT_LE(placement.at("loss_after").get<double>(), placement.at("loss_before").get<double>());
   const nlohmann::json& error = placement.at("pose_error");
+  EXPECT_EQ(placement.at("pose_error_before").at("refined"), error.at("input")) << "no correction before the pass";
   for (const char* key : {"root_deg", "body_deg", "hands_deg"})  // they stay with the per-step corrections
     EXPECT_EQ(error.at("refined").at(key), error.at("input").at(key)) << key;
   EXPECT_NE(error.at("refined").at("translation_cm"), error.at("input").at("translation_cm"));
   const nlohmann::json joints = r.align(5, avatar, loss);
   ASSERT_EQ(joints.value("event", ""), "pose_alignment");
   EXPECT_LT(joints.at("loss_after").get<double>(), joints.at("loss_before").get<double>());
+  EXPECT_EQ(joints.at("pose_error_before"), placement.at("pose_error")) << "the fits as the placement pass left them";
   for (const char* key : {"root_deg", "body_deg"})
     EXPECT_NE(joints.at("pose_error").at("refined").at(key), error.at("input").at(key)) << key << " is fitted too";
 
@@ -469,6 +471,8 @@ TEST(TrainPoseRefinement, AlignmentSettingsAreChecked) {
   expect_error([&] { config("  align_iterations: 0\n"); }, {"pose_refinement.align_iterations"});
   expect_error([&] { config("  align_joints_from: 1.5\n"); }, {"pose_refinement.align_joints_from", "1.5"});
   expect_error([&] { config("  align_orientation_from: -0.1\n"); }, {"pose_refinement.align_orientation_from", "-0.1"});
+  expect_error([&] { config("  align_orientation_from: 0.6\n  align_joints_from: 0.4\n"); },
+               {"pose_refinement.align_orientation_from", "must not exceed", "pose_refinement.align_joints_from"});
 }
 
 TEST(TrainPoseRefinement, BadRefinedFitsFilesAreRefused) {
