@@ -54,6 +54,9 @@ at::Tensor column_rates(double rotation, double translation, at::Device device) 
   return rates.to(device);
 }
 
+// The first iteration at or after `share` of a run of `iterations`.
+int64_t iteration_at(double share, int64_t iterations) { return int64_t(std::ceil(share * double(iterations))); }
+
 // A refined fit as a motion: the rotation matrices of its corrected joints (kCorrectedJoints, 3, 3) and its
 // translation (3). Its acceleration is taken on these, not on the axis-angles: a camera-frame root (NeuMan's, with
 // the camera's y axis down) turns about pi, where an estimator's axis-angle flips sign between frames that turn alike
@@ -96,7 +99,7 @@ PoseRefinement::PoseRefinement(const data::Dataset& dataset, const PoseRefinemen
                                at::Device device, const body::WholeBodyKeypointMap* keypoint_map)
     : dataset_(dataset),
       config_(config),
-      start_iteration_(int64_t(std::ceil(config.start * double(iterations)))),
+      start_iteration_(iteration_at(config.start, iterations)),
       row_(size_t(dataset.size()), -1) {
   frames_ = dataset.split(data::Split::kTrain);
   TORCH_CHECK(!frames_.empty(), "pose refinement: dataset '", dataset.source, "' has no training frames");
@@ -125,10 +128,9 @@ PoseRefinement::PoseRefinement(const data::Dataset& dataset, const PoseRefinemen
   exp_avg_sq_ = at::zeros({rows, kCorrectionWidth}, options);
   rates_ = column_rates(config.learning_rate, config.translation_learning_rate, device);
   steps_.assign(size_t(rows), 0);
-  for (const double share : config.align_at)
-    align_iterations_.push_back(int64_t(std::ceil(share * double(iterations))));
-  align_joints_from_ = int64_t(std::ceil(config.align_joints_from * double(iterations)));
-  align_orientation_from_ = int64_t(std::ceil(config.align_orientation_from * double(iterations)));
+  for (const double share : config.align_at) align_iterations_.push_back(iteration_at(share, iterations));
+  align_joints_from_ = iteration_at(config.align_joints_from, iterations);
+  align_orientation_from_ = iteration_at(config.align_orientation_from, iterations);
   if (!keypoint_map || config.keypoint_weight <= 0) return;
   keypoints_.resize(size_t(rows));
   bool any = false;

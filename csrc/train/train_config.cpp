@@ -192,6 +192,14 @@ TrainConfig read_yaml_over(TrainConfig c, const std::string& text, const std::st
   }
   return c;
 }
+
+std::string config_text(const std::string& path) {
+  std::ifstream in(path);
+  TORCH_CHECK(in.good(), "cannot open config '", path, "'");
+  std::stringstream text;
+  text << in.rdbuf();
+  return text.str();
+}
 }  // namespace
 
 TrainConfig TrainConfig::from_yaml_text(const std::string& text, const std::string& source) {
@@ -206,16 +214,6 @@ TrainConfig TrainConfig::from_stored_yaml_text(const std::string& text, const st
   before_the_keys.pose_refinement.keypoint_weight = 0.0;
   return read_yaml_over(before_the_keys, text, source);
 }
-
-namespace {
-std::string config_text(const std::string& path) {
-  std::ifstream in(path);
-  TORCH_CHECK(in.good(), "cannot open config '", path, "'");
-  std::stringstream text;
-  text << in.rdbuf();
-  return text.str();
-}
-}  // namespace
 
 TrainConfig TrainConfig::from_yaml_file(const std::string& path) { return from_yaml_text(config_text(path), path); }
 
