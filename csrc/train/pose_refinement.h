@@ -6,14 +6,16 @@
 // A pose correction adds an axis-angle to the global orientation, the 21 body joints, the jaw and the 30 finger
 // joints (kCorrectedJoints rows of 3) and a translation to a frame's fit: kCorrectionWidth numbers.
 //
-// PoseRefinement trains one correction per training frame with the avatar, through the image loss, held to the input
-// fit by an L2 prior and to a smooth motion by an acceleration penalty over each sequence's consecutive training
-// frames (on the joints' rotation matrices, not their axis-angles, and the translation), and, where the frames have
-// whole-body keypoint detections, to them (train/avatar_keypoints.h): the image alone lets the refined fits drift
-// together out of the camera's frame. A frame's correction moves only in the steps that draw the frame (row-sparse
-// Adam): Adam's normalisation would otherwise move every row at the full rate each step on the regularisers' gradients
-// alone. Fitting a frame's pose to its image with the avatar frozen (test-time pose fitting, the alignment) is in
-// train/pose_fit.h.
+// PoseRefinement keeps one correction per training frame. Alignment passes at set shares of the run fit every
+// frame's correction to its image and keypoints with the avatar as it is then (train/pose_fit.h, as test poses are
+// fitted); between them the avatar trains on the fits as the last pass left them. Optionally (positive per-step
+// rates; off by default) the corrections also train with the avatar through each step's image loss, held to the
+// input fit by an L2 prior and to a smooth motion by an acceleration penalty over each sequence's consecutive
+// training frames (on the joints' rotation matrices, not their axis-angles, and the translation), and, where the
+// frames have whole-body keypoint detections, to them (train/avatar_keypoints.h): the image alone lets the refined
+// fits drift together out of the camera's frame. A frame's correction then moves only in the steps that draw the
+// frame (row-sparse Adam): Adam's normalisation would otherwise move every row at the full rate each step on the
+// regularisers' gradients alone.
 #include <cstdint>
 #include <optional>
 #include <string>
@@ -45,16 +47,19 @@ class PoseRefinement {
   PoseRefinement(const data::Dataset& dataset, const PoseRefinementConfig& config, int64_t iterations,
                  at::Device device, const body::WholeBodyKeypointMap* keypoint_map);
 
-  // The pose training frame `frame` is trained with at `iteration`: its corrected fit (with a gradient to its
-  // correction) from config.start on, adding the weighted "pose_prior" and "pose_smoothness" to `terms`; the input
-  // fit (and zero terms) before.
+  // The pose training frame `frame` is trained with at `iteration`. Without per-step corrections: its fit as the last
+  // alignment pass left it (the input fit before the first), without a gradient, adding no terms. With them: its
+  // corrected fit (with a gradient to its correction) from config.start on, adding the weighted "pose_prior" and
+  // "pose_smoothness" to `terms`; the input fit (and zero terms) before.
   body::SmplxPose pose(int64_t frame, int64_t iteration, LossTerms& terms);
-  // With keypoints (keypoint_map given, config.keypoint_weight > 0, some training frame with detections): adds the
-  // weighted "pose_keypoints", the reprojection error of `out` (the avatar posed at pose(frame, ...)) against the
-  // frame's detections, from config.start on (zero before, and for a frame without detections); nothing otherwise.
+  // With per-step corrections and keypoints (keypoint_map given, config.keypoint_weight > 0, some training frame
+  // with detections): adds the weighted "pose_keypoints", the reprojection error of `out` (the avatar posed at
+  // pose(frame, ...)) against the frame's detections, from config.start on (zero before, and for a frame without
+  // detections); nothing otherwise.
   void add_keypoint_term(int64_t frame, int64_t iteration, const model::Avatar& avatar, const model::AvatarOutput& out,
                          LossTerms& terms) const;
-  // After the backward pass: one Adam step of the frame's correction at the schedule's learning-rate factor.
+  // After the backward pass, with per-step corrections: one Adam step of the frame's correction at the schedule's
+  // learning-rate factor.
   void step(int64_t frame, int64_t iteration, double rate_factor);
   // At an iteration of config.align_at (before its step): every training frame's correction fitted to its image with
   // `avatar` as it is (train/pose_fit.h, the run's image loss `loss`; the joints from config.align_joints_from on,
@@ -80,6 +85,7 @@ class PoseRefinement {
   const data::Dataset& dataset_;
   PoseRefinementConfig config_;
   int64_t start_iteration_;
+  bool per_step_corrections_;  // a per-step rate is positive: training steps move the drawn frame's correction
   std::vector<int64_t> align_iterations_;  // the iterations of config.align_at
   int64_t align_joints_from_;              // alignment passes from this iteration on fit every joint
   int64_t align_orientation_from_;         // and from this one the global orientation

@@ -305,9 +305,9 @@ void TrainConfig::validate() const {
   check_count(avatar.num_betas, 0, kMaxHiddenWidth, "avatar.num_betas");
   check_count(avatar.num_expression_coeffs, 0, kMaxHiddenWidth, "avatar.num_expression_coeffs");
   check_range(avatar.time_dropout, 0, 1, "avatar.time_dropout");
-  check_positive(pose_refinement.learning_rate, kMaxLearningRate, "pose_refinement.learning_rate");
-  check_positive(pose_refinement.translation_learning_rate, kMaxLearningRate,
-                 "pose_refinement.translation_learning_rate");
+  check_range(pose_refinement.learning_rate, 0, kMaxLearningRate, "pose_refinement.learning_rate");
+  check_range(pose_refinement.translation_learning_rate, 0, kMaxLearningRate,
+              "pose_refinement.translation_learning_rate");
   check_range(pose_refinement.start, 0, 1, "pose_refinement.start");
   check_range(pose_refinement.prior, 0, kMaxLossWeight, "pose_refinement.prior");
   check_range(pose_refinement.smoothness, 0, kMaxLossWeight, "pose_refinement.smoothness");

@@ -58,16 +58,22 @@ struct Schedule {
 // correction of the SMPL-X fit (axis-angles of the global orientation, body, jaw and fingers; translation).
 struct PoseRefinementConfig {
   bool enabled = false;
-  // A frame is drawn in few steps (about 30 in 1,500 over 48 frames): at 2e-3 rad a step its joints could move
-  // about 3.5 degrees in a run, less than an estimator's error (docs/results.md measured the rates).
-  double learning_rate = 1e-2;              // rotations (radians), scaled by the schedule's factor
-  double translation_learning_rate = 5e-3;  // metres
-  double start = 0.05;       // share of the run before the corrections move (the avatar is a blur before)
-  double prior = 0.01;       // weight of the squared correction (radians, metres) of the drawn frame
-  double smoothness = 0.05;  // weight of the squared acceleration of the refined fits around the drawn frame
+  // Per-step corrections (Adam through each step's image loss), rotations in radians and translation in metres a
+  // step, times the schedule's factor; 0 leaves the fits to the alignment passes. Off by default: Adam moves every
+  // number of a drawn frame by about the rate whatever its gradient, so the joints an image barely constrains walk
+  // at random, and the avatar, trained on poses that jitter by a degree, never sharpens: on exact fits they cost
+  // the GPU benchmark's training steps 6-7 dB of PSNR (docs/results.md, "Per-step corrections").
+  double learning_rate = 0;
+  double translation_learning_rate = 0;
+  // Share of the run before the corrections move (the avatar is a blur before): the first per-step correction and
+  // the earliest alignment pass.
+  double start = 0.05;
+  // With per-step corrections: weights of the squared correction (radians, metres) of the drawn frame and of the
+  // squared acceleration of the refined fits around it.
+  double prior = 0.01;
+  double smoothness = 0.05;
   // Shares of the run at which every training frame's refined fit is aligned to its image with the avatar as it is
-  // then (train/pose_fit.h, align_iterations each): centimetres the per-step corrections cannot cover. From
-  // `start` on, rising.
+  // then (train/pose_fit.h, align_iterations each). From `start` on, rising.
   std::vector<double> align_at{0.1, 0.5};
   int64_t align_iterations = 60;
   // The alignment passes at or after this share of the run fit every joint as well (the avatar is sharp enough by

@@ -37,7 +37,8 @@ train::PoseRefinementConfig refinement(double prior, double smoothness) {
   c.start = 0;
   c.prior = prior;
   c.smoothness = smoothness;
-  c.learning_rate = 1e-2;
+  c.learning_rate = 1e-2;  // per-step corrections on (off by default)
+  c.translation_learning_rate = 5e-3;
   c.align_at = {};
   return c;
 }
@@ -189,6 +190,48 @@ TEST(TrainPoseRefinement, KeypointsPullAShiftedFitBackToTheDetections) {
   train::LossTerms terms;
   without.add_keypoint_term(f, 50, avatar, avatar->forward(dataset.frames[size_t(f)].pose, 0.0), terms);
   EXPECT_EQ(terms.count("pose_keypoints"), 0u);
+}
+
+// Without per-step rates (the default) the steps train the avatar on the fits as the last alignment pass left them:
+// a frame's pose is its fit plus its correction, with no gradient and no terms, a step leaves every correction, and in
+// a training run only an alignment pass moves them.
+TEST(TrainPoseRefinement, WithoutPerStepRatesOnlyTheAlignmentMovesTheFits) {
+  TempFolder folder;
+  const data::Dataset dataset = tiny_video(folder, 10, 32);
+  train::PoseRefinementConfig config;
+  config.enabled = true;
+  config.align_at = {};
+  ASSERT_EQ(config.learning_rate, 0.0);
+  ASSERT_EQ(config.translation_learning_rate, 0.0);
+  train::PoseRefinement r(dataset, config, 100, at::kCPU, nullptr);
+  const std::vector<int64_t>& train_frames = dataset.split(data::Split::kTrain);
+  const int64_t f = train_frames[1];
+  at::Tensor state = r.state();
+  state[1][3] = 0.05;  // the first body joint's x, as a pass might have left it
+  r.restore(state);
+  train::LossTerms terms;
+  const body::SmplxPose pose = r.pose(f, 50, terms);
+  EXPECT_TRUE(terms.empty());
+  EXPECT_FALSE(pose.body_pose.requires_grad());
+  const body::SmplxPose& given = dataset.frames[size_t(f)].pose;
+  EXPECT_NEAR((pose.body_pose[0][0] - given.body_pose[0][0]).item<double>(), 0.05, 1e-6);
+  EXPECT_TRUE(pose.global_orient.equal(given.global_orient.reshape({-1})));
+  const at::Tensor restored = r.state();
+  r.step(f, 50, 1.0);
+  EXPECT_TRUE(r.state().equal(restored)) << "a step without per-step rates moved a correction";
+
+  train::TrainConfig run_config = tiny_train_config();
+  run_config.pose_refinement = config;
+  const train::RunFolder still{folder / "still"}, aligned{folder / "aligned"};
+  train::train_avatar(dataset, run_config, still, quiet());
+  const at::Tensor held = train::CheckpointReader(still.checkpoint_file()).info().pose_refinement;
+  ASSERT_TRUE(held.defined());
+  EXPECT_EQ(held.narrow(1, 0, kCorrectionWidth).abs().max().item<double>(), 0.0) << "the steps moved the fits";
+  run_config.pose_refinement.align_at = {0.5};
+  run_config.pose_refinement.align_iterations = 4;
+  train::train_avatar(dataset, run_config, aligned, quiet());
+  const at::Tensor moved = train::CheckpointReader(aligned.checkpoint_file()).info().pose_refinement;
+  EXPECT_GT(moved.narrow(1, 0, kCorrectionWidth).abs().max().item<double>(), 0.0) << "the pass moved no fit";
 }
 
 // A real (tiny) training run: the image's gradient moves the corrections of the frames it drew, the refined fits
@@ -469,6 +512,9 @@ TEST(TrainPoseRefinement, AlignmentSettingsAreChecked) {
   expect_error([&] { config("  start: 0.3\n  align_at: [0.1]\n"); }, {"pose_refinement.align_at", "0.1"});
   expect_error([&] { config("  align_at: [1.0]\n"); }, {"pose_refinement.align_at"});
   expect_error([&] { config("  align_iterations: 0\n"); }, {"pose_refinement.align_iterations"});
+  config("  learning_rate: 0\n  translation_learning_rate: 0.005\n");  // 0: no per-step corrections
+  expect_error([&] { config("  learning_rate: -0.01\n"); }, {"pose_refinement.learning_rate", "-0.01"});
+  expect_error([&] { config("  translation_learning_rate: 2\n"); }, {"pose_refinement.translation_learning_rate"});
   expect_error([&] { config("  align_joints_from: 1.5\n"); }, {"pose_refinement.align_joints_from", "1.5"});
   expect_error([&] { config("  align_orientation_from: -0.1\n"); }, {"pose_refinement.align_orientation_from", "-0.1"});
   expect_error([&] { config("  align_orientation_from: 0.6\n  align_joints_from: 0.4\n"); },
