@@ -186,6 +186,10 @@ inline constexpr double kMaxLearningRate = 1.0;
 inline constexpr double kPoseAdamBeta1 = 0.9;
 inline constexpr double kPoseAdamBeta2 = 0.999;
 inline constexpr double kPoseAdamEpsilon = 1e-8;
+// The per-step correction rates (rotation rad, translation m a step) of runs whose stored config predates the keys;
+// today's default is 0, no per-step corrections (train/train_config.h).
+inline constexpr double kLegacyPoseRefinementRotationRate = 1e-2;
+inline constexpr double kLegacyPoseRefinementTranslationRate = 5e-3;
 // Loss evaluations (a render and its gradient) per frame of test-time fitting (`sfgs eval --fit-iterations`): with
 // L-BFGS, exact-fit Anny avatar on medium-level test fits at 540 x 960, 300 reach 33.7 dB of the 34.9 exact test fits
 // give (docs/results.md, "L-BFGS"); 600 gave 33.0 at the earlier stage shares against 32.1-32.7 at 300, within the

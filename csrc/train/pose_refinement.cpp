@@ -163,9 +163,10 @@ int64_t PoseRefinement::row_of(int64_t frame) const {
 body::SmplxPose PoseRefinement::pose(int64_t frame, int64_t iteration, LossTerms& terms) {
   const data::FrameRecord& record = dataset_.frames[size_t(frame)];
   if (!per_step_corrections_) {
-    // The fit as the last alignment pass left it, with no gradient: the body takes its fused kernels.
+    // The fit as the last alignment pass left it, with no gradient: the body takes its fused kernels. A copy of the
+    // correction: a field the fit lacks would otherwise be a view of the corrections the next pass rewrites.
     at::NoGradGuard no_grad;
-    return corrected_pose(record.pose, corrections_[row_of(frame)]);
+    return corrected_pose(record.pose, corrections_[row_of(frame)].clone());
   }
   if (iteration < start_iteration_) {
     // The same terms every step (the loss watch compares steps), zero while the corrections wait.

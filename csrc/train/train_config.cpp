@@ -208,6 +208,9 @@ TrainConfig TrainConfig::from_yaml_text(const std::string& text, const std::stri
 
 TrainConfig TrainConfig::from_stored_yaml_text(const std::string& text, const std::string& source) {
   TrainConfig before_the_keys;
+  // Pose refinement came with per-step corrections, on (stored configs name the rates; one trimmed by hand keeps them).
+  before_the_keys.pose_refinement.learning_rate = kLegacyPoseRefinementRotationRate;
+  before_the_keys.pose_refinement.translation_learning_rate = kLegacyPoseRefinementTranslationRate;
   before_the_keys.pose_refinement.align_at = {};
   before_the_keys.pose_refinement.align_joints_from = 1.0;
   before_the_keys.pose_refinement.align_orientation_from = 0.0;
@@ -325,6 +328,11 @@ void TrainConfig::validate() const {
               "config: pose_refinement.align_orientation_from (", pose_refinement.align_orientation_from,
               ") must not exceed pose_refinement.align_joints_from (", pose_refinement.align_joints_from,
               "): joints fitted under a held root would take up its error");
+  TORCH_CHECK(!pose_refinement.enabled || !align_at.empty() || pose_refinement.learning_rate > 0 ||
+                  pose_refinement.translation_learning_rate > 0,
+              "config: pose_refinement is enabled but nothing would move the fits: give pose_refinement.align_at "
+              "(alignment passes) or a positive pose_refinement.learning_rate or translation_learning_rate "
+              "(per-step corrections)");
 }
 
 std::vector<ConfigChange> config_changes(const TrainConfig& before, const TrainConfig& after) {

@@ -62,7 +62,8 @@ struct PoseRefinementConfig {
   // step, times the schedule's factor; 0 leaves the fits to the alignment passes. Off by default: Adam moves every
   // number of a drawn frame by about the rate whatever its gradient, so the joints an image barely constrains walk
   // at random, and the avatar, trained on poses that jitter by a degree, never sharpens: on exact fits they cost
-  // the GPU benchmark's training steps 6-7 dB of PSNR (docs/results.md, "Per-step corrections").
+  // the GPU benchmark's training steps 6-7 dB of PSNR (docs/results.md, "Per-step corrections"). Either rate
+  // positive turns them on, the pose's gradient path (the body's slower LibTorch compositions) with them.
   double learning_rate = 0;
   double translation_learning_rate = 0;
   // Share of the run before the corrections move (the avatar is a blur before): the first per-step correction and

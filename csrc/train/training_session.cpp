@@ -153,8 +153,8 @@ void TrainingSession::step(int64_t it) {
     }
     StepInputs inputs(data, device_);
     inputs.upload(data);
-    // With pose refinement the pose is the refined fit, with its gradient (a non-finite correction shows as a
-    // non-finite loss).
+    // With pose refinement the pose is the refined fit: with per-step corrections with its gradient (a non-finite
+    // correction shows as a non-finite loss), without them as the last alignment pass left it.
     const body::SmplxPose pose = refinement_ ? refinement_->pose(f, it, terms) : inputs.pose;
     TrainingStep::OutputTerms keypoint_term;
     if (refinement_)
