@@ -74,17 +74,20 @@ struct PoseRefinementConfig {
   double prior = 0.01;
   double smoothness = 0.05;
   // Shares of the run at which every training frame's refined fit is aligned to its image with the avatar as it is
-  // then (train/pose_fit.h, align_iterations each). From `start` on, rising.
-  std::vector<double> align_at{0.1, 0.5};
+  // then (train/pose_fit.h, align_iterations each). From `start` on, rising. Without per-step corrections the passes
+  // carry the whole refinement: each fits against a sharper avatar, and four (the placement at 10 %, every joint at
+  // 30, 50 and 70 %) brought a CPU run's training frames within 1.4 dB of the exact-fit avatar's where two left 3.3
+  // (docs/results.md, "Per-step corrections"), at about 40 % more training time.
+  std::vector<double> align_at{0.1, 0.3, 0.5, 0.7};
   int64_t align_iterations = 60;
   // The alignment passes at or after this share of the run fit every joint as well (the avatar is sharp enough by
   // then to pose them); the earlier ones leave the joints.
-  double align_joints_from = 0.5;
+  double align_joints_from = 0.3;
   // The alignment passes at or after this share fit the global orientation; the earlier ones the translation alone:
   // against an avatar still a blur a turn towards the camera or about the vertical is nearly free, and a pass at 10 %
   // that fitted it turned the roots from 4 to 6-9 degrees off (docs/results.md, "Smoothness on rotations"). At most
   // align_joints_from: joints fitted under a held root would take up its error.
-  double align_orientation_from = 0.5;
+  double align_orientation_from = 0.3;
   // Weight of the drawn frame's whole-body keypoint reprojection error (train/avatar_keypoints.h) where the training
   // frames have detections (keypoints_whole_body/), also in the alignment passes; 0: the image alone. Without it the
   // refined fits drift together out of the camera's frame and the avatar learns them in that drifted frame.

@@ -476,6 +476,7 @@ TEST(TrainPoseRefinement, AlignmentFitsThePlacementThenTheJointsOfTheTrainingFit
   train::PoseRefinementConfig config = refinement(0.01, 0.05);
   config.align_at = {0.3, 0.5};
   config.align_joints_from = 0.5;
+  config.align_orientation_from = 0.5;
   config.align_iterations = 30;
   train::PoseRefinement r(dataset, config, 10, at::kCPU, nullptr);
   train::LossWeights loss;
