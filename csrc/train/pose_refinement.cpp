@@ -100,7 +100,6 @@ PoseRefinement::PoseRefinement(const data::Dataset& dataset, const PoseRefinemen
     : dataset_(dataset),
       config_(config),
       start_iteration_(iteration_at(config.start, iterations)),
-      per_step_corrections_(config.learning_rate > 0 || config.translation_learning_rate > 0),
       row_(size_t(dataset.size()), -1) {
   frames_ = dataset.split(data::Split::kTrain);
   TORCH_CHECK(!frames_.empty(), "pose refinement: dataset '", dataset.source, "' has no training frames");
@@ -144,7 +143,7 @@ PoseRefinement::PoseRefinement(const data::Dataset& dataset, const PoseRefinemen
 
 void PoseRefinement::add_keypoint_term(int64_t frame, int64_t iteration, const model::Avatar& avatar,
                                        const model::AvatarOutput& out, LossTerms& terms) const {
-  if (!keypoint_map_ || !per_step_corrections_) return;
+  if (!keypoint_map_ || !config_.per_step()) return;
   const FrameKeypoints& keypoints = keypoints_[size_t(row_of(frame))];
   if (iteration < start_iteration_ || !keypoints.defined()) {
     terms["pose_keypoints"] = at::zeros({}, base_.options());  // the same terms every step (the loss watch)
@@ -162,7 +161,7 @@ int64_t PoseRefinement::row_of(int64_t frame) const {
 
 body::SmplxPose PoseRefinement::pose(int64_t frame, int64_t iteration, LossTerms& terms) {
   const data::FrameRecord& record = dataset_.frames[size_t(frame)];
-  if (!per_step_corrections_) {
+  if (!config_.per_step()) {
     // The fit as the last alignment pass left it, with no gradient: the body takes its fused kernels. A copy of the
     // correction: a field the fit lacks would otherwise be a view of the corrections the next pass rewrites.
     at::NoGradGuard no_grad;
@@ -192,7 +191,7 @@ body::SmplxPose PoseRefinement::pose(int64_t frame, int64_t iteration, LossTerms
 }
 
 void PoseRefinement::step(int64_t frame, int64_t iteration, double rate_factor) {
-  if (!per_step_corrections_ || iteration < start_iteration_) return;
+  if (!config_.per_step() || iteration < start_iteration_) return;
   const int64_t r = row_of(frame);
   at::NoGradGuard no_grad;
   at::Tensor& gradient = corrections_.mutable_grad();

@@ -85,7 +85,6 @@ class PoseRefinement {
   const data::Dataset& dataset_;
   PoseRefinementConfig config_;
   int64_t start_iteration_;
-  bool per_step_corrections_;  // a per-step rate is positive: training steps move the drawn frame's correction
   std::vector<int64_t> align_iterations_;  // the iterations of config.align_at
   int64_t align_joints_from_;              // alignment passes from this iteration on fit every joint
   int64_t align_orientation_from_;         // and from this one the global orientation

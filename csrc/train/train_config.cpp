@@ -328,8 +328,7 @@ void TrainConfig::validate() const {
               "config: pose_refinement.align_orientation_from (", pose_refinement.align_orientation_from,
               ") must not exceed pose_refinement.align_joints_from (", pose_refinement.align_joints_from,
               "): joints fitted under a held root would take up its error");
-  TORCH_CHECK(!pose_refinement.enabled || !align_at.empty() || pose_refinement.learning_rate > 0 ||
-                  pose_refinement.translation_learning_rate > 0,
+  TORCH_CHECK(!pose_refinement.enabled || !align_at.empty() || pose_refinement.per_step(),
               "config: pose_refinement is enabled but nothing would move the fits: give pose_refinement.align_at "
               "(alignment passes) or a positive pose_refinement.learning_rate or translation_learning_rate "
               "(per-step corrections)");

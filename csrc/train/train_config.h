@@ -92,6 +92,9 @@ struct PoseRefinementConfig {
   // frames have detections (keypoints_whole_body/), also in the alignment passes; 0: the image alone. Without it the
   // refined fits drift together out of the camera's frame and the avatar learns them in that drifted frame.
   double keypoint_weight = kPoseFitKeypointWeight;
+
+  // Whether training steps move the drawn frame's correction: either per-step rate positive.
+  bool per_step() const { return learning_rate > 0 || translation_learning_rate > 0; }
 };
 
 // Which body model drives the avatar: empty smplx means the built-in procedural body (with its MANO-layout hands).
@@ -117,8 +120,8 @@ struct TrainConfig {
   static TrainConfig from_yaml_text(const std::string& text, const std::string& source = "<text>");
   // A run's stored config (its checkpoint's, which lists every key of its time): a key it lacks did not exist when the
   // run was made, so it takes the value that reproduces what the run did then, not today's default (a resumed run
-  // must not change its objective): no alignment passes, placement-only passes that fit the orientation, no keypoint
-  // term.
+  // must not change its objective): per-step corrections, no alignment passes, placement-only passes that fit the
+  // orientation, no keypoint term.
   static TrainConfig from_stored_yaml_text(const std::string& text, const std::string& source);
   static TrainConfig from_stored_yaml_file(const std::string& path);  // a run folder's config.yaml
   std::string to_yaml() const;

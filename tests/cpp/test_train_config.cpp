@@ -87,8 +87,7 @@ TEST(TrainConfig, ChangesAreListedAndOnlyScheduleAndLoggingMayChangeOnResume) {
 
 // A run's stored config lists every key of its time: a key it lacks came later, and takes the value that reproduces
 // what the run did (per-step corrections, no alignment passes, placement-only passes that turn the body, no keypoint
-// term), so resuming an
-// older run does not change its objective; a config a user writes takes today's defaults.
+// term), so resuming an older run does not change its objective; a config a user writes takes today's defaults.
 TEST(TrainConfig, KeysAStoredConfigLacksKeepTheBehaviourOfItsTime) {
   const std::string before_joint_passes =
       "pose_refinement: {enabled: true, align_at: [0.1, 0.6], keypoint_weight: 1}\n";
