@@ -223,6 +223,15 @@ inline constexpr double kPoseFitFineSilhouetteWeight = 0.1;
 // poorly (with L-BFGS, 32.1-32.7 dB against 31.8 for the image alone; docs/results.md). At the robust term's scale a
 // body within a detector's noise costs about 0.01.
 inline constexpr double kPoseFitKeypointWeight = 1.0;
+// Temporal smoothing of fits (train/fit_smoothing.h, pose_refinement.smoothing_seconds): how far the window reaches
+// (in standard deviations of its Gaussian) and the local polynomial's degree. 2: a steady acceleration passes
+// unchanged (on an exact waving motion a weighted mean moved the joints 0.26 deg, the quadratic 0.09).
+inline constexpr double kFitSmoothingWindowSigmas = 3.0;
+inline constexpr long kFitSmoothingOrder = 2;
+// Below this angle (radians) an axis-angle has no other representative worth taking.
+inline constexpr double kFitSmoothingSmallAngle = 1e-9;
+// The longest smoothing a config may ask for (seconds): beyond a video's length it fits one quadratic to the whole.
+inline constexpr double kMaxFitSmoothingSeconds = 3600.0;
 inline constexpr double kMaxLossWeight = 1e9;
 inline constexpr long kMaxIterations = 100000000;
 inline constexpr long kMaxPlaneChannels = 1024;

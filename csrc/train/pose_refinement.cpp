@@ -14,6 +14,7 @@
 #include "common/constants.h"
 #include "data/json_values.h"
 #include "train/avatar_keypoints.h"
+#include "train/fit_smoothing.h"
 #include "train/pose_fit.h"
 #include "train/run_folder.h"
 
@@ -113,6 +114,8 @@ PoseRefinement::PoseRefinement(const data::Dataset& dataset, const PoseRefinemen
   next_.assign(size_t(rows), -1);
   for (int64_t r = 0; r < rows; ++r) {
     row_[size_t(frames_[size_t(r)])] = r;
+    times_.push_back(dataset.frames[size_t(frames_[size_t(r)])].time);
+    sequences_.push_back(dataset.frames[size_t(frames_[size_t(r)])].sequence);
     fits.push_back(fit_row(dataset.frames[size_t(frames_[size_t(r)])].pose));
     const bool continues = r > 0 && dataset.frames[size_t(frames_[size_t(r - 1)])].sequence ==
                                         dataset.frames[size_t(frames_[size_t(r)])].sequence;
@@ -128,6 +131,7 @@ PoseRefinement::PoseRefinement(const data::Dataset& dataset, const PoseRefinemen
   exp_avg_sq_ = at::zeros({rows, kCorrectionWidth}, options);
   rates_ = column_rates(config.learning_rate, config.translation_learning_rate, device);
   steps_.assign(size_t(rows), 0);
+  smooth_refined_fits();
   for (const double share : config.align_at) align_iterations_.push_back(iteration_at(share, iterations));
   align_joints_from_ = iteration_at(config.align_joints_from, iterations);
   align_orientation_from_ = iteration_at(config.align_orientation_from, iterations);
@@ -241,6 +245,8 @@ nlohmann::json PoseRefinement::align(int64_t iteration, model::Avatar& avatar, c
   }
   avatar->clear_cache();
   avatar->train();
+  const nlohmann::json error_aligned = config_.smoothing_seconds > 0 ? error_against_truth() : nlohmann::json();
+  smooth_refined_fits();
   const double rows = double(frames_.size());
   nlohmann::json entry{{"event", "pose_alignment"},
                        {"iteration", iteration},
@@ -251,8 +257,16 @@ nlohmann::json PoseRefinement::align(int64_t iteration, model::Avatar& avatar, c
   if (!error.empty()) {
     entry["pose_error_before"] = error_before;
     entry["pose_error"] = error;
+    if (!error_aligned.is_null()) entry["pose_error_unsmoothed"] = error_aligned;
   }
   return entry;
+}
+
+void PoseRefinement::smooth_refined_fits() {
+  if (config_.smoothing_seconds <= 0) return;
+  at::NoGradGuard no_grad;
+  const at::Tensor refined = base_ + corrections_.detach();
+  corrections_.copy_(smooth_fits(refined, kCorrectedJoints, times_, sequences_, config_.smoothing_seconds) - base_);
 }
 
 nlohmann::json PoseRefinement::error_against_truth() const {

@@ -15,7 +15,8 @@
 // frames have whole-body keypoint detections, to them (train/avatar_keypoints.h): the image alone lets the refined
 // fits drift together out of the camera's frame. A frame's correction then moves only in the steps that draw the
 // frame (row-sparse Adam): Adam's normalisation would otherwise move every row at the full rate each step on the
-// regularisers' gradients alone.
+// regularisers' gradients alone. With config.smoothing_seconds (off by default), the input fits and the fits each
+// pass leaves are smoothed over time within each sequence (train/fit_smoothing.h).
 #include <cstdint>
 #include <optional>
 #include <string>
@@ -81,6 +82,8 @@ class PoseRefinement {
 
  private:
   int64_t row_of(int64_t frame) const;
+  // Replaces the refined fits by their temporal smoothing (config.smoothing_seconds; nothing when 0).
+  void smooth_refined_fits();
 
   const data::Dataset& dataset_;
   PoseRefinementConfig config_;
@@ -91,6 +94,8 @@ class PoseRefinement {
   std::vector<int64_t> frames_;            // training frames, by sequence and time; row r corrects frames_[r]
   std::vector<int64_t> row_;               // dataset frame -> row, -1 for frames that are not trained on
   std::vector<int64_t> previous_, next_;   // row -> neighbouring row in its sequence, -1 at an end
+  std::vector<double> times_;              // row -> its frame's time and sequence
+  std::vector<int64_t> sequences_;
   at::Tensor base_;                        // (F, kCorrectionWidth) the input fits' corrected fields, on the device
   at::Tensor corrections_;                 // (F, kCorrectionWidth) leaf with a gradient
   at::Tensor exp_avg_, exp_avg_sq_;        // Adam moments, (F, kCorrectionWidth)

@@ -135,7 +135,8 @@ std::vector<std::pair<std::string, Section>> sections(TrainConfig& c) {
         {"align_iterations", field(p.align_iterations)},
         {"align_joints_from", field(p.align_joints_from)},
         {"align_orientation_from", field(p.align_orientation_from)},
-        {"keypoint_weight", field(p.keypoint_weight)}}},
+        {"keypoint_weight", field(p.keypoint_weight)},
+        {"smoothing_seconds", field(p.smoothing_seconds)}}},
   };
 }
 
@@ -315,6 +316,7 @@ void TrainConfig::validate() const {
   check_range(pose_refinement.prior, 0, kMaxLossWeight, "pose_refinement.prior");
   check_range(pose_refinement.smoothness, 0, kMaxLossWeight, "pose_refinement.smoothness");
   check_range(pose_refinement.keypoint_weight, 0, kMaxLossWeight, "pose_refinement.keypoint_weight");
+  check_range(pose_refinement.smoothing_seconds, 0, kMaxFitSmoothingSeconds, "pose_refinement.smoothing_seconds");
   const std::vector<double>& align_at = pose_refinement.align_at;
   for (size_t i = 0; i < align_at.size(); ++i)
     TORCH_CHECK(std::isfinite(align_at[i]) && align_at[i] >= pose_refinement.start && align_at[i] < 1 &&

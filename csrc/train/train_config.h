@@ -92,6 +92,13 @@ struct PoseRefinementConfig {
   // frames have detections (keypoints_whole_body/), also in the alignment passes; 0: the image alone. Without it the
   // refined fits drift together out of the camera's frame and the avatar learns them in that drifted frame.
   double keypoint_weight = kPoseFitKeypointWeight;
+  // Standard deviation (seconds) of the temporal smoothing of the training fits (train/fit_smoothing.h): the input
+  // fits before the first alignment pass and the fits each pass leaves, within each sequence; 0: none (the default).
+  // The passes align each frame on its own, and the jitter of joints an image barely shows survives them. On the GPU
+  // benchmark 0.1 (3 frames at 30 fps) brought the refined body joints 4.6 -> 4.1 deg and the training frames up
+  // 0.6-0.9 dB, but not the test frames (fitted test poses: -1 to -1.5 dB on noisy fits, +0.1 on sfgs fit's);
+  // docs/results.md, "Temporal smoothing".
+  double smoothing_seconds = 0;
 
   // Whether training steps move the drawn frame's correction: either per-step rate positive.
   bool per_step() const { return learning_rate > 0 || translation_learning_rate > 0; }

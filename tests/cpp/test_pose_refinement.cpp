@@ -517,6 +517,9 @@ TEST(TrainPoseRefinement, AlignmentSettingsAreChecked) {
   expect_error([&] { config("  start: 0.3\n  align_at: [0.1]\n"); }, {"pose_refinement.align_at", "0.1"});
   expect_error([&] { config("  align_at: [1.0]\n"); }, {"pose_refinement.align_at"});
   expect_error([&] { config("  align_iterations: 0\n"); }, {"pose_refinement.align_iterations"});
+  config("  smoothing_seconds: 0.1\n");
+  expect_error([&] { config("  smoothing_seconds: -0.1\n"); }, {"pose_refinement.smoothing_seconds", "-0.1"});
+  expect_error([&] { config("  smoothing_seconds: .nan\n"); }, {"pose_refinement.smoothing_seconds"});
   config("  learning_rate: 0\n  translation_learning_rate: 0.005\n");  // 0: no per-step corrections
   config("  enabled: false\n  align_at: []\n");
   expect_error([&] { config("  enabled: true\n  align_at: []\n"); },
