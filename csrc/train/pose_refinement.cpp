@@ -114,8 +114,6 @@ PoseRefinement::PoseRefinement(const data::Dataset& dataset, const PoseRefinemen
   next_.assign(size_t(rows), -1);
   for (int64_t r = 0; r < rows; ++r) {
     row_[size_t(frames_[size_t(r)])] = r;
-    times_.push_back(dataset.frames[size_t(frames_[size_t(r)])].time);
-    sequences_.push_back(dataset.frames[size_t(frames_[size_t(r)])].sequence);
     fits.push_back(fit_row(dataset.frames[size_t(frames_[size_t(r)])].pose));
     const bool continues = r > 0 && dataset.frames[size_t(frames_[size_t(r - 1)])].sequence ==
                                         dataset.frames[size_t(frames_[size_t(r)])].sequence;
@@ -264,9 +262,15 @@ nlohmann::json PoseRefinement::align(int64_t iteration, model::Avatar& avatar, c
 
 void PoseRefinement::smooth_refined_fits() {
   if (config_.smoothing_seconds <= 0) return;
+  std::vector<double> times;
+  std::vector<int64_t> sequences;
+  for (const int64_t f : frames_) {
+    times.push_back(dataset_.frames[size_t(f)].time);
+    sequences.push_back(dataset_.frames[size_t(f)].sequence);
+  }
   at::NoGradGuard no_grad;
   const at::Tensor refined = base_ + corrections_.detach();
-  corrections_.copy_(smooth_fits(refined, kCorrectedJoints, times_, sequences_, config_.smoothing_seconds) - base_);
+  corrections_.copy_(smooth_fits(refined, kCorrectedJoints, times, sequences, config_.smoothing_seconds) - base_);
 }
 
 nlohmann::json PoseRefinement::error_against_truth() const {

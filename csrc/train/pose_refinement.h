@@ -94,8 +94,6 @@ class PoseRefinement {
   std::vector<int64_t> frames_;            // training frames, by sequence and time; row r corrects frames_[r]
   std::vector<int64_t> row_;               // dataset frame -> row, -1 for frames that are not trained on
   std::vector<int64_t> previous_, next_;   // row -> neighbouring row in its sequence, -1 at an end
-  std::vector<double> times_;              // row -> its frame's time and sequence
-  std::vector<int64_t> sequences_;
   at::Tensor base_;                        // (F, kCorrectionWidth) the input fits' corrected fields, on the device
   at::Tensor corrections_;                 // (F, kCorrectionWidth) leaf with a gradient
   at::Tensor exp_avg_, exp_avg_sq_;        // Adam moments, (F, kCorrectionWidth)
