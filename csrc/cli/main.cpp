@@ -35,9 +35,10 @@ commands:
            --keypoint-noise detector|none (detector: whole-body keypoints as a detector reports them)
   fit      SMPL-X fits from whole-body keypoints (keypoints_whole_body/N.json, 133 x [x, y, score]) into
            OUT/smplx_optimized (NeuMan/ExAvatar layout; docs/fitting.md): --data DIR  --out DIR (DIR)
-           --body SMPLX.npz (built-in body)  --device cpu|cuda  --threads N (1)  --iterations G,B,D[,S] (80,600,1200,200)
-           --focal PX (the dataset's, else max(W, H))  --betas-from-data  --start-from-data (DIR/smplx_optimized
-           as the start)  --no-masks  --truth DIR (DIR/ground_truth)  --log-every N (25)  --force  --quiet
+           --body SMPLX.npz (built-in body)  --device cpu|cuda  --threads N (1)
+           --iterations G,B,D[,S] (80,600,1200,200)  --focal PX (the dataset's, else max(W, H))  --betas-from-data
+           --start-from-data (DIR/smplx_optimized as the start)  --no-masks  --truth DIR (DIR/ground_truth)
+           --log-every N (25)  --force  --quiet
   train    train an avatar: --data DATASET --out RUN  --config FILE  --iterations N  --device cpu|cuda
            --stop-at N (pause there, resumable)  --force  --quiet
            --resume: continue RUN with its own config and dataset (--data, --config optional; only schedule and
