@@ -348,10 +348,11 @@ fi
 # with fits corrupted at SFGS_DEVICE_FITS_NOISE (default medium; "noisy"), and the fits `sfgs fit` makes on CUDA from
 # its detector-like keypoints ("fitted"); the data are made once per machine. Each variant of
 # SFGS_DEVICE_FITS_VARIANTS (default "exact noisy refined fitted fitted-refined"; "refined" and "fitted-refined" are
-# noisy and fitted with pose refinement at its defaults, docs/training.md) is trained for SFGS_DEVICE_FITS_ITERATIONS
-# (default 2000) with configs/device_anny.yaml and evaluated on its test frames plainly and with test-time pose
-# fitting (SFGS_DEVICE_FITS_FIT_ITERATIONS, default the command's); the exact variant also with the test fits of each
-# dataset of SFGS_DEVICE_FITS_CROSS (default "noisy fitted"), the reference under the same test fits.
+# noisy and fitted with pose refinement at its defaults, docs/training.md; "refined-round2" and "fitted-round2", listed
+# after them, are second rounds started from their refined fits, `sfgs train --start-fits`) is trained for
+# SFGS_DEVICE_FITS_ITERATIONS (default 2000) with configs/device_anny.yaml and evaluated on its test frames plainly and
+# with test-time pose fitting (SFGS_DEVICE_FITS_FIT_ITERATIONS, default the command's); the exact variant also with the
+# test fits of each dataset of SFGS_DEVICE_FITS_CROSS (default "noisy fitted"), the reference under the same test fits.
 if wants fits; then
   export SFGS_SHARED_DIR=$shared
   scene=/tmp/sfgs-fits
@@ -376,13 +377,17 @@ if wants fits; then
   fit_iterations=()
   [ -n "${SFGS_DEVICE_FITS_FIT_ITERATIONS:-}" ] && fit_iterations=(--fit-iterations "$SFGS_DEVICE_FITS_FIT_ITERATIONS")
   for variant in ${SFGS_DEVICE_FITS_VARIANTS:-exact noisy refined fitted fitted-refined}; do
-    data=$scene/$variant config=$scene/config.yaml
+    data=$scene/$variant config=$scene/config.yaml start=()
     case $variant in
       refined) data=$scene/noisy config=$scene/config-refined.yaml ;;
       fitted-refined) data=$scene/fitted config=$scene/config-refined.yaml ;;
+      refined-round2) data=$scene/noisy config=$scene/config-refined.yaml start=(--start-fits "$scene/run-refined") ;;
+      fitted-round2)
+        data=$scene/fitted config=$scene/config-refined.yaml start=(--start-fits "$scene/run-fitted-refined")
+        ;;
     esac
     run "fits-$variant" 600 "$build/sfgs" train --data "$data" --out "$scene/run-$variant" --config "$config" \
-      --iterations "${SFGS_DEVICE_FITS_ITERATIONS:-2000}" --force --quiet &&
+      "${start[@]}" --iterations "${SFGS_DEVICE_FITS_ITERATIONS:-2000}" --force --quiet &&
       run "fits-$variant" 300 "$build/sfgs" eval --run "$scene/run-$variant" --fit-test-poses "${fit_iterations[@]}"
     grep -E "steps|PSNR|sfgs eval" "$out/fits-$variant.log" | grep -v "fitted the pose" | tail -n 8
     grep -h '"pose_alignment"' "$scene/run-$variant/log.jsonl" 2>/dev/null | cut -c1-200

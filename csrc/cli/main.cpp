@@ -41,6 +41,8 @@ commands:
            --log-every N (25)  --force  --quiet
   train    train an avatar: --data DATASET --out RUN  --config FILE  --iterations N  --device cpu|cuda
            --stop-at N (pause there, resumable)  --force  --quiet
+           --start-fits RUN|FILE: the training frames start from an earlier run's refined fits (a second round
+           on imperfect fits; docs/training.md)
            --resume: continue RUN with its own config and dataset (--data, --config optional; only schedule and
            logging keys may change)
   eval     evaluate a run on a split (ExAvatar/SFGS protocol): --run RUN  --data DATASET (the training one)

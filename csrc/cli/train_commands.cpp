@@ -104,6 +104,15 @@ int run_train(Arguments& args) {
   options.overwrite = args.flag("force");
   options.progress = !args.flag("quiet");
   options.stop_at = args.integer("stop-at", 0, 0, kMaxIterations);
+  options.start_fits = args.text("start-fits", "");
+  // A run folder stands for its refined fits.
+  if (fs::is_directory(options.start_fits)) {
+    const train::RunFolder earlier{options.start_fits};
+    TORCH_CHECK(fs::exists(earlier.refined_fits_file()), "--start-fits: run folder '", earlier.path,
+                "' holds no refined_fits.json (it did not refine its poses); give a run trained with ",
+                "pose_refinement.enabled, or a refined-fits file");
+    options.start_fits = earlier.refined_fits_file();
+  }
   std::string data_folder = args.text("data", "");
   train::TrainConfig config;
   if (options.resume && fs::exists(run.checkpoint_file())) {
@@ -129,6 +138,8 @@ int run_train(Arguments& args) {
   std::printf("sfgs train: %s (%lld frames, %lld for training) -> %s on %s\n", dataset.source.c_str(),
               (long long)dataset.size(), (long long)dataset.split(data::Split::kTrain).size(), run.path.c_str(),
               config.device.c_str());
+  if (!options.start_fits.empty())
+    std::printf("  the training frames start from the fits of %s\n", options.start_fits.c_str());
   finish_training(run, train::train_avatar(dataset, config, run, options), config.schedule.iterations);
   return 0;
 }

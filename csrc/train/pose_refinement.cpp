@@ -344,13 +344,16 @@ void PoseRefinement::write_fits(const std::string& path) const {
   write_file_atomically(path, std::vector<unsigned char>(text.begin(), text.end()), true);
 }
 
-void apply_refined_fits(data::Dataset& dataset, const std::string& path) {
+std::vector<int64_t> apply_refined_fits(data::Dataset& dataset, const std::string& path) {
   const nlohmann::json j = data::read_json_file(path);
   TORCH_CHECK(j.is_object() && j.value("format", "") == "sfgs-refined-fits" && j.contains("frames") &&
                   j.at("frames").is_object(),
               "'", path, "' is not an sfgs refined-fits file (format sfgs-refined-fits with a 'frames' object)");
-  for (data::FrameRecord& record : dataset.frames) {
+  std::vector<int64_t> replaced;
+  for (size_t i = 0; i < dataset.frames.size(); ++i) {
+    data::FrameRecord& record = dataset.frames[i];
     if (!j.at("frames").contains(record.name)) continue;
+    replaced.push_back(int64_t(i));
     const nlohmann::json& fit = j.at("frames").at(record.name);
     for (const CorrectedField& f : corrected_fields()) {
       TORCH_CHECK(fit.contains(f.name), "'", path, "': frame '", record.name, "' lacks '", f.name, "'");
@@ -360,6 +363,7 @@ void apply_refined_fits(data::Dataset& dataset, const std::string& path) {
       record.pose.*(f.member) = f.joints == 1 ? value : value.view({f.joints, 3});
     }
   }
+  return replaced;
 }
 
 }  // namespace sfgs::train

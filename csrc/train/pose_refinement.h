@@ -103,8 +103,9 @@ class PoseRefinement {
   std::vector<FrameKeypoints> keypoints_;                   // per row; undefined for a frame without any
 };
 
-// A copy of `frames`' poses replaced by the fits of a refined-fits JSON (PoseRefinement::write_fits) for the frames
-// it names; frames it does not name keep theirs. Errors name the file, the frame and the field.
-void apply_refined_fits(data::Dataset& dataset, const std::string& path);
+// Replaces the poses of the dataset's frames that a refined-fits JSON (PoseRefinement::write_fits) names by its fits;
+// frames it does not name keep theirs. Returns the indices of the frames it replaced. Errors name the file, the frame
+// and the field.
+std::vector<int64_t> apply_refined_fits(data::Dataset& dataset, const std::string& path);
 
 }  // namespace sfgs::train

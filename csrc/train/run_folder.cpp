@@ -14,6 +14,7 @@ std::string RunFolder::config_file() const { return (fs::path(path) / "config.ya
 std::string RunFolder::checkpoint_file() const { return (fs::path(path) / "checkpoint.pt").string(); }
 std::string RunFolder::log_file() const { return (fs::path(path) / "log.jsonl").string(); }
 std::string RunFolder::refined_fits_file() const { return (fs::path(path) / "refined_fits.json").string(); }
+std::string RunFolder::start_fits_file() const { return (fs::path(path) / "start_fits.json").string(); }
 
 model::Avatar make_avatar(const TrainConfig& config, const at::Tensor& betas, at::Device device) {
   const BodyFiles& b = config.body;
@@ -67,6 +68,7 @@ TrainedAvatar load_trained_avatar(const RunFolder& run, at::Device device) {
   t.dataset_fingerprint = checkpoint.info().dataset_fingerprint;
   if (checkpoint.info().pose_refinement.defined() && fs::exists(run.refined_fits_file()))
     t.refined_fits = run.refined_fits_file();
+  if (fs::exists(run.start_fits_file())) t.start_fits = run.start_fits_file();
   t.avatar = make_avatar(t.config, t.betas, at::kCPU);
   checkpoint.load_avatar(t.avatar);
   t.avatar->to(device);
@@ -78,9 +80,12 @@ data::Dataset read_run_dataset(const TrainedAvatar& trained, const std::string& 
               "', which is not there (moved, deleted, or a relative path from another working directory); give ",
               "the dataset's folder (--data; in Python, load_avatar(run, data=...))");
   data::Dataset dataset = data::read_dataset(folder.empty() ? trained.dataset : folder);
-  if (!trained.refined_fits.empty() && dataset.fingerprint() == trained.dataset_fingerprint)
-    apply_refined_fits(dataset, trained.refined_fits);
-  return dataset;
+  // Another dataset (its fingerprint differs either way) keeps its own fits.
+  data::Dataset started = dataset;
+  if (!trained.start_fits.empty()) apply_refined_fits(started, trained.start_fits);
+  if (started.fingerprint() != trained.dataset_fingerprint) return dataset;
+  if (!trained.refined_fits.empty()) apply_refined_fits(started, trained.refined_fits);
+  return started;
 }
 
 std::string absolute_dataset_path(const data::Dataset& dataset) {

@@ -18,6 +18,8 @@ struct RunFolder {
   std::string log_file() const;
   // The training frames' refined fits of a run that refines its poses (PoseRefinement::write_fits).
   std::string refined_fits_file() const;
+  // The fits a run's training frames started from when it was trained with start fits (TrainOptions::start_fits).
+  std::string start_fits_file() const;
 };
 
 // The avatar the config describes, for a subject with these betas, on `device`.
@@ -42,6 +44,7 @@ struct TrainedAvatar {
   int64_t iteration = 0;
   std::string dataset_fingerprint;  // data::Dataset::fingerprint() of it (empty for runs of the first format)
   std::string refined_fits;         // the run's refined-fits file when it refined its poses; empty otherwise
+  std::string start_fits;           // the run's start-fits file when it started from other fits; empty otherwise
 };
 
 // Reads the run's checkpoint.pt and builds its avatar on `device`. The checkpoint is verified (checksums, finite
@@ -49,8 +52,9 @@ struct TrainedAvatar {
 TrainedAvatar load_trained_avatar(const RunFolder& run, at::Device device);
 
 // The dataset a trained avatar is evaluated or rendered with: `folder` when given (--data), else the one it was
-// trained on; when that has moved, the error says so and how to point at it. A run that refined its poses gives the
-// training frames of the dataset it was trained on (the same fingerprint, wherever it lies) their refined fits.
+// trained on; when that has moved, the error says so and how to point at it. The training frames of the dataset it
+// was trained on (the same fingerprint with the run's start fits applied, wherever it lies) take the fits the run
+// trained them with: its refined fits when it refined its poses, else its start fits when it had them.
 data::Dataset read_run_dataset(const TrainedAvatar& trained, const std::string& folder);
 
 // The folder a dataset was read from, absolute and normalised: what a run stores so that it can be used from any

@@ -1,13 +1,18 @@
 #include "train/trainer.h"
 
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
+#include <fstream>
+#include <iterator>
 #include <optional>
+#include <vector>
 
 #include <ATen/ATen.h>
 
 #include "common/atomic_file.h"
 #include "common/folder_lock.h"
+#include "train/pose_refinement.h"
 #include "train/training_session.h"
 
 namespace sfgs::train {
@@ -74,6 +79,35 @@ RunPlan plan_run(const data::Dataset& dataset, const TrainConfig& config, const 
   return plan;
 }
 
+// The dataset with the training frames' start fits applied, where the run has some: those asked for (a new run) or
+// those a resumed run started from; none otherwise.
+std::optional<data::Dataset> with_start_fits(const data::Dataset& dataset, const RunFolder& run,
+                                             const TrainOptions& options) {
+  const bool resuming = options.resume && fs::exists(run.checkpoint_file());
+  TORCH_CHECK(options.start_fits.empty() || !resuming, "cannot resume run '", run.path, "' from start fits '",
+              options.start_fits, "': a resumed run keeps the fits it started from (", run.start_fits_file(),
+              " when it had any); start a new run (--force or another --out) to start from other fits");
+  const std::string file = !options.start_fits.empty()
+                               ? options.start_fits
+                               : (resuming && fs::exists(run.start_fits_file()) ? run.start_fits_file() : "");
+  if (file.empty()) return std::nullopt;
+  data::Dataset started = dataset;
+  const std::vector<int64_t> replaced = apply_refined_fits(started, file);
+  const std::vector<int64_t>& train_frames = dataset.split(data::Split::kTrain);
+  const bool any = std::any_of(replaced.begin(), replaced.end(), [&](int64_t f) {
+    return std::find(train_frames.begin(), train_frames.end(), f) != train_frames.end();
+  });
+  TORCH_CHECK(any, "start fits '", file, "' name none of the training frames of dataset '", dataset.source,
+              "': give the refined fits of a run trained on this dataset");
+  return started;
+}
+
+std::vector<unsigned char> file_bytes(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  TORCH_CHECK(in.good(), "cannot read '", path, "'");
+  return std::vector<unsigned char>(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+}
+
 // Keeps the log's entries up to the checkpoint's iteration: the steps a killed run made after its last checkpoint
 // are run again, and must not appear twice.
 void rewind_log(const RunFolder& run, int64_t iteration) {
@@ -92,16 +126,18 @@ double learning_rate_factor(const Schedule& schedule, int64_t iteration) {
   return factor;
 }
 
-TrainSummary train_avatar(const data::Dataset& dataset, const TrainConfig& config, const RunFolder& run,
+TrainSummary train_avatar(const data::Dataset& given, const TrainConfig& config, const RunFolder& run,
                           const TrainOptions& options) {
   config.validate();
-  TORCH_CHECK(!dataset.split(data::Split::kTrain).empty(), "dataset '", dataset.source, "' has no training frames");
+  TORCH_CHECK(!given.split(data::Split::kTrain).empty(), "dataset '", given.source, "' has no training frames");
   TORCH_CHECK(config.device != "cuda" || cuda_backend_available(),
               "run.device is cuda but this build of sfgs has no CUDA backend");
   const FolderLock lock(run.path, "train");
   for (const std::string& name : remove_stale_temporaries(run.path))
     std::fprintf(stderr, "sfgs train: removed '%s', left in '%s' by a process that was killed\n", name.c_str(),
                  run.path.c_str());
+  const std::optional<data::Dataset> started = with_start_fits(given, run, options);
+  const data::Dataset& dataset = started ? *started : given;
   RunPlan plan = plan_run(dataset, config, run, options);
   TrainingSession session(dataset, config, run, options);
   if (plan.checkpoint) session.restore(*plan.checkpoint);
@@ -116,6 +152,10 @@ TrainSummary train_avatar(const data::Dataset& dataset, const TrainConfig& confi
   // Everything is validated: only now are the run's files written.
   const std::string config_text = config.to_yaml();
   write_file_atomically(run.config_file(), std::vector<unsigned char>(config_text.begin(), config_text.end()), true);
+  if (!options.start_fits.empty())
+    write_file_atomically(run.start_fits_file(), file_bytes(options.start_fits), true);
+  else if (!plan.checkpoint)
+    std::remove(run.start_fits_file().c_str());  // a new run's training frames keep the dataset's fits
   if (plan.checkpoint)
     rewind_log(run, plan.start);
   else

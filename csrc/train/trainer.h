@@ -19,6 +19,10 @@ struct TrainOptions {
   // Pause after this many iterations (checkpoint written) so that a later --resume continues the same run;
   // 0 runs to the end of the schedule.
   int64_t stop_at = 0;
+  // A refined-fits file (an earlier run's refined_fits.json) whose fits the training frames start from instead of the
+  // dataset's: a second round on fits an earlier run refined. A new run keeps a copy (RunFolder::start_fits_file) that
+  // a resume and every command reading the run apply again; a resumed run takes no other.
+  std::string start_fits;
 };
 
 struct TrainSummary {
