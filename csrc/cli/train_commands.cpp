@@ -108,9 +108,10 @@ int run_train(Arguments& args) {
   // A run folder stands for its refined fits.
   if (fs::is_directory(options.start_fits)) {
     const train::RunFolder earlier{options.start_fits};
-    TORCH_CHECK(fs::exists(earlier.refined_fits_file()), "--start-fits: run folder '", earlier.path,
-                "' holds no refined_fits.json (it did not refine its poses); give a run trained with ",
-                "pose_refinement.enabled, or a refined-fits file");
+    TORCH_CHECK(fs::exists(earlier.refined_fits_file()) && fs::exists(earlier.checkpoint_file()) &&
+                    train::CheckpointReader(earlier.checkpoint_file()).info().pose_refinement.defined(),
+                "--start-fits: run folder '", earlier.path, "' holds no refined fits of its checkpoint (it did not ",
+                "refine its poses); give a run trained with pose_refinement.enabled, or a refined-fits file");
     options.start_fits = earlier.refined_fits_file();
   }
   std::string data_folder = args.text("data", "");

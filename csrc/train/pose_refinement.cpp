@@ -345,7 +345,10 @@ void PoseRefinement::write_fits(const std::string& path) const {
 }
 
 std::vector<int64_t> apply_refined_fits(data::Dataset& dataset, const std::string& path) {
-  const nlohmann::json j = data::read_json_file(path);
+  return apply_refined_fits(dataset, data::read_json_file(path), path);
+}
+
+std::vector<int64_t> apply_refined_fits(data::Dataset& dataset, const nlohmann::json& j, const std::string& path) {
   TORCH_CHECK(j.is_object() && j.value("format", "") == "sfgs-refined-fits" && j.contains("frames") &&
                   j.at("frames").is_object(),
               "'", path, "' is not an sfgs refined-fits file (format sfgs-refined-fits with a 'frames' object)");

@@ -103,9 +103,11 @@ class PoseRefinement {
   std::vector<FrameKeypoints> keypoints_;                   // per row; undefined for a frame without any
 };
 
-// Replaces the poses of the dataset's frames that a refined-fits JSON (PoseRefinement::write_fits) names by its fits;
-// frames it does not name keep theirs. Returns the indices of the frames it replaced. Errors name the file, the frame
-// and the field.
+// Replaces the poses of the dataset's frames that a refined-fits document (PoseRefinement::write_fits), read from
+// `source`, names by its fits; frames it does not name keep theirs. Returns the indices of the frames it replaced.
+// Errors name the source, the frame and the field.
+std::vector<int64_t> apply_refined_fits(data::Dataset& dataset, const nlohmann::json& fits, const std::string& source);
+// The same, read from the file `path`.
 std::vector<int64_t> apply_refined_fits(data::Dataset& dataset, const std::string& path);
 
 }  // namespace sfgs::train

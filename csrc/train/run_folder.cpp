@@ -80,12 +80,16 @@ data::Dataset read_run_dataset(const TrainedAvatar& trained, const std::string& 
               "', which is not there (moved, deleted, or a relative path from another working directory); give ",
               "the dataset's folder (--data; in Python, load_avatar(run, data=...))");
   data::Dataset dataset = data::read_dataset(folder.empty() ? trained.dataset : folder);
-  // Another dataset (its fingerprint differs either way) keeps its own fits.
-  data::Dataset started = dataset;
-  if (!trained.start_fits.empty()) apply_refined_fits(started, trained.start_fits);
-  if (started.fingerprint() != trained.dataset_fingerprint) return dataset;
-  if (!trained.refined_fits.empty()) apply_refined_fits(started, trained.refined_fits);
-  return started;
+  // The run's dataset, as it was trained, is the one read (no start fits, or a start-fits file a run killed before its
+  // first checkpoint left beside an older one) or that with the start fits; another dataset keeps its own fits.
+  if (!trained.start_fits.empty() && dataset.fingerprint() != trained.dataset_fingerprint) {
+    data::Dataset started = dataset;
+    apply_refined_fits(started, trained.start_fits);
+    if (started.fingerprint() == trained.dataset_fingerprint) dataset = std::move(started);
+  }
+  if (!trained.refined_fits.empty() && dataset.fingerprint() == trained.dataset_fingerprint)
+    apply_refined_fits(dataset, trained.refined_fits);
+  return dataset;
 }
 
 std::string absolute_dataset_path(const data::Dataset& dataset) {

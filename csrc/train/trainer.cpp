@@ -9,6 +9,7 @@
 #include <vector>
 
 #include <ATen/ATen.h>
+#include <nlohmann/json.hpp>
 
 #include "common/atomic_file.h"
 #include "common/folder_lock.h"
@@ -79,33 +80,55 @@ RunPlan plan_run(const data::Dataset& dataset, const TrainConfig& config, const 
   return plan;
 }
 
-// The dataset with the training frames' start fits applied, where the run has some: those asked for (a new run) or
-// those a resumed run started from; none otherwise.
-std::optional<data::Dataset> with_start_fits(const data::Dataset& dataset, const RunFolder& run,
-                                             const TrainOptions& options) {
-  const bool resuming = options.resume && fs::exists(run.checkpoint_file());
-  TORCH_CHECK(options.start_fits.empty() || !resuming, "cannot resume run '", run.path, "' from start fits '",
-              options.start_fits, "': a resumed run keeps the fits it started from (", run.start_fits_file(),
-              " when it had any); start a new run (--force or another --out) to start from other fits");
-  const std::string file = !options.start_fits.empty()
-                               ? options.start_fits
-                               : (resuming && fs::exists(run.start_fits_file()) ? run.start_fits_file() : "");
-  if (file.empty()) return std::nullopt;
-  data::Dataset started = dataset;
-  const std::vector<int64_t> replaced = apply_refined_fits(started, file);
-  const std::vector<int64_t>& train_frames = dataset.split(data::Split::kTrain);
-  const bool any = std::any_of(replaced.begin(), replaced.end(), [&](int64_t f) {
-    return std::find(train_frames.begin(), train_frames.end(), f) != train_frames.end();
-  });
-  TORCH_CHECK(any, "start fits '", file, "' name none of the training frames of dataset '", dataset.source,
-              "': give the refined fits of a run trained on this dataset");
-  return started;
-}
-
 std::vector<unsigned char> file_bytes(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   TORCH_CHECK(in.good(), "cannot read '", path, "'");
   return std::vector<unsigned char>(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+}
+
+// A run's start fits: the dataset with them applied, and the file's bytes, read once (the run keeps this copy).
+struct StartFits {
+  data::Dataset dataset;
+  std::vector<unsigned char> bytes;
+};
+
+// The run's start fits, where it has some: those asked for, or the copy a resumed run keeps (a resume may name the
+// same fits again, not others); none otherwise.
+std::optional<StartFits> read_start_fits(const data::Dataset& dataset, const RunFolder& run,
+                                         const TrainOptions& options) {
+  std::string file = options.start_fits;
+  std::vector<unsigned char> bytes;
+  if (options.resume && fs::exists(run.start_fits_file())) {
+    bytes = file_bytes(run.start_fits_file());
+    TORCH_CHECK(file.empty() || file_bytes(file) == bytes, "cannot resume run '", run.path, "' from start fits '", file,
+                "': it started from other fits (", run.start_fits_file(), "); resume without --start-fits, or start ",
+                "a new run (--force or another --out)");
+    file = run.start_fits_file();
+  } else if (!file.empty()) {
+    TORCH_CHECK(!options.resume || !fs::exists(run.checkpoint_file()), "cannot resume run '", run.path,
+                "' from start fits '", file, "': it started from the dataset's own fits; start a new run (--force or ",
+                "another --out) to start from other fits");
+    bytes = file_bytes(file);
+  } else {
+    return std::nullopt;
+  }
+  nlohmann::json fits;
+  try {
+    fits = nlohmann::json::parse(bytes.begin(), bytes.end());
+  } catch (const nlohmann::json::exception& e) {
+    TORCH_CHECK(false, "start fits '", file, "' are not valid JSON: ", e.what());
+  }
+  StartFits start{dataset, std::move(bytes)};
+  const std::vector<int64_t> replaced = apply_refined_fits(start.dataset, fits, file);
+  const std::vector<int64_t>& train_frames = dataset.split(data::Split::kTrain);
+  for (const int64_t f : replaced)
+    TORCH_CHECK(std::find(train_frames.begin(), train_frames.end(), f) != train_frames.end(), "start fits '", file,
+                "' give frame '", dataset.frames[size_t(f)].name,
+                "' a fit, but it is not a training frame of dataset '", dataset.source,
+                "': give the refined fits of a run trained on this dataset and its split");
+  TORCH_CHECK(!replaced.empty(), "start fits '", file, "' name none of the training frames of dataset '",
+              dataset.source, "': give the refined fits of a run trained on this dataset");
+  return start;
 }
 
 // Keeps the log's entries up to the checkpoint's iteration: the steps a killed run made after its last checkpoint
@@ -136,8 +159,8 @@ TrainSummary train_avatar(const data::Dataset& given, const TrainConfig& config,
   for (const std::string& name : remove_stale_temporaries(run.path))
     std::fprintf(stderr, "sfgs train: removed '%s', left in '%s' by a process that was killed\n", name.c_str(),
                  run.path.c_str());
-  const std::optional<data::Dataset> started = with_start_fits(given, run, options);
-  const data::Dataset& dataset = started ? *started : given;
+  const std::optional<StartFits> start = read_start_fits(given, run, options);
+  const data::Dataset& dataset = start ? start->dataset : given;
   RunPlan plan = plan_run(dataset, config, run, options);
   TrainingSession session(dataset, config, run, options);
   if (plan.checkpoint) session.restore(*plan.checkpoint);
@@ -152,10 +175,10 @@ TrainSummary train_avatar(const data::Dataset& given, const TrainConfig& config,
   // Everything is validated: only now are the run's files written.
   const std::string config_text = config.to_yaml();
   write_file_atomically(run.config_file(), std::vector<unsigned char>(config_text.begin(), config_text.end()), true);
-  if (!options.start_fits.empty())
-    write_file_atomically(run.start_fits_file(), file_bytes(options.start_fits), true);
-  else if (!plan.checkpoint)
-    std::remove(run.start_fits_file().c_str());  // a new run's training frames keep the dataset's fits
+  if (start)
+    write_file_atomically(run.start_fits_file(), start->bytes, true);
+  else
+    std::remove(run.start_fits_file().c_str());  // the training frames keep the dataset's fits
   if (plan.checkpoint)
     rewind_log(run, plan.start);
   else

@@ -20,8 +20,9 @@ struct TrainOptions {
   // 0 runs to the end of the schedule.
   int64_t stop_at = 0;
   // A refined-fits file (an earlier run's refined_fits.json) whose fits the training frames start from instead of the
-  // dataset's: a second round on fits an earlier run refined. A new run keeps a copy (RunFolder::start_fits_file) that
-  // a resume and every command reading the run apply again; a resumed run takes no other.
+  // dataset's: a second round on fits an earlier run refined. It may name training frames only. The run keeps a copy
+  // (RunFolder::start_fits_file) that a resume applies again (it may name the same fits, not others) and every command
+  // reading the run applies; a new run without start fits removes an old copy.
   std::string start_fits;
 };
 

@@ -2,8 +2,8 @@
 // its fields; the prior pulls a correction back to the input fit and the smoothness term evens out a jittered frame;
 // the image's gradient reaches the corrections of a real training run, whose refined fits are saved, applied to its
 // training frames only and resumed exactly; a fit recovers a perturbed pose from the avatar's own image and stays at
-// an exact one; the alignment of training fits brings them to the truth; a second round starts from a run's refined
-// fits; bad refined-fits files and alignment settings are refused by name.
+// an exact one; the alignment of training fits brings them to the truth; bad refined-fits files and alignment
+// settings are refused by name (a second round's start fits: test_second_round.cpp).
 #include <algorithm>
 #include <cmath>
 #include <fstream>
@@ -290,58 +290,6 @@ TEST(TrainPoseRefinement, TrainingRefinesSavesAndResumesTheFits) {
     }
   }
   EXPECT_GT(changed, 0);
-}
-
-// A second round: a run whose training frames start from an earlier run's refined fits trains on them, keeps them
-// through a pause and resume (the resumed dataset's fingerprint would differ without them), and gives them to every
-// command reading it; a resume from other fits, and fits that name no training frame, are refused; a new run in the
-// same folder without them trains on the dataset's own fits again.
-TEST(TrainPoseRefinement, ASecondRoundStartsFromAnEarlierRunsRefinedFits) {
-  TempFolder folder;
-  const data::Dataset dataset = tiny_video(folder, 10, 32);
-  train::TrainConfig refining = tiny_train_config();
-  refining.pose_refinement.enabled = true;
-  refining.pose_refinement.align_at = {0.5};
-  refining.pose_refinement.align_iterations = 4;
-  const train::RunFolder first{folder / "first"}, second{folder / "second"};
-  train::train_avatar(dataset, refining, first, quiet());
-  const data::Dataset refined = train::read_run_dataset(train::load_trained_avatar(first, at::kCPU), "");
-
-  const train::TrainConfig plain = tiny_train_config();
-  train::TrainOptions start = quiet();
-  start.start_fits = first.refined_fits_file();
-  start.stop_at = 3;
-  train::train_avatar(dataset, plain, second, start);
-  train::TrainOptions resume = quiet();
-  resume.resume = true;
-  train::train_avatar(dataset, plain, second, resume);
-  const train::TrainedAvatar trained = train::load_trained_avatar(second, at::kCPU);
-  EXPECT_EQ(trained.iteration, plain.schedule.iterations);
-  const data::Dataset used = train::read_run_dataset(trained, "");
-  const std::vector<int64_t>& train_frames = dataset.split(data::Split::kTrain);
-  int64_t moved = 0;
-  for (int64_t f = 0; f < dataset.size(); ++f) {
-    const at::Tensor& body = used.frames[size_t(f)].pose.body_pose;
-    const bool trained_on = std::find(train_frames.begin(), train_frames.end(), f) != train_frames.end();
-    const data::Dataset& expected = trained_on ? refined : dataset;
-    EXPECT_TRUE(body.equal(expected.frames[size_t(f)].pose.body_pose)) << "frame " << f;
-    moved += trained_on && !body.equal(dataset.frames[size_t(f)].pose.body_pose);
-  }
-  EXPECT_GT(moved, 0) << "the first round's pass moved no fit";
-
-  resume.start_fits = first.refined_fits_file();
-  expect_error([&] { train::train_avatar(dataset, plain, second, resume); }, {"cannot resume", "start fits"});
-  const std::string empty = folder / "empty_fits.json";
-  std::ofstream(empty) << R"({"format": "sfgs-refined-fits", "version": 1, "frames": {}})";
-  train::TrainOptions fresh = quiet();
-  fresh.overwrite = true;
-  fresh.start_fits = empty;
-  expect_error([&] { train::train_avatar(dataset, plain, second, fresh); }, {"empty_fits.json", "training frames"});
-  fresh.start_fits.clear();
-  train::train_avatar(dataset, plain, second, fresh);
-  const data::Dataset own = train::read_run_dataset(train::load_trained_avatar(second, at::kCPU), "");
-  for (const int64_t f : train_frames)
-    EXPECT_TRUE(own.frames[size_t(f)].pose.body_pose.equal(dataset.frames[size_t(f)].pose.body_pose)) << "frame " << f;
 }
 
 // A textured avatar (fixed, random parameters) and the frames `frames` of `dataset` made its own renders of their
