@@ -108,10 +108,12 @@ int run_train(Arguments& args) {
   // A run folder stands for its refined fits.
   if (fs::is_directory(options.start_fits)) {
     const train::RunFolder earlier{options.start_fits};
-    TORCH_CHECK(fs::exists(earlier.refined_fits_file()) && fs::exists(earlier.checkpoint_file()) &&
+    TORCH_CHECK(fs::exists(earlier.checkpoint_file()), "--start-fits: '", earlier.path,
+                "' is a folder without a checkpoint.pt, not a trained run; give a run folder or a refined-fits file");
+    TORCH_CHECK(fs::exists(earlier.refined_fits_file()) &&
                     train::CheckpointReader(earlier.checkpoint_file()).info().pose_refinement.defined(),
-                "--start-fits: run folder '", earlier.path, "' holds no refined fits of its checkpoint (it did not ",
-                "refine its poses); give a run trained with pose_refinement.enabled, or a refined-fits file");
+                "--start-fits: run '", earlier.path, "' did not refine its poses (no refined fits beside its ",
+                "checkpoint); give a run trained with pose_refinement.enabled, or a refined-fits file");
     options.start_fits = earlier.refined_fits_file();
   }
   std::string data_folder = args.text("data", "");
@@ -139,8 +141,10 @@ int run_train(Arguments& args) {
   std::printf("sfgs train: %s (%lld frames, %lld for training) -> %s on %s\n", dataset.source.c_str(),
               (long long)dataset.size(), (long long)dataset.split(data::Split::kTrain).size(), run.path.c_str(),
               config.device.c_str());
-  if (!options.start_fits.empty())
-    std::printf("  the training frames start from the fits of %s\n", options.start_fits.c_str());
+  const bool own_start_fits = options.resume && fs::exists(run.start_fits_file());
+  if (own_start_fits || !options.start_fits.empty())
+    std::printf("  the training frames start from the fits of %s\n",
+                (own_start_fits ? run.start_fits_file() : options.start_fits).c_str());
   finish_training(run, train::train_avatar(dataset, config, run, options), config.schedule.iterations);
   return 0;
 }

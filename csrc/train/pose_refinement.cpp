@@ -348,10 +348,10 @@ std::vector<int64_t> apply_refined_fits(data::Dataset& dataset, const std::strin
   return apply_refined_fits(dataset, data::read_json_file(path), path);
 }
 
-std::vector<int64_t> apply_refined_fits(data::Dataset& dataset, const nlohmann::json& j, const std::string& path) {
+std::vector<int64_t> apply_refined_fits(data::Dataset& dataset, const nlohmann::json& j, const std::string& source) {
   TORCH_CHECK(j.is_object() && j.value("format", "") == "sfgs-refined-fits" && j.contains("frames") &&
                   j.at("frames").is_object(),
-              "'", path, "' is not an sfgs refined-fits file (format sfgs-refined-fits with a 'frames' object)");
+              "'", source, "' is not an sfgs refined-fits file (format sfgs-refined-fits with a 'frames' object)");
   std::vector<int64_t> replaced;
   for (size_t i = 0; i < dataset.frames.size(); ++i) {
     data::FrameRecord& record = dataset.frames[i];
@@ -359,8 +359,8 @@ std::vector<int64_t> apply_refined_fits(data::Dataset& dataset, const nlohmann::
     replaced.push_back(int64_t(i));
     const nlohmann::json& fit = j.at("frames").at(record.name);
     for (const CorrectedField& f : corrected_fields()) {
-      TORCH_CHECK(fit.contains(f.name), "'", path, "': frame '", record.name, "' lacks '", f.name, "'");
-      const std::string where = path + ": frame " + record.name + ": " + f.name;
+      TORCH_CHECK(fit.contains(f.name), "'", source, "': frame '", record.name, "' lacks '", f.name, "'");
+      const std::string where = source + ": frame " + record.name + ": " + f.name;
       const at::Tensor value = data::json_numbers(fit.at(f.name), {3 * f.joints}, where).to(at::kFloat);
       TORCH_CHECK(value.isfinite().all().item<bool>(), where, " must be finite");
       record.pose.*(f.member) = f.joints == 1 ? value : value.view({f.joints, 3});

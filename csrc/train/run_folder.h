@@ -53,8 +53,8 @@ TrainedAvatar load_trained_avatar(const RunFolder& run, at::Device device);
 
 // The dataset a trained avatar is evaluated or rendered with: `folder` when given (--data), else the one it was
 // trained on; when that has moved, the error says so and how to point at it. The training frames of the dataset it
-// was trained on (the same fingerprint with the run's start fits applied, wherever it lies) take the fits the run
-// trained them with: its refined fits when it refined its poses, else its start fits when it had them.
+// was trained on (wherever it lies: the same fingerprint as read, or with the run's start fits applied) take the fits
+// the run trained them with: its refined fits when it refined its poses, else its start fits when it had them.
 data::Dataset read_run_dataset(const TrainedAvatar& trained, const std::string& folder);
 
 // The folder a dataset was read from, absolute and normalised: what a run stores so that it can be used from any

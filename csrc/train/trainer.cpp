@@ -175,10 +175,7 @@ TrainSummary train_avatar(const data::Dataset& given, const TrainConfig& config,
   // Everything is validated: only now are the run's files written.
   const std::string config_text = config.to_yaml();
   write_file_atomically(run.config_file(), std::vector<unsigned char>(config_text.begin(), config_text.end()), true);
-  if (start)
-    write_file_atomically(run.start_fits_file(), start->bytes, true);
-  else
-    std::remove(run.start_fits_file().c_str());  // the training frames keep the dataset's fits
+  session.keep_start_fits(start ? std::optional(start->bytes) : std::nullopt);
   if (plan.checkpoint)
     rewind_log(run, plan.start);
   else

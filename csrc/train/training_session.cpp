@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <map>
 #include <optional>
 #include <sstream>
@@ -10,6 +11,7 @@
 #include <ATen/ATen.h>
 #include <nlohmann/json.hpp>
 
+#include "common/atomic_file.h"
 #include "common/device_graph.h"
 #include "common/stage_timer.h"
 #include "metrics/image_metrics.h"
@@ -100,6 +102,10 @@ void TrainingSession::restore(CheckpointReader& checkpoint) {
                 "' holds no pose refinement state, but the run's config refines poses");
     refinement_->restore(checkpoint.info().pose_refinement);
   }
+}
+
+void TrainingSession::keep_start_fits(std::optional<std::vector<unsigned char>> bytes) {
+  start_fits_ = std::move(bytes);
 }
 
 void TrainingSession::open_log() {
@@ -300,6 +306,10 @@ void TrainingSession::checkpoint(int64_t done) {
   try {
     save_checkpoint(run_.checkpoint_file(), info, avatar_, *optimizer_);
     if (refinement_) refinement_->write_fits(run_.refined_fits_file());
+    if (start_fits_)
+      write_file_atomically(run_.start_fits_file(), *start_fits_, true);
+    else
+      std::remove(run_.start_fits_file().c_str());
   } catch (const std::runtime_error& e) {
     if (first_non_finite_tensor(*avatar_).empty()) throw;
     stop_diverged(

@@ -2,7 +2,9 @@
 // The state of one training call (internal to the trainer): the avatar and its optimiser, the losses, the frame
 // sampler, the log and the watch for divergence, and the step, validation and checkpoint that act on them.
 #include <memory>
+#include <optional>
 #include <random>
+#include <vector>
 
 #include <torch/optim/adam.h>
 
@@ -45,6 +47,9 @@ class TrainingSession {
   // must be open (open_log) first.
   TrainSummary run(int64_t start, int64_t end);
   void open_log();
+  // The bytes of the start-fits file the run trains from (none: the dataset's own fits), written beside every
+  // checkpoint (RunFolder::start_fits_file; removed there when none) so that the copy always belongs to it.
+  void keep_start_fits(std::optional<std::vector<unsigned char>> bytes);
 
  private:
   void step(int64_t iteration);
@@ -81,6 +86,7 @@ class TrainingSession {
   // the step's frame saw it, and the number of steps.
   at::Tensor observation_sum_;
   int64_t observation_steps_ = 0;
+  std::optional<std::vector<unsigned char>> start_fits_;
   int64_t last_checkpoint_ = -1;  // iteration of the newest good checkpoint, -1 for none
   TrainSummary summary_;
 };

@@ -29,7 +29,7 @@ bool is_training_frame(const data::Dataset& dataset, int64_t f) {
   return std::find(train_frames.begin(), train_frames.end(), f) != train_frames.end();
 }
 
-// Whether every frame of `read` has the body pose of `expected` for training frames and of `dataset` for the others.
+// Expects every frame of `read` to have the body pose of `expected` for training frames, of `dataset` for the others.
 void expect_training_fits(const data::Dataset& read, const data::Dataset& expected, const data::Dataset& dataset,
                           const std::string& what) {
   for (int64_t f = 0; f < dataset.size(); ++f) {
@@ -104,9 +104,14 @@ TEST(TrainPoseRefinement, ASecondRoundStartsFromAnEarlierRunsRefinedFits) {
   fresh.start_fits.clear();
   train::train_avatar(dataset, plain, second, fresh);
   EXPECT_FALSE(fs::exists(second.start_fits_file()));
-  fs::copy_file(first.refined_fits_file(), second.start_fits_file());  // as a run killed before its checkpoint leaves
+  // A copy that does not belong to a run's checkpoint (the run's dataset as read has its fingerprint) changes nothing,
+  // its refined fits included.
+  fs::copy_file(other_file, second.start_fits_file());
   expect_training_fits(train::read_run_dataset(train::load_trained_avatar(second, at::kCPU), ""), dataset, dataset,
                        "a run on the dataset's own fits");
+  fs::copy_file(third.start_fits_file(), first.start_fits_file());
+  expect_training_fits(train::read_run_dataset(train::load_trained_avatar(first, at::kCPU), ""), first_fits, dataset,
+                       "a first round with a copy beside it");
 }
 
 }  // namespace
