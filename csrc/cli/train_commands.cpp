@@ -41,7 +41,10 @@ train::TrainConfig load_config(Arguments& args, const std::string& fallback_file
 
 // Says what this call did: which iterations it ran, where the run stands, its last loss and validation, and writes
 // the run-time-versus-error curve (curve.csv, curve.png) beside the log.
-void finish_training(const train::RunFolder& run, const train::TrainSummary& s, int64_t scheduled) {
+void finish_training(const train::TrainSummary& s, int64_t scheduled) {
+  const train::RunFolder run{s.folder};
+  if (s.rounds > 1)
+    std::printf("  round %lld of %lld, in %s\n", (long long)s.round, (long long)s.rounds, run.path.c_str());
   if (s.steps == 0) {
     std::printf("  run '%s' is already at iteration %lld of %lld: nothing to do (raise --iterations to train further)\n",
                 run.path.c_str(), (long long)s.iterations, (long long)scheduled);
@@ -118,9 +121,15 @@ int run_train(Arguments& args) {
   }
   std::string data_folder = args.text("data", "");
   train::TrainConfig config;
-  if (options.resume && fs::exists(run.checkpoint_file())) {
+  // A run of several rounds paused before its last has its config.yaml but its checkpoint in a round folder.
+  const train::RunFolder first_round{run.round_folder(1)};
+  const std::string resumed_checkpoint = fs::exists(run.checkpoint_file()) ? run.checkpoint_file()
+                                         : fs::exists(run.config_file()) && fs::exists(first_round.checkpoint_file())
+                                             ? first_round.checkpoint_file()
+                                             : "";
+  if (options.resume && !resumed_checkpoint.empty()) {
     // The run's own config and data unless told otherwise; train_avatar refuses changes that are not safe.
-    const train::CheckpointReader checkpoint(run.checkpoint_file());
+    const train::CheckpointReader checkpoint(resumed_checkpoint);
     const std::string own = fs::exists(run.config_file()) ? run.config_file() : "";
     const std::string file = args.text("config", own);
     config = file.empty()  ? checkpoint.info().config
@@ -145,7 +154,7 @@ int run_train(Arguments& args) {
   if (own_start_fits || !options.start_fits.empty())
     std::printf("  the training frames start from the fits of %s\n",
                 (own_start_fits ? run.start_fits_file() : options.start_fits).c_str());
-  finish_training(run, train::train_avatar(dataset, config, run, options), config.schedule.iterations);
+  finish_training(train::train_avatar(dataset, config, run, options), config.schedule.iterations);
   return 0;
 }
 
@@ -175,7 +184,7 @@ int run_ablate(Arguments& args) {
     options.overwrite = force;
     std::printf("sfgs ablate: %s\n", name.c_str());
     const train::TrainSummary s = train::train_avatar(dataset, config, run, options);
-    finish_training(run, s, config.schedule.iterations);
+    finish_training(s, config.schedule.iterations);
     const RunEvaluation both = evaluate_run(run, dataset, config.device, "", force);
     const train::AvatarEvaluation& e = both.test;
     char row[256];
@@ -227,7 +236,7 @@ int run_demo(Arguments& args) {
   std::printf("sfgs demo 2/4: training %lld iterations on %s\n", (long long)config.schedule.iterations, config.device.c_str());
   train::TrainOptions options;
   options.overwrite = true;
-  finish_training(run, train::train_avatar(dataset, config, run, options), config.schedule.iterations);
+  finish_training(train::train_avatar(dataset, config, run, options), config.schedule.iterations);
   std::printf("sfgs demo 3/4: evaluating the new motions (test) and the held-out frames of the training motions "
               "(val), ExAvatar/SFGS protocol\n");
   const RunEvaluation e = evaluate_run(run, dataset, config.device, (fs::path(out) / "test_renders").string(), true);

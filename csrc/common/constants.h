@@ -232,6 +232,9 @@ inline constexpr long kFitSmoothingOrder = 2;
 inline constexpr double kFitSmoothingSmallAngle = 1e-9;
 // The longest smoothing a config may ask for (seconds): beyond a video's length it fits one quadratic to the whole.
 inline constexpr double kMaxFitSmoothingSeconds = 3600.0;
+// The most training rounds a config may ask for (pose_refinement.rounds): each is a whole training run; on the GPU
+// benchmark a third round already lost to the second.
+inline constexpr long kMaxPoseRefinementRounds = 8;
 inline constexpr double kMaxLossWeight = 1e9;
 inline constexpr long kMaxIterations = 100000000;
 inline constexpr long kMaxPlaneChannels = 1024;

@@ -15,6 +15,9 @@ std::string RunFolder::checkpoint_file() const { return (fs::path(path) / "check
 std::string RunFolder::log_file() const { return (fs::path(path) / "log.jsonl").string(); }
 std::string RunFolder::refined_fits_file() const { return (fs::path(path) / "refined_fits.json").string(); }
 std::string RunFolder::start_fits_file() const { return (fs::path(path) / "start_fits.json").string(); }
+std::string RunFolder::round_folder(int64_t round) const {
+  return (fs::path(path) / ("round-" + std::to_string(round))).string();
+}
 
 model::Avatar make_avatar(const TrainConfig& config, const at::Tensor& betas, at::Device device) {
   const BodyFiles& b = config.body;

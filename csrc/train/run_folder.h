@@ -20,6 +20,9 @@ struct RunFolder {
   std::string refined_fits_file() const;
   // The fits a run's training frames started from when it was trained with start fits (TrainOptions::start_fits).
   std::string start_fits_file() const;
+  // Where round `round` (1-based) of a run of several rounds trains, a run folder of its own (pose_refinement.rounds);
+  // the last round is the run folder itself.
+  std::string round_folder(int64_t round) const;
 };
 
 // The avatar the config describes, for a subject with these betas, on `device`.

@@ -136,7 +136,8 @@ std::vector<std::pair<std::string, Section>> sections(TrainConfig& c) {
         {"align_joints_from", field(p.align_joints_from)},
         {"align_orientation_from", field(p.align_orientation_from)},
         {"keypoint_weight", field(p.keypoint_weight)},
-        {"smoothing_seconds", field(p.smoothing_seconds)}}},
+        {"smoothing_seconds", field(p.smoothing_seconds)},
+        {"rounds", field(p.rounds)}}},
   };
 }
 
@@ -324,6 +325,11 @@ void TrainConfig::validate() const {
                 "config: pose_refinement.align_at must rise strictly from pose_refinement.start (",
                 pose_refinement.start, ") to below 1, got ", align_at[i], " at position ", i);
   check_count(pose_refinement.align_iterations, 1, kMaxIterations, "pose_refinement.align_iterations");
+  check_count(pose_refinement.rounds, 1, kMaxPoseRefinementRounds, "pose_refinement.rounds");
+  TORCH_CHECK(pose_refinement.enabled || pose_refinement.rounds == 1, "config: pose_refinement.rounds is ",
+              pose_refinement.rounds,
+              " but pose_refinement is not enabled: a later round starts from the refined fits ",
+              "of the one before, which only a refining run makes; enable it or leave rounds at 1");
   check_range(pose_refinement.align_joints_from, 0, 1, "pose_refinement.align_joints_from");
   check_range(pose_refinement.align_orientation_from, 0, 1, "pose_refinement.align_orientation_from");
   TORCH_CHECK(pose_refinement.align_orientation_from <= pose_refinement.align_joints_from,

@@ -99,6 +99,12 @@ struct PoseRefinementConfig {
   // 0.6-0.9 dB, but not the test frames (fitted test poses: -1 to -1.5 dB on noisy fits, +0.1 on sfgs fit's);
   // docs/results.md, "Temporal smoothing".
   double smoothing_seconds = 0;
+  // Rounds of training (trainer.h, train_avatar): each round but the last trains a fresh avatar in the run folder's
+  // round-K/ (K = 1, 2, ...) and hands its refined fits to the next as start fits; the last round is the run itself.
+  // An avatar that trained on the unrefined fits has learnt their error and its passes agree with it; a fresh one
+  // trained on the refined fits has not. On the GPU benchmark a second round on `sfgs fit`'s fits gained 0.6-0.8 dB
+  // in three runs (a third lost 0.3), at twice the training time (docs/results.md, "Two rounds").
+  int64_t rounds = 1;
 
   // Whether training steps move the drawn frame's correction: either per-step rate positive.
   bool per_step() const { return learning_rate > 0 || translation_learning_rate > 0; }

@@ -6,6 +6,7 @@
 #include <fstream>
 #include <iterator>
 #include <optional>
+#include <variant>
 #include <vector>
 
 #include <ATen/ATen.h>
@@ -54,8 +55,9 @@ void refuse_other_data(const CheckpointInfo& info, const data::Dataset& dataset)
               info.dataset, "')");
 }
 
+// `before`: the iterations of the run's earlier rounds, which options.stop_at counts too.
 RunPlan plan_run(const data::Dataset& dataset, const TrainConfig& config, const RunFolder& run,
-                 const TrainOptions& options) {
+                 const TrainOptions& options, int64_t before) {
   const int64_t iterations = config.schedule.iterations;
   RunPlan plan;
   plan.end = options.stop_at > 0 ? std::min(options.stop_at, iterations) : iterations;
@@ -76,7 +78,8 @@ RunPlan plan_run(const data::Dataset& dataset, const TrainConfig& config, const 
               ", past the ", iterations, " iterations asked for (--iterations or schedule.iterations); ask for more ",
               "than ", plan.start, " to train further");
   TORCH_CHECK(options.stop_at == 0 || options.stop_at > plan.start, "cannot resume run '", run.path,
-              "' to pause at --stop-at ", options.stop_at, ": it is already at iteration ", plan.start);
+              "' to pause at --stop-at ", before + options.stop_at, ": it is already at iteration ",
+              before + plan.start, before > 0 ? " (counting its earlier rounds)" : "");
   return plan;
 }
 
@@ -149,19 +152,18 @@ double learning_rate_factor(const Schedule& schedule, int64_t iteration) {
   return factor;
 }
 
-TrainSummary train_avatar(const data::Dataset& given, const TrainConfig& config, const RunFolder& run,
-                          const TrainOptions& options) {
-  config.validate();
-  TORCH_CHECK(!given.split(data::Split::kTrain).empty(), "dataset '", given.source, "' has no training frames");
-  TORCH_CHECK(config.device != "cuda" || cuda_backend_available(),
-              "run.device is cuda but this build of sfgs has no CUDA backend");
-  const FolderLock lock(run.path, "train");
+namespace {
+
+// One round, in `run` (whose lock the caller holds): a whole training run as train_avatar describes it for one round,
+// after `before` iterations of earlier rounds.
+TrainSummary train_round(const data::Dataset& given, const TrainConfig& config, const RunFolder& run,
+                         const TrainOptions& options, int64_t before) {
   for (const std::string& name : remove_stale_temporaries(run.path))
     std::fprintf(stderr, "sfgs train: removed '%s', left in '%s' by a process that was killed\n", name.c_str(),
                  run.path.c_str());
   const std::optional<StartFits> start = read_start_fits(given, run, options);
   const data::Dataset& dataset = start ? start->dataset : given;
-  RunPlan plan = plan_run(dataset, config, run, options);
+  RunPlan plan = plan_run(dataset, config, run, options, before);
   TrainingSession session(dataset, config, run, options);
   if (plan.checkpoint) session.restore(*plan.checkpoint);
   if (plan.checkpoint && plan.start == plan.end) {
@@ -182,6 +184,101 @@ TrainSummary train_avatar(const data::Dataset& given, const TrainConfig& config,
     std::remove(run.log_file().c_str());
   session.open_log();
   return session.run(plan.start, plan.end);
+}
+
+bool finished_at(const RunFolder& run, int64_t iterations) {
+  return fs::exists(run.checkpoint_file()) && CheckpointReader(run.checkpoint_file()).info().iteration >= iterations;
+}
+
+TrainSummary in_round(TrainSummary summary, int64_t round, int64_t rounds, const RunFolder& folder) {
+  summary.round = round;
+  summary.rounds = rounds;
+  summary.folder = folder.path;
+  return summary;
+}
+
+// options.stop_at, which counts the iterations of the whole run, as an iteration of round `round` (0: none).
+int64_t round_stop(const TrainOptions& options, const TrainConfig& config, const RunFolder& run, int64_t round) {
+  if (options.stop_at == 0) return 0;
+  const int64_t before = (round - 1) * config.schedule.iterations;
+  TORCH_CHECK(options.stop_at > before, "cannot resume run '", run.path, "' to pause at --stop-at ", options.stop_at,
+              ": its first ", round - 1, " round(s) are done, iterations 1-", before, " of the run's ",
+              config.pose_refinement.rounds * config.schedule.iterations, " (", config.pose_refinement.rounds,
+              " rounds of ", config.schedule.iterations, ")");
+  return options.stop_at - before;
+}
+
+// The rounds before the last (train_avatar): trains or continues those not finished. Returns the start fits of the
+// last round, or the summary of a round the run paused in or at the end of.
+std::variant<std::string, TrainSummary> train_earlier_rounds(const data::Dataset& dataset, const TrainConfig& config,
+                                                             const RunFolder& run, const TrainOptions& options) {
+  const int64_t rounds = config.pose_refinement.rounds, iterations = config.schedule.iterations;
+  TrainConfig one_round = config;
+  one_round.pose_refinement.rounds = 1;
+  TrainOptions round_options = options;
+  for (int64_t r = 1; r < rounds; ++r) {
+    const RunFolder folder{run.round_folder(r)};
+    if (!options.resume || !finished_at(folder, iterations)) {
+      round_options.stop_at = round_stop(options, config, run, r);
+      if (options.progress)
+        std::fprintf(stderr, "sfgs train: round %lld of %lld, in '%s'\n", (long long)r, (long long)rounds,
+                     folder.path.c_str());
+      const FolderLock lock(folder.path, "train");
+      TrainSummary summary = train_round(dataset, one_round, folder, round_options, (r - 1) * iterations);
+      if (!summary.finished || (options.stop_at > 0 && options.stop_at <= r * iterations)) {
+        summary.finished = false;  // the run is not
+        return in_round(std::move(summary), r, rounds, folder);
+      }
+    }
+    round_options.start_fits = folder.refined_fits_file();
+  }
+  return round_options.start_fits;
+}
+
+// A new run's start in a folder that may hold an older run: the round folders it will not use go (and, for a run of
+// several rounds, which writes its config before its last round validates, the older run's own files).
+void remove_unused_rounds(const RunFolder& run, int64_t rounds) {
+  for (int64_t r = rounds; fs::exists(run.round_folder(r)); ++r) fs::remove_all(run.round_folder(r));
+  if (rounds > 1)
+    for (const std::string& file : {run.checkpoint_file(), run.refined_fits_file(), run.start_fits_file()})
+      fs::remove(file);
+}
+
+}  // namespace
+
+TrainSummary train_avatar(const data::Dataset& dataset, const TrainConfig& config, const RunFolder& run,
+                          const TrainOptions& options) {
+  config.validate();
+  TORCH_CHECK(!dataset.split(data::Split::kTrain).empty(), "dataset '", dataset.source, "' has no training frames");
+  TORCH_CHECK(config.device != "cuda" || cuda_backend_available(),
+              "run.device is cuda but this build of sfgs has no CUDA backend");
+  const FolderLock lock(run.path, "train");
+  const int64_t rounds = config.pose_refinement.rounds;
+  const RunFolder first_round{run.round_folder(1)};
+  TORCH_CHECK(options.resume || options.overwrite ||
+                  !(fs::exists(run.checkpoint_file()) || fs::exists(first_round.checkpoint_file())),
+              "run folder '", run.path, "' already holds a checkpoint",
+              fs::exists(run.checkpoint_file()) ? "" : " (of its round 1)",
+              ": pass --resume to continue it or --force to start afresh");
+  TrainOptions last_round = options;
+  if (rounds > 1 && options.resume && fs::exists(run.checkpoint_file())) {
+    last_round.start_fits.clear();  // the last round has begun: it resumes from its own copy of its start fits
+  } else if (rounds > 1) {
+    if (!options.resume) remove_unused_rounds(run, rounds);
+    const std::string config_text = config.to_yaml();
+    write_file_atomically(run.config_file(), std::vector<unsigned char>(config_text.begin(), config_text.end()), true);
+    std::variant<std::string, TrainSummary> earlier = train_earlier_rounds(dataset, config, run, options);
+    if (std::holds_alternative<TrainSummary>(earlier)) return std::get<TrainSummary>(std::move(earlier));
+    last_round.start_fits = std::get<std::string>(earlier);
+    last_round.resume = false;  // a new round, not a resume without a checkpoint
+    if (options.progress)
+      std::fprintf(stderr, "sfgs train: round %lld of %lld, in '%s'\n", (long long)rounds, (long long)rounds,
+                   run.path.c_str());
+  }
+  last_round.stop_at = round_stop(options, config, run, rounds);
+  TrainSummary summary = train_round(dataset, config, run, last_round, (rounds - 1) * config.schedule.iterations);
+  if (!options.resume && rounds == 1) remove_unused_rounds(run, rounds);
+  return in_round(std::move(summary), rounds, rounds, run);
 }
 
 }  // namespace sfgs::train

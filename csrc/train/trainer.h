@@ -17,7 +17,7 @@ struct TrainOptions {
   bool overwrite = false;  // start afresh even if the folder holds a run
   bool progress = true;    // progress bar on stderr
   // Pause after this many iterations (checkpoint written) so that a later --resume continues the same run;
-  // 0 runs to the end of the schedule.
+  // 0 runs to the end of the schedule. A run of several rounds counts them all (train_avatar).
   int64_t stop_at = 0;
   // A refined-fits file (an earlier run's refined_fits.json) whose fits the training frames start from instead of the
   // dataset's: a second round on fits an earlier run refined. It may name training frames only. The run keeps a copy
@@ -37,6 +37,8 @@ struct TrainSummary {
   double final_loss = 0;         // the last logged total loss of this call (when steps > 0)
   double validation_psnr = 0;    // last validation of this call (white background, evaluation mask); NaN if none
   bool has_validation_frames = false;
+  int64_t round = 1, rounds = 1;  // the round this call ended in, of the run's pose_refinement.rounds
+  std::string folder;             // that round's run folder (RunFolder::round_folder; the run's own for the last)
 };
 
 // Learning-rate factor at `iteration` (0-based): linear warm-up, then the step decays.
@@ -57,6 +59,13 @@ std::vector<ErrorCurvePoint> write_error_curve_csv(const RunFolder& run, const s
 // Everything is validated before any file of the run is touched: a resume with a config that changes the model or
 // its objective (anything but schedule and logging keys), on another dataset, or to an iteration the run has
 // passed, is refused with the reason, and the run's files stay as they were.
+// With pose_refinement.rounds N > 1 the rounds train one after the other: round K < N in run.round_folder(K) (a run
+// folder of its own, config rounds 1; round 1 starts from options.start_fits), each later one from the refined fits
+// of the one before, round N in `run`. The run's config.yaml (rounds N) is written before round 1, so that a resume
+// finds a run paused in an earlier round; a resume continues the round in progress, and options.stop_at counts the
+// iterations of the whole run (rounds x schedule.iterations: 2,000 with rounds of 1,500 pauses round 2 at 500). A new
+// run that is not forced is refused where the run or its round 1 holds a checkpoint; a forced one clears the old run's
+// checkpoint before its round 1, and every new run removes the round folders it does not use.
 TrainSummary train_avatar(const data::Dataset& dataset, const TrainConfig& config, const RunFolder& run,
                           const TrainOptions& options);
 

@@ -275,6 +275,16 @@ TEST(TrainPoseRefinement, TrainingRefinesSavesAndResumesTheFits) {
   for (const nlohmann::json& entry : log_entries(aligned))
     if (entry.value("event", "") == "pose_alignment") alignments.push_back(entry.at("iteration").get<int64_t>());
   EXPECT_EQ(alignments, std::vector<int64_t>{3}) << "the training fits were aligned once, at iteration 3";
+  // Paused before the pass and resumed: the same pass (the checkpoint's observation record does not reach the
+  // avatar the pass fits against).
+  const train::RunFolder aligned_paused{folder / "aligned_paused"};
+  pause.stop_at = 2;
+  train::train_avatar(dataset, aligning, aligned_paused, pause);
+  train::train_avatar(dataset, aligning, aligned_paused, resume);
+  EXPECT_TRUE(train::CheckpointReader(aligned_paused.checkpoint_file())
+                  .info()
+                  .pose_refinement.equal(train::CheckpointReader(aligned.checkpoint_file()).info().pose_refinement))
+      << "a run paused before its alignment pass aligns as an uninterrupted one";
 
   const train::TrainedAvatar trained = train::load_trained_avatar(whole, at::kCPU);
   ASSERT_FALSE(trained.refined_fits.empty());

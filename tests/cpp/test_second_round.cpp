@@ -2,10 +2,12 @@
 // refined fits trains on them, keeps them through a pause and a resume (the resumed dataset's fingerprint would differ
 // without them) and gives them, under its own refined fits, to every command reading it; a resume from other fits,
 // fits that name no training frame or a frame that is not one are refused; a new run in the same folder without them
-// trains on the dataset's own fits, and a start-fits copy left beside such a run does not change what it reads.
+// trains on the dataset's own fits, and a start-fits copy left beside such a run does not change what it reads. A run
+// of several rounds (pose_refinement.rounds) trains the same in one command.
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <string>
 #include <vector>
 
@@ -41,13 +43,19 @@ void expect_training_fits(const data::Dataset& read, const data::Dataset& expect
 
 void write_json(const std::string& path, const nlohmann::json& j) { std::ofstream(path) << j.dump(); }
 
+// The tiny config with pose refinement: one alignment pass, in the middle of the run.
+train::TrainConfig tiny_refining_config() {
+  train::TrainConfig c = tiny_train_config();
+  c.pose_refinement.enabled = true;
+  c.pose_refinement.align_at = {0.5};
+  c.pose_refinement.align_iterations = 4;
+  return c;
+}
+
 TEST(TrainPoseRefinement, ASecondRoundStartsFromAnEarlierRunsRefinedFits) {
   TempFolder folder;
   const data::Dataset dataset = tiny_video(folder, 10, 32);
-  train::TrainConfig refining = tiny_train_config();
-  refining.pose_refinement.enabled = true;
-  refining.pose_refinement.align_at = {0.5};
-  refining.pose_refinement.align_iterations = 4;
+  const train::TrainConfig refining = tiny_refining_config();
   const train::TrainConfig plain = tiny_train_config();
   const train::RunFolder first{folder / "first"}, second{folder / "second"}, third{folder / "third"};
   train::train_avatar(dataset, refining, first, quiet());
@@ -112,6 +120,83 @@ TEST(TrainPoseRefinement, ASecondRoundStartsFromAnEarlierRunsRefinedFits) {
   fs::copy_file(third.start_fits_file(), first.start_fits_file());
   expect_training_fits(train::read_run_dataset(train::load_trained_avatar(first, at::kCPU), ""), first_fits, dataset,
                        "a first round with a copy beside it");
+}
+
+std::vector<unsigned char> file_bytes(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  EXPECT_TRUE(in.good()) << path;
+  return std::vector<unsigned char>(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+}
+
+// pose_refinement.rounds: one run trains what the two commands of a second round train, the same however it is
+// paused and resumed (in its first round or its last), and the run's config and folders say which round it is in.
+TEST(TrainPoseRefinement, RoundsTrainInOneRunWhatTwoRunsWould) {
+  TempFolder folder;
+  const data::Dataset dataset = tiny_video(folder, 10, 32);
+  const train::TrainConfig refining = tiny_refining_config();
+  train::TrainConfig two_rounds = refining;
+  two_rounds.pose_refinement.rounds = 2;
+  const train::RunFolder first{folder / "first"}, second{folder / "second"}, whole{folder / "whole"},
+      paused{folder / "paused"};
+  train::train_avatar(dataset, refining, first, quiet());
+  train::TrainOptions start = quiet();
+  start.start_fits = first.refined_fits_file();
+  train::train_avatar(dataset, refining, second, start);
+
+  const train::TrainSummary done = train::train_avatar(dataset, two_rounds, whole, quiet());
+  EXPECT_TRUE(done.finished);
+  EXPECT_EQ(done.round, 2);
+  EXPECT_EQ(done.folder, whole.path);
+  EXPECT_EQ(file_bytes(train::RunFolder{whole.round_folder(1)}.refined_fits_file()),
+            file_bytes(first.refined_fits_file()));
+  EXPECT_EQ(file_bytes(whole.start_fits_file()), file_bytes(first.refined_fits_file()));
+  EXPECT_EQ(file_bytes(whole.refined_fits_file()), file_bytes(second.refined_fits_file()));
+  EXPECT_EQ(train::TrainConfig::from_stored_yaml_file(whole.config_file()).pose_refinement.rounds, 2);
+
+  // Paused in round 1, again at the start of round 2, then resumed to the end: the same fits.
+  train::TrainOptions pause = quiet();
+  pause.stop_at = 2;
+  train::TrainSummary s = train::train_avatar(dataset, two_rounds, paused, pause);
+  EXPECT_FALSE(s.finished);
+  EXPECT_EQ(s.round, 1);
+  EXPECT_EQ(s.folder, paused.round_folder(1));
+  EXPECT_FALSE(fs::exists(paused.checkpoint_file()));
+  EXPECT_EQ(train::TrainConfig::from_stored_yaml_file(paused.config_file()).pose_refinement.rounds, 2);
+  expect_error([&] { train::train_avatar(dataset, two_rounds, paused, quiet()); },
+               {"already holds a checkpoint", "round 1", "--resume"});
+  pause.resume = true;
+  pause.stop_at = two_rounds.schedule.iterations + 3;  // --stop-at counts both rounds' iterations
+  s = train::train_avatar(dataset, two_rounds, paused, pause);
+  EXPECT_FALSE(s.finished);
+  EXPECT_EQ(s.round, 2);
+  EXPECT_EQ(s.iterations, 3);
+  EXPECT_TRUE(fs::exists(paused.start_fits_file()));
+  pause.stop_at = 5;
+  expect_error([&] { train::train_avatar(dataset, two_rounds, paused, pause); },
+               {"--stop-at 5", "first 1 round(s) are done"});
+  train::TrainOptions resume = quiet();
+  resume.resume = true;
+  s = train::train_avatar(dataset, two_rounds, paused, resume);
+  EXPECT_TRUE(s.finished);
+  EXPECT_EQ(s.round, 2);
+  EXPECT_EQ(file_bytes(train::RunFolder{paused.round_folder(1)}.refined_fits_file()),
+            file_bytes(first.refined_fits_file()));
+  EXPECT_EQ(file_bytes(paused.start_fits_file()), file_bytes(first.refined_fits_file()));
+  EXPECT_EQ(file_bytes(paused.refined_fits_file()), file_bytes(second.refined_fits_file()));
+
+  // A new one-round run in the folder, forced: the round folder goes.
+  train::TrainOptions fresh = quiet();
+  fresh.overwrite = true;
+  train::train_avatar(dataset, refining, paused, fresh);
+  EXPECT_FALSE(fs::exists(paused.round_folder(1)));
+  EXPECT_FALSE(fs::exists(paused.start_fits_file()));
+
+  // Rounds need refinement: a later round starts from the refined fits of the one before.
+  train::TrainConfig plain = tiny_train_config();
+  plain.pose_refinement.rounds = 2;
+  expect_error([&] { plain.validate(); }, {"pose_refinement.rounds", "not enabled"});
+  two_rounds.pose_refinement.rounds = 0;
+  expect_error([&] { two_rounds.validate(); }, {"pose_refinement.rounds"});
 }
 
 }  // namespace
