@@ -127,17 +127,20 @@ int run_train(Arguments& args) {
                                          : fs::exists(run.config_file()) && fs::exists(first_round.checkpoint_file())
                                              ? first_round.checkpoint_file()
                                              : "";
-  if (options.resume && !resumed_checkpoint.empty()) {
+  if (options.resume && (!resumed_checkpoint.empty() || fs::exists(run.config_file()))) {
     // The run's own config and data unless told otherwise; train_avatar refuses changes that are not safe.
-    const train::CheckpointReader checkpoint(resumed_checkpoint);
+    std::optional<train::CheckpointReader> checkpoint;
+    if (!resumed_checkpoint.empty()) checkpoint.emplace(resumed_checkpoint);
     const std::string own = fs::exists(run.config_file()) ? run.config_file() : "";
     const std::string file = args.text("config", own);
-    config = file.empty()  ? checkpoint.info().config
+    config = file.empty()  ? checkpoint->info().config
              : file == own ? train::TrainConfig::from_stored_yaml_file(own)  // written with the run, as its checkpoint
                            : train::TrainConfig::from_yaml_file(file);
     apply_overrides(args, config);
     if (data_folder.empty()) {
-      data_folder = checkpoint.info().dataset;
+      TORCH_CHECK(checkpoint, "run '", run.path, "' has no checkpoint yet to say which dataset it trains on; pass ",
+                  "--data with the dataset's folder");
+      data_folder = checkpoint->info().dataset;
       TORCH_CHECK(fs::is_directory(data_folder), "run '", run.path, "' was trained on dataset '", data_folder,
                   "', which is not there (moved or deleted); pass --data with the dataset's folder");
     }

@@ -1,6 +1,7 @@
 #include "train/trainer.h"
 
 #include <algorithm>
+#include <cctype>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -219,6 +220,7 @@ std::variant<std::string, TrainSummary> train_earlier_rounds(const data::Dataset
   for (int64_t r = 1; r < rounds; ++r) {
     const RunFolder folder{run.round_folder(r)};
     if (!options.resume || !finished_at(folder, iterations)) {
+      round_options.resume = options.resume && fs::exists(folder.checkpoint_file());
       round_options.stop_at = round_stop(options, config, run, r);
       if (options.progress)
         std::fprintf(stderr, "sfgs train: round %lld of %lld, in '%s'\n", (long long)r, (long long)rounds,
@@ -235,13 +237,44 @@ std::variant<std::string, TrainSummary> train_earlier_rounds(const data::Dataset
   return round_options.start_fits;
 }
 
-// A new run's start in a folder that may hold an older run: the round folders it will not use go (and, for a run of
-// several rounds, which writes its config before its last round validates, the older run's own files).
-void remove_unused_rounds(const RunFolder& run, int64_t rounds) {
-  for (int64_t r = rounds; fs::exists(run.round_folder(r)); ++r) fs::remove_all(run.round_folder(r));
-  if (rounds > 1)
-    for (const std::string& file : {run.checkpoint_file(), run.refined_fits_file(), run.start_fits_file()})
-      fs::remove(file);
+// Removes the round folders of `run` numbered `from` and up; one that another process trains is refused (its lock).
+void remove_rounds_from(const RunFolder& run, int64_t from) {
+  if (!fs::is_directory(run.path)) return;
+  std::vector<fs::path> folders;
+  for (const fs::directory_entry& entry : fs::directory_iterator(run.path)) {
+    const std::string name = entry.path().filename().string();
+    if (!entry.is_directory() || name.rfind("round-", 0) != 0) continue;
+    const std::string number = name.substr(6);
+    const bool numbered = !number.empty() && number.size() < 10 &&
+                          std::all_of(number.begin(), number.end(), [](unsigned char c) { return std::isdigit(c); });
+    if (numbered && std::stoll(number) >= from) folders.push_back(entry.path());
+  }
+  for (const fs::path& folder : folders) {
+    { const FolderLock lock(folder.string(), "train"); }
+    fs::remove_all(folder);
+  }
+}
+
+// A resume of a run of several rounds (or of one round where such a run paused) checked against what the run stored:
+// the same model, objective and data keys (refuse_unsafe_changes; rounds among them), the same iterations a round
+// (--stop-at counts them), and for several rounds the start fits its round 1 began from.
+void check_resumed_rounds(const TrainConfig& config, const RunFolder& run, const TrainOptions& options) {
+  if (fs::exists(run.checkpoint_file()) || fs::exists(run.config_file())) {
+    const TrainConfig stored = fs::exists(run.checkpoint_file())
+                                   ? CheckpointReader(run.checkpoint_file()).info().config
+                                   : TrainConfig::from_stored_yaml_file(run.config_file());
+    refuse_unsafe_changes(stored, config, run);
+    TORCH_CHECK(stored.schedule.iterations == config.schedule.iterations, "cannot resume run '", run.path, "' with ",
+                config.schedule.iterations, " iterations a round: its rounds have ", stored.schedule.iterations,
+                ", and a run of several rounds keeps them (--stop-at counts them); start a new run to change them");
+  }
+  if (config.pose_refinement.rounds == 1 || options.start_fits.empty()) return;
+  const RunFolder first_round{run.round_folder(1)};
+  TORCH_CHECK(fs::exists(first_round.start_fits_file()) &&
+                  file_bytes(first_round.start_fits_file()) == file_bytes(options.start_fits),
+              "cannot resume run '", run.path, "' from start fits '", options.start_fits,
+              "': its round 1 started from other fits; resume without --start-fits, or start a new run (--force or ",
+              "another --out)");
 }
 
 }  // namespace
@@ -260,13 +293,26 @@ TrainSummary train_avatar(const data::Dataset& dataset, const TrainConfig& confi
               "run folder '", run.path, "' already holds a checkpoint",
               fs::exists(run.checkpoint_file()) ? "" : " (of its round 1)",
               ": pass --resume to continue it or --force to start afresh");
+  // A resume of several rounds, or of one round where a run of several paused before its last.
+  if (options.resume && (rounds > 1 || (fs::is_directory(first_round.path) && !fs::exists(run.checkpoint_file()))))
+    check_resumed_rounds(config, run, options);
   TrainOptions last_round = options;
-  if (rounds > 1 && options.resume && fs::exists(run.checkpoint_file())) {
-    last_round.start_fits.clear();  // the last round has begun: it resumes from its own copy of its start fits
-  } else if (rounds > 1) {
-    if (!options.resume) remove_unused_rounds(run, rounds);
-    const std::string config_text = config.to_yaml();
-    write_file_atomically(run.config_file(), std::vector<unsigned char>(config_text.begin(), config_text.end()), true);
+  if (rounds > 1 && options.resume)
+    last_round.start_fits.clear();  // round 1's, checked above; the last round's come from the round before
+  if (rounds > 1 && !(options.resume && fs::exists(run.checkpoint_file()))) {
+    if (!options.resume) {
+      // A new run: its start fits are checked before the folder's older run goes. Its config is written now, so that
+      // a resume finds a run paused before its last round.
+      TrainOptions first_round_start;
+      first_round_start.start_fits = options.start_fits;
+      read_start_fits(dataset, first_round, first_round_start);
+      remove_rounds_from(run, 1);
+      for (const std::string& file : {run.checkpoint_file(), run.refined_fits_file(), run.start_fits_file()})
+        fs::remove(file);
+      const std::string config_text = config.to_yaml();
+      write_file_atomically(run.config_file(), std::vector<unsigned char>(config_text.begin(), config_text.end()),
+                            true);
+    }
     std::variant<std::string, TrainSummary> earlier = train_earlier_rounds(dataset, config, run, options);
     if (std::holds_alternative<TrainSummary>(earlier)) return std::get<TrainSummary>(std::move(earlier));
     last_round.start_fits = std::get<std::string>(earlier);
@@ -277,7 +323,7 @@ TrainSummary train_avatar(const data::Dataset& dataset, const TrainConfig& confi
   }
   last_round.stop_at = round_stop(options, config, run, rounds);
   TrainSummary summary = train_round(dataset, config, run, last_round, (rounds - 1) * config.schedule.iterations);
-  if (!options.resume && rounds == 1) remove_unused_rounds(run, rounds);
+  if (!options.resume && rounds == 1) remove_rounds_from(run, 1);
   return in_round(std::move(summary), rounds, rounds, run);
 }
 

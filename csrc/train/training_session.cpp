@@ -89,8 +89,8 @@ TrainingSession::~TrainingSession() = default;
 void TrainingSession::restore(CheckpointReader& checkpoint) {
   checkpoint.load_avatar(avatar_);
   // The observation record the checkpoint gives a trained avatar is for rendering it once trained; while training it
-  // stays in observation_sum_, as in a run never paused (an avatar carrying it renders differently in eval mode, and
-  // a resumed run's alignment passes and validations would differ from an uninterrupted run's).
+  // stays in observation_sum_, as in a run never paused (an avatar carrying it renders differently in eval mode, so a
+  // resumed run's alignment passes would differ from an uninterrupted run's).
   avatar_->set_observation(at::Tensor());
   checkpoint.load_optimizer(*optimizer_);
   observation_steps_ = checkpoint.info().observation_steps;

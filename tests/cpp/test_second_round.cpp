@@ -18,6 +18,7 @@
 #include "test_body_utils.h"
 #include "test_files.h"
 #include "test_trainer_utils.h"
+#include "train/checkpoint.h"
 #include "train/pose_refinement.h"
 #include "train/run_folder.h"
 #include "train/trainer.h"
@@ -153,7 +154,7 @@ TEST(TrainPoseRefinement, RoundsTrainInOneRunWhatTwoRunsWould) {
   EXPECT_EQ(file_bytes(whole.refined_fits_file()), file_bytes(second.refined_fits_file()));
   EXPECT_EQ(train::TrainConfig::from_stored_yaml_file(whole.config_file()).pose_refinement.rounds, 2);
 
-  // Paused in round 1, again at the start of round 2, then resumed to the end: the same fits.
+  // Paused in round 1, again in round 2 (at its iteration 3), then resumed to the end: the same fits.
   train::TrainOptions pause = quiet();
   pause.stop_at = 2;
   train::TrainSummary s = train::train_avatar(dataset, two_rounds, paused, pause);
@@ -197,6 +198,52 @@ TEST(TrainPoseRefinement, RoundsTrainInOneRunWhatTwoRunsWould) {
   expect_error([&] { plain.validate(); }, {"pose_refinement.rounds", "not enabled"});
   two_rounds.pose_refinement.rounds = 0;
   expect_error([&] { two_rounds.validate(); }, {"pose_refinement.rounds"});
+}
+
+// A resume continues the run of rounds it finds, no other: a config with other rounds, iterations or avatar, or other
+// start fits, is refused with the run's files as they were, and a forced new run over a finished one trains its
+// round 1 afresh rather than taking the old run's.
+TEST(TrainPoseRefinement, RoundsResumeOnlyTheRunTheyBelongTo) {
+  TempFolder folder;
+  const data::Dataset dataset = tiny_video(folder, 10, 32);
+  train::TrainConfig two_rounds = tiny_refining_config();
+  two_rounds.pose_refinement.rounds = 2;
+  const train::RunFolder run{folder / "run"}, reference{folder / "reference"};
+  train::train_avatar(dataset, two_rounds, reference, quiet());
+  train::train_avatar(dataset, two_rounds, run, quiet());
+
+  // A forced new run over the finished one, paused in its round 1: the old rounds are gone (round-2/ stands for those
+  // of an older run of more rounds).
+  fs::copy(run.round_folder(1), run.round_folder(2), fs::copy_options::recursive);
+  train::TrainOptions pause = quiet();
+  pause.overwrite = true;
+  pause.stop_at = 2;
+  train::train_avatar(dataset, two_rounds, run, pause);
+  EXPECT_FALSE(fs::exists(run.checkpoint_file()));
+  EXPECT_FALSE(fs::exists(run.round_folder(2)));
+  EXPECT_EQ(train::CheckpointReader(train::RunFolder{run.round_folder(1)}.checkpoint_file()).info().iteration, 2);
+
+  const std::vector<unsigned char> stored = file_bytes(run.config_file());
+  train::TrainOptions resume = quiet();
+  resume.resume = true;
+  train::TrainConfig three_rounds = two_rounds, longer = two_rounds, wider = two_rounds;
+  three_rounds.pose_refinement.rounds = 3;
+  longer.schedule.iterations += 2;
+  wider.avatar.hidden_width *= 2;
+  train::TrainConfig one_round = two_rounds;
+  one_round.pose_refinement.rounds = 1;
+  expect_error([&] { train::train_avatar(dataset, three_rounds, run, resume); }, {"pose_refinement.rounds"});
+  expect_error([&] { train::train_avatar(dataset, one_round, run, resume); }, {"pose_refinement.rounds"});
+  expect_error([&] { train::train_avatar(dataset, longer, run, resume); }, {"iterations a round"});
+  expect_error([&] { train::train_avatar(dataset, wider, run, resume); }, {"avatar.hidden_width"});
+  train::TrainOptions other_start = resume;
+  other_start.start_fits = reference.refined_fits_file();
+  expect_error([&] { train::train_avatar(dataset, two_rounds, run, other_start); },
+               {"round 1 started from other fits"});
+  EXPECT_EQ(file_bytes(run.config_file()), stored);
+
+  train::train_avatar(dataset, two_rounds, run, resume);
+  EXPECT_EQ(file_bytes(run.refined_fits_file()), file_bytes(reference.refined_fits_file()));
 }
 
 }  // namespace
