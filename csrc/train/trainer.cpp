@@ -56,6 +56,14 @@ void refuse_other_data(const CheckpointInfo& info, const data::Dataset& dataset)
               info.dataset, "')");
 }
 
+// A run of several rounds keeps its iterations a round: --stop-at counts them, and its earlier rounds ran them.
+void refuse_rounds_iterations_change(const TrainConfig& trained, const TrainConfig& requested, const RunFolder& run) {
+  TORCH_CHECK(requested.pose_refinement.rounds == 1 || trained.schedule.iterations == requested.schedule.iterations,
+              "cannot resume run '", run.path, "' with ", requested.schedule.iterations,
+              " iterations a round: its rounds have ", trained.schedule.iterations,
+              ", and a run of several rounds keeps them (--stop-at counts them); start a new run to change them");
+}
+
 // `before`: the iterations of the run's earlier rounds, which options.stop_at counts too.
 RunPlan plan_run(const data::Dataset& dataset, const TrainConfig& config, const RunFolder& run,
                  const TrainOptions& options, int64_t before) {
@@ -67,12 +75,11 @@ RunPlan plan_run(const data::Dataset& dataset, const TrainConfig& config, const 
       std::fprintf(stderr, "sfgs train: no checkpoint in '%s' to resume: starting a new run\n", run.path.c_str());
     return plan;
   }
-  TORCH_CHECK(options.resume || options.overwrite, "run folder '", run.path,
-              "' already holds a checkpoint: pass --resume to continue it or --force to start afresh");
-  if (!options.resume) return plan;
+  if (!options.resume) return plan;  // a forced new run (train_avatar refuses one that is not)
   plan.checkpoint.emplace(run.checkpoint_file());
   const CheckpointInfo& info = plan.checkpoint->info();
   refuse_unsafe_changes(info.config, config, run);
+  refuse_rounds_iterations_change(info.config, config, run);
   refuse_other_data(info, dataset);
   plan.start = info.iteration;
   TORCH_CHECK(plan.start <= iterations, "cannot resume run '", run.path, "': it is at iteration ", plan.start,
@@ -256,17 +263,14 @@ void remove_rounds_from(const RunFolder& run, int64_t from) {
 }
 
 // A resume of a run of several rounds (or of one round where such a run paused) checked against what the run stored:
-// the same model, objective and data keys (refuse_unsafe_changes; rounds among them), the same iterations a round
-// (--stop-at counts them), and for several rounds the start fits its round 1 began from.
+// before its last round, the config.yaml written before its round 1 (the same model, objective and data keys, rounds
+// among them, and iterations a round; from its last round on, plan_run checks them against the checkpoint), and for
+// several rounds the start fits its round 1 began from.
 void check_resumed_rounds(const TrainConfig& config, const RunFolder& run, const TrainOptions& options) {
-  if (fs::exists(run.checkpoint_file()) || fs::exists(run.config_file())) {
-    const TrainConfig stored = fs::exists(run.checkpoint_file())
-                                   ? CheckpointReader(run.checkpoint_file()).info().config
-                                   : TrainConfig::from_stored_yaml_file(run.config_file());
+  if (!fs::exists(run.checkpoint_file()) && fs::exists(run.config_file())) {
+    const TrainConfig stored = TrainConfig::from_stored_yaml_file(run.config_file());
     refuse_unsafe_changes(stored, config, run);
-    TORCH_CHECK(stored.schedule.iterations == config.schedule.iterations, "cannot resume run '", run.path, "' with ",
-                config.schedule.iterations, " iterations a round: its rounds have ", stored.schedule.iterations,
-                ", and a run of several rounds keeps them (--stop-at counts them); start a new run to change them");
+    refuse_rounds_iterations_change(stored, config, run);
   }
   if (config.pose_refinement.rounds == 1 || options.start_fits.empty()) return;
   const RunFolder first_round{run.round_folder(1)};
@@ -297,9 +301,9 @@ TrainSummary train_avatar(const data::Dataset& dataset, const TrainConfig& confi
   if (options.resume && (rounds > 1 || (fs::is_directory(first_round.path) && !fs::exists(run.checkpoint_file()))))
     check_resumed_rounds(config, run, options);
   TrainOptions last_round = options;
-  if (rounds > 1 && options.resume)
-    last_round.start_fits.clear();  // round 1's, checked above; the last round's come from the round before
-  if (rounds > 1 && !(options.resume && fs::exists(run.checkpoint_file()))) {
+  if (rounds > 1 && options.resume && fs::exists(run.checkpoint_file())) {
+    last_round.start_fits.clear();  // round 1's, checked above; the last round resumes from its own copy
+  } else if (rounds > 1) {
     if (!options.resume) {
       // A new run: its start fits are checked before the folder's older run goes. Its config is written now, so that
       // a resume finds a run paused before its last round.

@@ -63,9 +63,10 @@ std::vector<ErrorCurvePoint> write_error_curve_csv(const RunFolder& run, const s
 // folder of its own, config rounds 1; round 1 starts from options.start_fits), each later one from the refined fits
 // of the one before, round N in `run`. The run's config.yaml (rounds N) is written before round 1, so that a resume
 // finds a run paused in an earlier round; a resume continues the round in progress, and options.stop_at counts the
-// iterations of the whole run (rounds x schedule.iterations: 2,000 with rounds of 1,500 pauses round 2 at 500). A new
-// run that is not forced is refused where the run or its round 1 holds a checkpoint; a forced one clears the old run's
-// checkpoint before its round 1, and every new run removes the round folders it does not use.
+// iterations of the whole run (rounds x schedule.iterations: 2,000 with rounds of 1,500 pauses round 2 at 500), and
+// a resume keeps the rounds, the iterations a round and round 1's start fits. A new run that is not forced is refused
+// where the run or its round 1 holds a checkpoint; a forced one of several rounds clears the old run's checkpoint
+// before its round 1 (once its start fits are checked), and every new run removes the older run's round folders.
 TrainSummary train_avatar(const data::Dataset& dataset, const TrainConfig& config, const RunFolder& run,
                           const TrainOptions& options);
 

@@ -6,6 +6,7 @@
 #include <random>
 
 #include <ATen/ATen.h>
+#include <gtest/gtest.h>
 #include <c10/util/Exception.h>
 
 namespace sfgs::testing {
@@ -36,6 +37,7 @@ void write_bytes(const std::string& path, const void* data, size_t size) {
 
 std::vector<unsigned char> read_bytes(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
+  EXPECT_TRUE(in.good()) << "cannot read " << path;  // two missing files would otherwise compare equal
   return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
 }
 

@@ -7,7 +7,6 @@
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
-#include <iterator>
 #include <string>
 #include <vector>
 
@@ -123,12 +122,6 @@ TEST(TrainPoseRefinement, ASecondRoundStartsFromAnEarlierRunsRefinedFits) {
                        "a first round with a copy beside it");
 }
 
-std::vector<unsigned char> file_bytes(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  EXPECT_TRUE(in.good()) << path;
-  return std::vector<unsigned char>(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
-}
-
 // pose_refinement.rounds: one run trains what the two commands of a second round train, the same however it is
 // paused and resumed (in its first round or its last), and the run's config and folders say which round it is in.
 TEST(TrainPoseRefinement, RoundsTrainInOneRunWhatTwoRunsWould) {
@@ -148,10 +141,10 @@ TEST(TrainPoseRefinement, RoundsTrainInOneRunWhatTwoRunsWould) {
   EXPECT_TRUE(done.finished);
   EXPECT_EQ(done.round, 2);
   EXPECT_EQ(done.folder, whole.path);
-  EXPECT_EQ(file_bytes(train::RunFolder{whole.round_folder(1)}.refined_fits_file()),
-            file_bytes(first.refined_fits_file()));
-  EXPECT_EQ(file_bytes(whole.start_fits_file()), file_bytes(first.refined_fits_file()));
-  EXPECT_EQ(file_bytes(whole.refined_fits_file()), file_bytes(second.refined_fits_file()));
+  EXPECT_EQ(read_bytes(train::RunFolder{whole.round_folder(1)}.refined_fits_file()),
+            read_bytes(first.refined_fits_file()));
+  EXPECT_EQ(read_bytes(whole.start_fits_file()), read_bytes(first.refined_fits_file()));
+  EXPECT_EQ(read_bytes(whole.refined_fits_file()), read_bytes(second.refined_fits_file()));
   EXPECT_EQ(train::TrainConfig::from_stored_yaml_file(whole.config_file()).pose_refinement.rounds, 2);
 
   // Paused in round 1, again in round 2 (at its iteration 3), then resumed to the end: the same fits.
@@ -177,13 +170,16 @@ TEST(TrainPoseRefinement, RoundsTrainInOneRunWhatTwoRunsWould) {
                {"--stop-at 5", "first 1 round(s) are done"});
   train::TrainOptions resume = quiet();
   resume.resume = true;
+  train::TrainConfig longer = two_rounds;  // in its last round too, the run keeps its iterations a round
+  longer.schedule.iterations += 2;
+  expect_error([&] { train::train_avatar(dataset, longer, paused, resume); }, {"iterations a round"});
   s = train::train_avatar(dataset, two_rounds, paused, resume);
   EXPECT_TRUE(s.finished);
   EXPECT_EQ(s.round, 2);
-  EXPECT_EQ(file_bytes(train::RunFolder{paused.round_folder(1)}.refined_fits_file()),
-            file_bytes(first.refined_fits_file()));
-  EXPECT_EQ(file_bytes(paused.start_fits_file()), file_bytes(first.refined_fits_file()));
-  EXPECT_EQ(file_bytes(paused.refined_fits_file()), file_bytes(second.refined_fits_file()));
+  EXPECT_EQ(read_bytes(train::RunFolder{paused.round_folder(1)}.refined_fits_file()),
+            read_bytes(first.refined_fits_file()));
+  EXPECT_EQ(read_bytes(paused.start_fits_file()), read_bytes(first.refined_fits_file()));
+  EXPECT_EQ(read_bytes(paused.refined_fits_file()), read_bytes(second.refined_fits_file()));
 
   // A new one-round run in the folder, forced: the round folder goes.
   train::TrainOptions fresh = quiet();
@@ -223,7 +219,7 @@ TEST(TrainPoseRefinement, RoundsResumeOnlyTheRunTheyBelongTo) {
   EXPECT_FALSE(fs::exists(run.round_folder(2)));
   EXPECT_EQ(train::CheckpointReader(train::RunFolder{run.round_folder(1)}.checkpoint_file()).info().iteration, 2);
 
-  const std::vector<unsigned char> stored = file_bytes(run.config_file());
+  const std::vector<unsigned char> stored = read_bytes(run.config_file());
   train::TrainOptions resume = quiet();
   resume.resume = true;
   train::TrainConfig three_rounds = two_rounds, longer = two_rounds, wider = two_rounds;
@@ -240,10 +236,10 @@ TEST(TrainPoseRefinement, RoundsResumeOnlyTheRunTheyBelongTo) {
   other_start.start_fits = reference.refined_fits_file();
   expect_error([&] { train::train_avatar(dataset, two_rounds, run, other_start); },
                {"round 1 started from other fits"});
-  EXPECT_EQ(file_bytes(run.config_file()), stored);
+  EXPECT_EQ(read_bytes(run.config_file()), stored);
 
   train::train_avatar(dataset, two_rounds, run, resume);
-  EXPECT_EQ(file_bytes(run.refined_fits_file()), file_bytes(reference.refined_fits_file()));
+  EXPECT_EQ(read_bytes(run.refined_fits_file()), read_bytes(reference.refined_fits_file()));
 }
 
 }  // namespace
