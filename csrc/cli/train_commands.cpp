@@ -153,10 +153,6 @@ int run_train(Arguments& args) {
   std::printf("sfgs train: %s (%lld frames, %lld for training) -> %s on %s\n", dataset.source.c_str(),
               (long long)dataset.size(), (long long)dataset.split(data::Split::kTrain).size(), run.path.c_str(),
               config.device.c_str());
-  const bool own_start_fits = options.resume && fs::exists(run.start_fits_file());
-  if (own_start_fits || !options.start_fits.empty())
-    std::printf("  the training frames start from the fits of %s\n",
-                (own_start_fits ? run.start_fits_file() : options.start_fits).c_str());
   finish_training(train::train_avatar(dataset, config, run, options), config.schedule.iterations);
   return 0;
 }

@@ -6,6 +6,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <memory>
 #include <optional>
 #include <variant>
 #include <vector>
@@ -101,6 +102,7 @@ std::vector<unsigned char> file_bytes(const std::string& path) {
 struct StartFits {
   data::Dataset dataset;
   std::vector<unsigned char> bytes;
+  std::string file;  // where they were read: the file asked for, or the run's own copy
 };
 
 // The run's start fits, where it has some: those asked for, or the copy a resumed run keeps (a resume may name the
@@ -129,7 +131,7 @@ std::optional<StartFits> read_start_fits(const data::Dataset& dataset, const Run
   } catch (const nlohmann::json::exception& e) {
     TORCH_CHECK(false, "start fits '", file, "' are not valid JSON: ", e.what());
   }
-  StartFits start{dataset, std::move(bytes)};
+  StartFits start{dataset, std::move(bytes), file};
   const std::vector<int64_t> replaced = apply_refined_fits(start.dataset, fits, file);
   const std::vector<int64_t>& train_frames = dataset.split(data::Split::kTrain);
   for (const int64_t f : replaced)
@@ -171,6 +173,9 @@ TrainSummary train_round(const data::Dataset& given, const TrainConfig& config, 
                  run.path.c_str());
   const std::optional<StartFits> start = read_start_fits(given, run, options);
   const data::Dataset& dataset = start ? start->dataset : given;
+  if (start && options.progress)
+    std::fprintf(stderr, "sfgs train: the training frames of '%s' start from the fits of '%s'\n", run.path.c_str(),
+                 start->file.c_str());
   RunPlan plan = plan_run(dataset, config, run, options, before);
   TrainingSession session(dataset, config, run, options);
   if (plan.checkpoint) session.restore(*plan.checkpoint);
@@ -244,7 +249,8 @@ std::variant<std::string, TrainSummary> train_earlier_rounds(const data::Dataset
   return round_options.start_fits;
 }
 
-// Removes the round folders of `run` numbered `from` and up; one that another process trains is refused (its lock).
+// Removes the round folders of `run` numbered `from` and up; one that another process trains or evaluates is refused
+// (its lock).
 void remove_rounds_from(const RunFolder& run, int64_t from) {
   if (!fs::is_directory(run.path)) return;
   std::vector<fs::path> folders;
@@ -256,10 +262,13 @@ void remove_rounds_from(const RunFolder& run, int64_t from) {
                           std::all_of(number.begin(), number.end(), [](unsigned char c) { return std::isdigit(c); });
     if (numbered && std::stoll(number) >= from) folders.push_back(entry.path());
   }
-  for (const fs::path& folder : folders) {
-    { const FolderLock lock(folder.string(), "train"); }
-    fs::remove_all(folder);
-  }
+  // Every folder's locks first, held while they go: one in use leaves them all, and an eval must not write its
+  // metrics into a folder that is being removed.
+  std::vector<std::unique_ptr<FolderLock>> locks;
+  for (const fs::path& folder : folders)
+    for (const char* purpose : {"train", "eval"})
+      locks.push_back(std::make_unique<FolderLock>(folder.string(), purpose));
+  for (const fs::path& folder : folders) fs::remove_all(folder);
 }
 
 // A resume of a run of several rounds (or of one round where such a run paused) checked against what the run stored:

@@ -3,7 +3,8 @@
 // without them) and gives them, under its own refined fits, to every command reading it; a resume from other fits,
 // fits that name no training frame or a frame that is not one are refused; a new run in the same folder without them
 // trains on the dataset's own fits, and a start-fits copy left beside such a run does not change what it reads. A run
-// of several rounds (pose_refinement.rounds) trains the same in one command.
+// of several rounds (pose_refinement.rounds) trains the same in one command; a new one leaves an older run's rounds
+// alone while an eval reads one.
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
@@ -14,6 +15,7 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
+#include "common/folder_lock.h"
 #include "test_body_utils.h"
 #include "test_files.h"
 #include "test_trainer_utils.h"
@@ -123,7 +125,8 @@ TEST(TrainPoseRefinement, ASecondRoundStartsFromAnEarlierRunsRefinedFits) {
 }
 
 // pose_refinement.rounds: one run trains what the two commands of a second round train, the same however it is
-// paused and resumed (in its first round or its last), and the run's config and folders say which round it is in.
+// paused and resumed (in its first round or its last), and the run's config, folders and progress say which round it
+// is in and which fits it starts from.
 TEST(TrainPoseRefinement, RoundsTrainInOneRunWhatTwoRunsWould) {
   TempFolder folder;
   const data::Dataset dataset = tiny_video(folder, 10, 32);
@@ -160,7 +163,15 @@ TEST(TrainPoseRefinement, RoundsTrainInOneRunWhatTwoRunsWould) {
                {"already holds a checkpoint", "round 1", "--resume"});
   pause.resume = true;
   pause.stop_at = two_rounds.schedule.iterations + 3;  // --stop-at counts both rounds' iterations
+  pause.progress = true;                               // which fits each round starts from is said
+  ::testing::internal::CaptureStderr();
   s = train::train_avatar(dataset, two_rounds, paused, pause);
+  const std::string round_two = ::testing::internal::GetCapturedStderr();
+  EXPECT_NE(
+      round_two.find("start from the fits of '" + train::RunFolder{paused.round_folder(1)}.refined_fits_file() + "'"),
+      std::string::npos)
+      << round_two;
+  pause.progress = false;
   EXPECT_FALSE(s.finished);
   EXPECT_EQ(s.round, 2);
   EXPECT_EQ(s.iterations, 3);
@@ -173,7 +184,11 @@ TEST(TrainPoseRefinement, RoundsTrainInOneRunWhatTwoRunsWould) {
   train::TrainConfig longer = two_rounds;  // in its last round too, the run keeps its iterations a round
   longer.schedule.iterations += 2;
   expect_error([&] { train::train_avatar(dataset, longer, paused, resume); }, {"iterations a round"});
+  resume.progress = true;
+  ::testing::internal::CaptureStderr();
   s = train::train_avatar(dataset, two_rounds, paused, resume);
+  const std::string resumed = ::testing::internal::GetCapturedStderr();
+  EXPECT_NE(resumed.find("start from the fits of '" + paused.start_fits_file() + "'"), std::string::npos) << resumed;
   EXPECT_TRUE(s.finished);
   EXPECT_EQ(s.round, 2);
   EXPECT_EQ(read_bytes(train::RunFolder{paused.round_folder(1)}.refined_fits_file()),
@@ -214,6 +229,14 @@ TEST(TrainPoseRefinement, RoundsResumeOnlyTheRunTheyBelongTo) {
   train::TrainOptions pause = quiet();
   pause.overwrite = true;
   pause.stop_at = 2;
+  {
+    // While an eval reads an old round the new run is refused, and no round goes.
+    const FolderLock evaluating(run.round_folder(2), "eval");
+    expect_error_mentioning([&] { train::train_avatar(dataset, two_rounds, run, pause); },
+                            "in use by another sfgs eval");
+    EXPECT_TRUE(fs::exists(run.checkpoint_file()));
+    EXPECT_TRUE(fs::exists(train::RunFolder{run.round_folder(1)}.checkpoint_file()));
+  }
   train::train_avatar(dataset, two_rounds, run, pause);
   EXPECT_FALSE(fs::exists(run.checkpoint_file()));
   EXPECT_FALSE(fs::exists(run.round_folder(2)));
