@@ -249,26 +249,33 @@ std::variant<std::string, TrainSummary> train_earlier_rounds(const data::Dataset
   return round_options.start_fits;
 }
 
-// Removes the round folders of `run` numbered `from` and up; one that another process trains or evaluates is refused
-// (its lock).
-void remove_rounds_from(const RunFolder& run, int64_t from) {
-  if (!fs::is_directory(run.path)) return;
+// The round folders of `run` numbered `from` and up, claimed: each one's train and eval locks are held until they go,
+// so that no process trains or evaluates a folder that is being removed, and one that another process holds is
+// refused before anything goes.
+struct ClaimedRounds {
   std::vector<fs::path> folders;
+  std::vector<std::unique_ptr<FolderLock>> locks;
+
+  void remove() const {
+    for (const fs::path& folder : folders) fs::remove_all(folder);
+  }
+};
+
+ClaimedRounds claim_rounds_from(const RunFolder& run, int64_t from) {
+  ClaimedRounds claimed;
+  if (!fs::is_directory(run.path)) return claimed;
   for (const fs::directory_entry& entry : fs::directory_iterator(run.path)) {
     const std::string name = entry.path().filename().string();
     if (!entry.is_directory() || name.rfind("round-", 0) != 0) continue;
     const std::string number = name.substr(6);
     const bool numbered = !number.empty() && number.size() < 10 &&
                           std::all_of(number.begin(), number.end(), [](unsigned char c) { return std::isdigit(c); });
-    if (numbered && std::stoll(number) >= from) folders.push_back(entry.path());
+    if (numbered && std::stoll(number) >= from) claimed.folders.push_back(entry.path());
   }
-  // Every folder's locks first, held while they go: one in use leaves them all, and an eval must not write its
-  // metrics into a folder that is being removed.
-  std::vector<std::unique_ptr<FolderLock>> locks;
-  for (const fs::path& folder : folders)
+  for (const fs::path& folder : claimed.folders)
     for (const char* purpose : {"train", "eval"})
-      locks.push_back(std::make_unique<FolderLock>(folder.string(), purpose));
-  for (const fs::path& folder : folders) fs::remove_all(folder);
+      claimed.locks.push_back(std::make_unique<FolderLock>(folder.string(), purpose));
+  return claimed;
 }
 
 // A resume of a run of several rounds (or of one round where such a run paused) checked against what the run stored:
@@ -319,7 +326,7 @@ TrainSummary train_avatar(const data::Dataset& dataset, const TrainConfig& confi
       TrainOptions first_round_start;
       first_round_start.start_fits = options.start_fits;
       read_start_fits(dataset, first_round, first_round_start);
-      remove_rounds_from(run, 1);
+      claim_rounds_from(run, 1).remove();
       for (const std::string& file : {run.checkpoint_file(), run.refined_fits_file(), run.start_fits_file()})
         fs::remove(file);
       const std::string config_text = config.to_yaml();
@@ -335,8 +342,10 @@ TrainSummary train_avatar(const data::Dataset& dataset, const TrainConfig& confi
                    run.path.c_str());
   }
   last_round.stop_at = round_stop(options, config, run, rounds);
+  // A new run of one round claims an older run's round folders now, and removes them once it has trained.
+  const ClaimedRounds older_rounds = !options.resume && rounds == 1 ? claim_rounds_from(run, 1) : ClaimedRounds();
   TrainSummary summary = train_round(dataset, config, run, last_round, (rounds - 1) * config.schedule.iterations);
-  if (!options.resume && rounds == 1) remove_rounds_from(run, 1);
+  older_rounds.remove();
   return in_round(std::move(summary), rounds, rounds, run);
 }
 

@@ -196,9 +196,17 @@ TEST(TrainPoseRefinement, RoundsTrainInOneRunWhatTwoRunsWould) {
   EXPECT_EQ(read_bytes(paused.start_fits_file()), read_bytes(first.refined_fits_file()));
   EXPECT_EQ(read_bytes(paused.refined_fits_file()), read_bytes(second.refined_fits_file()));
 
-  // A new one-round run in the folder, forced: the round folder goes.
+  // A new one-round run in the folder, forced: refused before it trains while an eval reads the round folder, which
+  // goes once the run has trained.
   train::TrainOptions fresh = quiet();
   fresh.overwrite = true;
+  {
+    const std::vector<unsigned char> fits = read_bytes(paused.refined_fits_file());
+    const FolderLock evaluating(paused.round_folder(1), "eval");
+    expect_error_mentioning([&] { train::train_avatar(dataset, refining, paused, fresh); },
+                            "in use by another sfgs eval");
+    EXPECT_EQ(read_bytes(paused.refined_fits_file()), fits);
+  }
   train::train_avatar(dataset, refining, paused, fresh);
   EXPECT_FALSE(fs::exists(paused.round_folder(1)));
   EXPECT_FALSE(fs::exists(paused.start_fits_file()));
