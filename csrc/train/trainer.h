@@ -66,7 +66,8 @@ std::vector<ErrorCurvePoint> write_error_curve_csv(const RunFolder& run, const s
 // iterations of the whole run (rounds x schedule.iterations: 2,000 with rounds of 1,500 pauses round 2 at 500), and
 // a resume keeps the rounds, the iterations a round and round 1's start fits. A new run that is not forced is refused
 // where the run or its round 1 holds a checkpoint; a forced one of several rounds clears the old run's checkpoint
-// before its round 1 (once its start fits are checked), and every new run removes the older run's round folders.
+// before its round 1 (once its start fits are checked), and every new run removes the older run's round folders
+// (refused, before it trains, while another process trains or evaluates one of them).
 TrainSummary train_avatar(const data::Dataset& dataset, const TrainConfig& config, const RunFolder& run,
                           const TrainOptions& options);
 
