@@ -1,11 +1,13 @@
 // Python bindings: `import sfgs` exposes the splatting op and trained avatars (load a run, pose it, render it);
 // tensors it returns carry the C++ autograd nodes, so torch.autograd (gradcheck included) works through them.
 #include <algorithm>
+#include <memory>
 #include <optional>
 #include <string>
 
 #include <torch/extension.h>
 
+#include "animate/animator.h"
 #include "data/dataset.h"
 #include "data/motion_file.h"
 #include "scene/builtin_scene.h"
@@ -133,8 +135,9 @@ class TrainedAvatar {
   py::dict render(const py::object& camera, const py::object& pose, const py::object& background) {
     const sfgs::Camera cam = camera_from_dict(camera);
     const FramePose p = to_pose(pose);
-    const sfgs::model::AvatarOutput o = t_.avatar->forward(p.pose, p.time);
     const auto given = to_optional_tensor(background, "Avatar.render(background)");
+    if (device_.is_cuda() && !needs_gradient(p, given)) return render_fast(cam, p, given);
+    const sfgs::model::AvatarOutput o = t_.avatar->forward(p.pose, p.time);
     const at::Tensor bg = given ? given->to(o.means.options()) : at::ones({3}, o.means.options());
     return result_dict(sfgs::render(sfgs::model::to_gaussians(o), bg, cam));
   }
@@ -153,6 +156,43 @@ class TrainedAvatar {
     for (int64_t k = 0; k < static_cast<int64_t>(clip.poses.size()); ++k)
       poses.push_back(sfgs::train::clip_pose(t_.avatar, clip, k));
     return motion_dict(clip, poses);
+  }
+
+  // Whether the caller may differentiate the image: a pose tensor or the background asks for a gradient.
+  static bool needs_gradient(const FramePose& p, const std::optional<at::Tensor>& background) {
+    if (!at::GradMode::is_enabled()) return false;
+    if (background && background->requires_grad()) return true;
+    for (const SmplxPose::Field& f : SmplxPose::fields()) {
+      const at::Tensor& t = p.pose.*(f.member);
+      if (t.defined() && t.requires_grad()) return true;
+    }
+    return false;
+  }
+
+  // The frame through the Animator (one CUDA graph replay): what sfgs render and sfgs eval run. The result is
+  // cloned, since the next replay writes into the graph's tensors.
+  py::dict render_fast(const sfgs::Camera& camera, const FramePose& p, const std::optional<at::Tensor>& background) {
+    SmplxPose host;
+    for (const SmplxPose::Field& f : SmplxPose::fields()) {
+      const at::Tensor& t = p.pose.*(f.member);
+      if (t.defined()) host.*(f.member) = t.detach().cpu();
+    }
+    const at::Tensor bg = background ? *background : at::ones({3});
+    if (!animator_)
+      animator_ = std::make_unique<sfgs::animate::Animator>(t_.avatar, camera, bg);
+    else {
+      animator_->set_camera(camera);
+      animator_->set_background(bg);
+    }
+    animator_->render(host, p.time);
+    const sfgs::RenderResult& r = animator_->latest();
+    sfgs::RenderResult copy;
+    copy.image = r.image.clone();
+    copy.alpha = r.alpha.clone();
+    copy.depth = r.depth.clone();
+    copy.radii = r.radii.clone();
+    copy.visible = r.visible.clone();
+    return result_dict(copy);
   }
 
   void set_cached(bool cached) {
@@ -205,6 +245,7 @@ class TrainedAvatar {
   std::string data_;  // the dataset folder given to load_avatar; empty: the one the run was trained on
   sfgs::train::TrainedAvatar t_;
   std::optional<sfgs::data::Dataset> dataset_;
+  std::unique_ptr<sfgs::animate::Animator> animator_;  // CUDA renders without a gradient, made at the first
 };
 
 }  // namespace

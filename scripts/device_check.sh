@@ -5,7 +5,7 @@
 #
 #   bash scripts/device_check.sh [build] [test] [python] [sanitize] [bench] [profile] [avatar] [animate] [train-step]
 #                                [animate-trained] [stage-profile] [step-profile] [train] [ablate] [novel] [sizes]
-#                                [fits]
+#                                [fits] [render-path]
 #   (no argument: the first five, in this order)
 #
 # python: the pytest suite against the module built with the machine's pip torch and pybind11 (CUDA included).
@@ -283,6 +283,42 @@ if wants animate-trained; then
   run animate-trained 250 "$build/bench/bench_animate" --device cuda --run "$trained/run" \
     --frames "${SFGS_DEVICE_ANIMATE_FRAMES:-300}"
   cat "$out/animate-trained.log"
+fi
+
+# render-path: the product paths on one trained avatar (issue 40): the Anny body filmed walking, waving and turning
+# at 800x1200 (SFGS_DEVICE_RENDER_FRAMES frames a motion, default 20; new motions in test, held-out frames of the
+# training motions in val), trained for SFGS_DEVICE_RENDER_ITERATIONS (default 1000); then bench_animate's graph frame,
+# `sfgs eval` on new motions (test) and replayed frames (val), `sfgs render` of 300 frames, Avatar.render from Python
+# (bench/python_render.py), and the training step with pose refinement against a plain one (600 iterations each).
+if wants render-path; then
+  export SFGS_SHARED_DIR=$shared
+  scene=/tmp/sfgs-render-path
+  run render-synth 300 "$build/sfgs" synth --out "$scene/data" --body "$shared/bodies/anny_smplx_layout.npz" \
+    --texture "$shared/bodies/anny_albedo.png" --motions walk,wave,turn --test-motions overhead,bend,guard,sit \
+    --frames "${SFGS_DEVICE_RENDER_FRAMES:-20}" --width 800 --height 1200 --force
+  sed "s|@SHARED@|$shared|g" "$root/configs/device_anny.yaml" >"$scene/config.yaml"
+  run render-train 400 "$build/sfgs" train --data "$scene/data" --out "$scene/run" --config "$scene/config.yaml" \
+    --iterations "${SFGS_DEVICE_RENDER_ITERATIONS:-1000}" --force --quiet
+  tail -n 3 "$out/render-train.log"
+  run render-frame 200 "$build/bench/bench_animate" --device cuda --run "$scene/run" --sizes 800x1200 --frames 300 \
+    --cull-cosines 1 --blend-segments 256
+  for split in test val; do
+    run "render-eval-$split" 200 "$build/sfgs" eval --run "$scene/run" --split "$split" --device cuda --force
+  done
+  run render-video 200 "$build/sfgs" render --run "$scene/run" --out "$scene/render" --motion bend --frames 300 \
+    --device cuda --force
+  run render-python 200 env PYTHONPATH="$build/python" python3 "$root/bench/python_render.py" "$scene/run" --frames 200
+  grep -h -E "frame|sfgs eval|render |encode|PSNR|median|python" "$out"/render-frame.log "$out"/render-eval-*.log \
+    "$out"/render-video.log "$out"/render-python.log | cut -c1-200
+  { cat "$scene/config.yaml"; printf 'pose_refinement:\n  enabled: true\n'; } >"$scene/config-refined.yaml"
+  for variant in plain refined; do
+    config=$scene/config.yaml
+    [ "$variant" = refined ] && config=$scene/config-refined.yaml
+    run "render-step-$variant" 300 "$build/sfgs" train --data "$scene/data" --out "$scene/run-$variant" \
+      --config "$config" --iterations 600 --force --quiet
+    tail -n 2 "$out/render-step-$variant.log"
+    grep -h '"pose_alignment"' "$scene/run-$variant/log.jsonl" 2>/dev/null | cut -c1-160
+  done
 fi
 
 if wants stage-profile || wants step-profile; then

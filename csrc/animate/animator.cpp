@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <utility>
 #include <vector>
 
@@ -17,6 +18,9 @@
 namespace sfgs::animate {
 namespace {
 
+// The frame values' layout in Animator::frame_values_: the camera's placement, its centre, the time.
+constexpr int64_t kCentreValues = 3, kFrameValues = kCameraFrameValues + kCentreValues + 1;
+
 void check_host_pose(const body::SmplxPose& pose) {
   for (const body::SmplxPose::Field& f : body::SmplxPose::fields()) {
     const at::Tensor& t = pose.*(f.member);
@@ -28,22 +32,29 @@ void check_host_pose(const body::SmplxPose& pose) {
   TORCH_CHECK(non_finite.empty(), "Animator: pose.", non_finite);
 }
 
+// What a graph holds of a camera: everything but its placement.
+std::string intrinsics_key(const Camera& c) {
+  char key[256];
+  std::snprintf(key, sizeof key, "%.17g %.17g %.17g %.17g %lld %lld %.17g %.17g", c.fx, c.fy, c.cx, c.cy,
+                static_cast<long long>(c.width), static_cast<long long>(c.height), c.near_plane, c.far_plane);
+  return key;
+}
+
 }  // namespace
 
 Animator::Animator(model::Avatar avatar, const Camera& camera, const at::Tensor& background, AnimatorOptions options)
     : avatar_(std::move(avatar)), camera_(camera), options_(options), device_(avatar_->part_labels().device()) {
-  const std::string problem = camera_problem(camera_);
-  TORCH_CHECK(problem.empty(), "Animator: ", problem);
   TORCH_CHECK(options_.budget_slack >= 1 && std::isfinite(options_.budget_slack),
               "Animator: budget_slack must be a finite number >= 1, got ", options_.budget_slack);
-  TORCH_CHECK(background.defined() && background.dim() == 1 && background.size(0) == 3 &&
-                  at::isFloatingType(background.scalar_type()),
-              "Animator: background must be a floating (3) tensor, got ", describe(background));
   TORCH_CHECK(std::isfinite(options_.back_facing_cosine), "Animator: back_facing_cosine must be finite, got ",
               options_.back_facing_cosine);
-  background_ = background.to(device_, at::kFloat).contiguous();
-  camera_centre_ = at::empty({3}, at::TensorOptions(device_).dtype(at::kFloat));
-  set_camera(camera_);
+  background_ = at::empty({3}, at::TensorOptions(device_).dtype(at::kFloat));
+  set_background(background);
+  frame_values_ = at::zeros({kFrameValues}, at::TensorOptions(device_).dtype(at::kFloat));
+  camera_frame_ = CameraFrame(frame_values_.narrow(0, 0, kCameraFrameValues));
+  camera_centre_ = frame_values_.narrow(0, kCameraFrameValues, kCentreValues);
+  time_ = frame_values_.select(0, kCameraFrameValues + kCentreValues);
+  set_camera(camera);
   avatar_->eval();
   avatar_->cache_static_features();
   if (device_.is_cuda()) budget_ = std::make_unique<GrowingBudget>(device_, options_.budget_slack, "Animator");
@@ -55,29 +66,52 @@ void Animator::set_camera(const Camera& camera) {
   const std::string problem = camera_problem(camera);
   TORCH_CHECK(problem.empty(), "Animator: ", problem);
   camera_ = camera;
-  const std::array<double, 3> centre = camera_centre(camera_);
-  camera_centre_.copy_(at::tensor({centre[0], centre[1], centre[2]}, at::kDouble));
-  graph_.reset();  // the camera is part of the recorded launches
+  origin_camera_ = camera_at_origin_of(camera);
 }
 
-at::Tensor Animator::splat(const model::AvatarOutput& out) {
+void Animator::set_background(const at::Tensor& background) {
+  TORCH_CHECK(background.defined() && background.dim() == 1 && background.size(0) == 3 &&
+                  at::isFloatingType(background.scalar_type()),
+              "Animator: background must be a floating (3) tensor, got ", describe(background));
+  const at::Tensor values = background.detach().to(at::kCPU, at::kFloat);
+  TORCH_CHECK(values.isfinite().all().item<bool>(), "Animator: background must be finite, got ", values);
+  background_.copy_(values);
+}
+
+void Animator::stage_frame(model::FrameTime time) {
+  TORCH_CHECK(!time || (std::isfinite(*time) && *time >= -1.0 && *time <= 1.0),
+              "Animator: time must be normalised to [-1, 1] (once per sequence), got ", *time);
+  std::vector<float> values(kFrameValues);
+  write_camera_frame(camera_, values.data());
+  const std::array<double, 3> centre = camera_centre(camera_);
+  std::copy(centre.begin(), centre.end(), values.begin() + kCameraFrameValues);
+  values.back() = static_cast<float>(time.value_or(0.0));
+  frame_values_.copy_(at::tensor(values, at::kFloat));  // one upload per frame
+}
+
+void Animator::splat(const model::AvatarOutput& out) {
   const StageScope stage("render");
   Gaussians gaussians = model::to_gaussians(out);
   gaussians.opacities = cull_back_facing(gaussians.opacities, out.means, out.posed_normals, camera_centre_,
                                          options_.back_facing_cosine);
-  return sfgs::render(gaussians, background_, camera_, options_.render).image;
+  gaussians.means = camera_frame_.points(gaussians.means);
+  gaussians.covariances = camera_frame_.covariances(gaussians.covariances);
+  result_ = sfgs::render(gaussians, background_, origin_camera_, options_.render);
 }
 
 at::Tensor Animator::render(const body::SmplxPose& pose, model::FrameTime time) {
   check_host_pose(pose);
   ++stats_.frames;
+  stage_frame(time);
   const bool graphs = options_.use_graph && device_.is_cuda() && device_graphs_available();
-  return graphs && !time ? render_with_graph(pose) : render_eagerly(pose, time);
+  return graphs ? render_with_graph(pose, time) : render_eagerly(pose, time);
 }
 
 at::Tensor Animator::render_eagerly(const body::SmplxPose& pose, model::FrameTime time) {
   at::NoGradGuard no_grad;
-  return splat(avatar_->forward_trusted_pose(pose, time));
+  if (!avatar_->has_cache()) avatar_->cache_static_features();
+  splat(avatar_->forward_trusted_pose(pose, time));
+  return result_.image;
 }
 
 void Animator::stage_pose(const body::SmplxPose& pose) {
@@ -85,8 +119,7 @@ void Animator::stage_pose(const body::SmplxPose& pose) {
   const std::string layout = pose.layout();
   const at::Tensor packed = pose.packed();
   if (layout != layout_) {
-    // A new layout: new device fields (views of one buffer, each with the caller's shape) and a new graph.
-    graph_.reset();
+    // A new layout: new device fields (views of one buffer, each with the caller's shape), read by a new graph.
     layout_ = layout;
     staged_values_ = at::empty({packed.size(0)}, at::TensorOptions(device_).dtype(at::kFloat));
     staged_pose_ = pose.views_of(staged_values_);
@@ -94,11 +127,14 @@ void Animator::stage_pose(const body::SmplxPose& pose) {
   staged_values_.copy_(packed);  // one upload per frame
 }
 
-void Animator::capture() {
-  const auto frame = [this] {
+void Animator::capture(bool timed) {
+  if (!avatar_->has_cache()) avatar_->cache_static_features();
+  cache_generation_ = avatar_->cache_generation();
+  const auto frame = [this, timed] {
     at::NoGradGuard no_grad;
     const ScopedBinningBudget budget(budget_->budget(avatar_->gaussian_count()));
-    image_ = splat(avatar_->forward_trusted_pose(staged_pose_, std::nullopt));
+    // The time as the device tensor the replays write (the cache keeps only host times' attributes).
+    splat(avatar_->forward_trusted_pose(staged_pose_, timed ? time_ : at::Tensor()));
   };
   if (!budget_->measured()) {
     // The first frame of this avatar: eager passes (which also make every lazy one-time allocation outside the
@@ -116,10 +152,15 @@ void Animator::capture() {
   stats_.budget = budget_->intersections();
 }
 
-at::Tensor Animator::render_with_graph(const body::SmplxPose& pose) {
+at::Tensor Animator::render_with_graph(const body::SmplxPose& pose, model::FrameTime time) {
   stage_pose(pose);
+  const std::string key = std::string(time ? "timed " : "new ") + layout_ + " " + intrinsics_key(camera_);
+  if (key != graph_key_ || avatar_->cache_generation() != cache_generation_) {
+    graph_.reset();
+    graph_key_ = key;
+  }
   for (;;) {
-    if (!graph_) capture();
+    if (!graph_) capture(time.has_value());
     graph_->replay();
     const BinningCounts counts = budget_->read();
     stats_.intersections = counts.intersections;
@@ -130,7 +171,7 @@ at::Tensor Animator::render_with_graph(const body::SmplxPose& pose) {
     graph_.reset();
   }
   ++stats_.graph_frames;
-  return image_;
+  return result_.image;
 }
 
 }  // namespace sfgs::animate

@@ -1,11 +1,19 @@
 #pragma once
-// Real-time animation of a trained avatar: pose in, image out, as fast as the GPU allows. Everything that depends
-// on neither pose nor time is baked once (the avatar's static-feature cache); the per-frame work (pose and hand
-// networks, body, structure offset, fused skinning, normals, shading, splatting) is recorded once as a CUDA graph
-// and each frame is one replay: one small upload of the pose, one launch, and one wait for the image at the end.
+// Real-time animation of a trained avatar: pose, time and camera in, image out, as fast as the GPU allows. Everything
+// that depends on neither pose nor time is baked once (the avatar's static-feature cache); the per-frame work (pose
+// and hand networks, body, the time-dependent attributes of a replayed frame, structure offset, fused skinning,
+// normals, shading, splatting) is recorded once as a CUDA graph and each frame is one replay: two small uploads (the
+// pose; the camera's placement and the time), one launch, and one wait for the image at the end.
+//
+// The camera's placement (world_to_camera) is an input of the recorded frame, not part of it: the posed Gaussians
+// are moved into the camera's frame on the device (splat/camera_frame.h, as the training step does) and splatted by
+// a camera at the origin with the same intrinsics,
+// so a moving camera (every frame of a video or a dataset) replays the same graph. A new intrinsic matrix, image
+// size, pose layout, or a change between replayed (timed) and new-motion frames records again.
+//
 // The splatting's intersection buffers are sized from a budget (splat.h, BinningBudget) that the Animator grows and
-// captures again whenever a frame reports it was exceeded, so every returned image is complete. On the CPU, with a
-// frame time (replay of a training frame), or with use_graph off, frames run eagerly. docs/performance.md.
+// captures again whenever a frame reports it was exceeded, so every returned image is complete. On the CPU, or with
+// use_graph off, the same frame runs eagerly. docs/performance.md.
 #include <array>
 #include <memory>
 #include <string>
@@ -15,6 +23,7 @@
 #include "body/smplx_pose.h"
 #include "common/constants.h"
 #include "model/avatar.h"
+#include "splat/camera_frame.h"
 #include "splat/growing_budget.h"
 #include "splat/splat.h"
 
@@ -39,7 +48,7 @@ struct AnimatorOptions {
 struct AnimatorStats {
   int64_t frames = 0;
   int64_t graph_frames = 0;      // frames that were one graph replay
-  int64_t captures = 0;          // graphs recorded (first frame, new pose layout, camera, or budget)
+  int64_t captures = 0;          // graphs recorded (first frame, new pose layout, intrinsics, timing, or budget)
   int64_t budget_overflows = 0;  // replays that reported a larger pass than their budget, and ran again
   int64_t intersections = 0;     // of the latest graph frame
   int64_t budget = 0;            // the intersection budget of the current graph
@@ -47,44 +56,58 @@ struct AnimatorStats {
 
 class Animator {
  public:
-  // The avatar is switched to eval mode and keeps its static-feature cache; background (C) matches its colours.
+  // The avatar is switched to eval mode and keeps its static-feature cache (made again when someone else clears or
+  // replaces it, and the graph recorded again); background (C) matches its colours.
   Animator(model::Avatar avatar, const Camera& camera, const at::Tensor& background, AnimatorOptions options = {});
   ~Animator();
   Animator(const Animator&) = delete;
   Animator& operator=(const Animator&) = delete;
 
   // One frame (H, W, C) on the avatar's device: a new motion's pose (time none), or a training frame's replay
-  // (time in [-1, 1], run eagerly). The pose's tensors must be on the CPU, where they are checked; the image is
-  // overwritten by the next graph frame (clone it to keep it).
+  // (time in [-1, 1]). The pose's tensors must be on the CPU, where they are checked; the image is overwritten by the
+  // next graph frame (clone it to keep it).
   at::Tensor render(const body::SmplxPose& pose, model::FrameTime time = std::nullopt);
-  // Later frames are seen by `camera` (the next graph frame captures again).
+  // The whole result of the latest frame (image, alpha, depth, and per Gaussian radii and visibility), with depth in
+  // the camera's frame; overwritten by the next graph frame like the image.
+  const RenderResult& latest() const { return result_; }
+  // Later frames are seen by `camera`. Only new intrinsics or a new image size record the next graph frame again.
   void set_camera(const Camera& camera);
+  const Camera& camera() const { return camera_; }
+  // Later frames get this background (3): written into the tensor the graph reads, so nothing records again.
+  void set_background(const at::Tensor& background);
 
   const AnimatorStats& stats() const { return stats_; }
   at::Device device() const { return device_; }
 
  private:
+  // The posed avatar's image, seen from the staged camera (back-facing Gaussians culled), into result_.
+  void splat(const model::AvatarOutput& out);
   at::Tensor render_eagerly(const body::SmplxPose& pose, model::FrameTime time);
-  // The frame's image from the posed avatar, back-facing Gaussians culled.
-  at::Tensor splat(const model::AvatarOutput& out);
-  at::Tensor render_with_graph(const body::SmplxPose& pose);
+  at::Tensor render_with_graph(const body::SmplxPose& pose, model::FrameTime time);
   void stage_pose(const body::SmplxPose& pose);
-  void capture();
+  void stage_frame(model::FrameTime time);
+  void capture(bool timed);
 
   model::Avatar avatar_;
   Camera camera_;
+  Camera origin_camera_;  // camera_'s intrinsics at the origin: what splats the Gaussians moved into its frame
   at::Tensor background_;
-  at::Tensor camera_centre_;  // (3) on the device, updated in place (graphs read it)
   AnimatorOptions options_;
   at::Device device_;
   AnimatorStats stats_;
-  // Graph state: the pose's device copy (one flat buffer and the fields as its views), the layout it was made for,
-  // the splatting budget (CUDA only), and the graph's output.
+  // The frame's values on the device, one buffer uploaded per frame: the camera's placement (camera_frame.h), its
+  // centre in the world (3) for the back-facing cull, and the time (0-dim); graphs read them.
+  at::Tensor frame_values_, camera_centre_, time_;
+  CameraFrame camera_frame_;
+  // Graph state: the pose's device copy (one flat buffer and the fields as its views), the key the graph was
+  // recorded for (pose layout, timing, intrinsics), the splatting budget (CUDA only), and the graph's result.
+  std::string graph_key_;
+  int64_t cache_generation_ = -1;  // of the avatar's cache the graph reads
   std::string layout_;
   at::Tensor staged_values_;
   body::SmplxPose staged_pose_;
   std::unique_ptr<GrowingBudget> budget_;
-  at::Tensor image_;
+  RenderResult result_;
   std::unique_ptr<DeviceGraph> graph_;
 };
 

@@ -3,16 +3,21 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <algorithm>
 #include <filesystem>
+#include <memory>
 #include <optional>
 #include <stdexcept>
+#include <thread>
 #include <vector>
 
 #include <ATen/ATen.h>
 #include <nlohmann/json.hpp>
 
 #include "cli/commands.h"
+#include "animate/animator.h"
 #include "cli/evaluation_report.h"
+#include "cli/frame_encoder.h"
 #include "cli/motion_source.h"
 #include "cli/video.h"
 #include "common/atomic_file.h"
@@ -192,8 +197,16 @@ struct RenderRequest {
   int64_t width = 0, image_height = 0;  // 0: the training dataset's
 };
 
-// Renders the frames into PNGs and the video; returns the frames per second of avatar + rasterisation.
-double render_frames(train::TrainedAvatar& t, RenderRequest& request, WrittenFiles& written, bool& wrote_video) {
+struct RenderPace {
+  double render_fps = 0;  // avatar + rasterisation + the 8-bit image's copy to the host
+  double encode_fps = 0;  // PNG + MP4 encoding, on background threads
+  double total_seconds = 0;
+  int encode_threads = 0;
+};
+
+// Renders the frames into PNGs and the video: the Animator renders (on CUDA one graph replay a frame, whatever the
+// camera), background threads encode.
+RenderPace render_frames(train::TrainedAvatar& t, RenderRequest& request, WrittenFiles& written, bool& wrote_video) {
   const data::Dataset trained_on = train::read_run_dataset(t, request.data);
   const MotionSource source(request.motion, request.fps, request.frames, trained_on);
   if (!source.note().empty()) std::printf("sfgs render: %s: %s\n", request.motion.c_str(), source.note().c_str());
@@ -204,39 +217,68 @@ double render_frames(train::TrainedAvatar& t, RenderRequest& request, WrittenFil
   t.avatar->eval();
   t.avatar->cache_static_features();
   at::NoGradGuard no_grad;
-  const auto pose_at = [&](int64_t i) { return t.avatar->forward(source.pose(t.avatar, i), source.replay_time(i)); };
   const Camera base = train::render_camera(trained_on.frames[0]);
   const int64_t width = request.width > 0 ? request.width : base.width;
   const int64_t height = request.image_height > 0 ? request.image_height : base.height;
   const Camera lens = Camera::looking_forward(kRenderFocalPerHeight * double(height), width, height);
   // The dataset's camera orbits the training frame's body; the other cameras aim at the motion's first frame (orbit,
-  // fixed) or at every frame's body (follow), from the front (+Z, where the body model faces).
+  // fixed) or follow the body's root as it moves (follow), from the front (+Z, where the body model faces).
+  const body::SmplxPose first_pose = source.pose(t.avatar, 0);
   const std::array<double, 3> first =
-      request.camera.empty() ? centre_of(train::pose_avatar(t.avatar, trained_on, 0)) : centre_of(pose_at(0));
-  const auto camera_at = [&](int64_t i, const model::AvatarOutput& o) {
+      request.camera.empty() ? centre_of(train::pose_avatar(t.avatar, trained_on, 0))
+                             : centre_of(t.avatar->forward(first_pose, source.replay_time(0)));
+  const auto root_of = [](const body::SmplxPose& pose) {
+    std::array<double, 3> root{0, 0, 0};
+    if (!pose.transl.defined()) return root;
+    const at::Tensor transl = pose.transl.detach().reshape({-1}).to(at::kCPU, at::kDouble);
+    for (int k = 0; k < 3; ++k) root[size_t(k)] = transl[k].item<double>();
+    return root;
+  };
+  const std::array<double, 3> first_root = root_of(first_pose);
+  const auto camera_at = [&](int64_t i, const body::SmplxPose& pose) {
     const double angle = kTwoPi * double(i) / double(request.frames);
     if (request.camera.empty()) return orbit_camera(base, first, angle);
-    return camera_in_front(lens, request.camera == "follow" ? centre_of(o) : first, request.distance, request.height,
-                           request.camera == "orbit" ? angle : 0.0);
+    std::array<double, 3> target = first;
+    if (request.camera == "follow") {
+      const std::array<double, 3> root = root_of(pose);
+      for (size_t k = 0; k < 3; ++k) target[k] += root[k] - first_root[k];
+    }
+    return camera_in_front(lens, target, request.distance, request.height, request.camera == "orbit" ? angle : 0.0);
   };
   VideoWriter video((fs::path(request.out) / "render.mp4").string(), int(width), int(height), request.fps,
                     request.force);
-  double seconds = 0;
-  for (int64_t i = 0; i < request.frames; ++i) {
-    const auto start = std::chrono::steady_clock::now();
-    const model::AvatarOutput o = pose_at(i);
-    const Camera cam = camera_at(i, o);
-    const at::Tensor image = render(model::to_gaussians(o), at::ones({3}, o.means.options()), cam).image.cpu();
-    seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-    char name[32];
-    std::snprintf(name, sizeof(name), "frame_%04lld.png", (long long)i);
-    const std::string path = (fs::path(request.out) / name).string();
-    data::write_png(path, image, request.force);
-    written.add(path);
-    video.add(image);
+  RenderPace pace;
+  pace.encode_threads = std::max(1, int(std::thread::hardware_concurrency()) - 1);
+  const auto started = std::chrono::steady_clock::now();
+  double render_seconds = 0;
+  {
+    FrameEncoder encoder(video.available() ? &video : nullptr, request.force, pace.encode_threads);
+    std::unique_ptr<animate::Animator> animator;
+    for (int64_t i = 0; i < request.frames; ++i) {
+      const body::SmplxPose pose = source.pose(t.avatar, i);
+      const Camera camera = camera_at(i, pose);
+      const auto start = std::chrono::steady_clock::now();
+      if (!animator)
+        animator = std::make_unique<animate::Animator>(t.avatar, camera, at::ones({3}));
+      else
+        animator->set_camera(camera);
+      const at::Tensor image = eight_bit_image(animator->render(pose, source.replay_time(i)));
+      render_seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+      char name[32];
+      std::snprintf(name, sizeof(name), "frame_%04lld.png", (long long)i);
+      const std::string path = (fs::path(request.out) / name).string();
+      written.add(path);
+      encoder.add(path, image);
+    }
+    encoder.finish();
+    // Encoding overlaps the render: its pace is the frames over the time until the last one was written.
+    pace.encode_fps = double(request.frames) /
+                      std::max(std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count(), 1e-9);
   }
   wrote_video = video.close();
-  return double(request.frames) / seconds;
+  pace.render_fps = double(request.frames) / std::max(render_seconds, 1e-9);
+  pace.total_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();
+  return pace;
 }
 
 }  // namespace
@@ -266,7 +308,7 @@ int run_render(Arguments& args) {
   remove_stale_temporaries(request.out);
   WrittenFiles written;
   bool wrote_video = false;
-  double fps = 0;
+  RenderPace pace;
   const auto stopped = [&](const std::string& what) {
     const size_t frames = written.size();
     written.remove_all();
@@ -275,15 +317,18 @@ int run_render(Arguments& args) {
                               " frames it had written to '" + request.out + "' were removed");
   };
   try {
-    fps = render_frames(t, request, written, wrote_video);
+    pace = render_frames(t, request, written, wrote_video);
   } catch (const c10::Error& e) {
     throw stopped(e.what_without_backtrace());
   } catch (const std::exception& e) {
     throw stopped(e.what());
   }
-  std::printf("sfgs render: %lld frames to %s (%s); %.1f frames/s (avatar + rasterisation, cached static features)\n",
+  std::printf("sfgs render: %lld frames to %s (%s) in %.2f s\n  render %.1f frames/s (%s; avatar + rasterisation)\n"
+              "  encode %.1f frames/s (%d PNG threads%s, beside the render)\n",
               (long long)request.frames, request.out.c_str(),
-              wrote_video ? "PNG + render.mp4" : "PNG only: this build's OpenCV has no MP4 encoder", fps);
+              wrote_video ? "PNG + render.mp4" : "PNG only: this build's OpenCV has no MP4 encoder", pace.total_seconds,
+              pace.render_fps, device.is_cuda() ? "CUDA graph replays" : "CPU", pace.encode_fps, pace.encode_threads,
+              wrote_video ? " and one for the video" : "");
   return 0;
 }
 

@@ -168,17 +168,13 @@ AvatarOutput AvatarImpl::forward_trusted_pose(const body::SmplxPose& pose, const
                                  device_time.device() == reference.device()),
       "Avatar: a device time must be a 0-dim ", reference.scalar_type(), " tensor on ", reference.device(), ", got ",
       describe(device_time));
-  TORCH_CHECK(!cache_,
-              "Avatar: a device time is for training; the inference cache keys on host times (call "
-              "clear_cache() first)");
   return posed(pose, std::nullopt, device_time);
 }
 
 // One of host_time and device_time at most; device_time bypasses the cache.
 AvatarOutput AvatarImpl::posed(const body::SmplxPose& pose, FrameTime host_time, const at::Tensor& device_time) {
   const bool has_time = host_time.has_value() || device_time.defined();
-  if (confidence_.defined() && confidence_.device() != body_->vertices().device())
-    confidence_ = confidence_.to(body_->vertices().device());
+  plan_observation_prior();
   FramePose frame;
   at::Tensor coarse_residual;
   {
@@ -194,8 +190,7 @@ AvatarOutput AvatarImpl::posed(const body::SmplxPose& pose, FrameTime host_time,
   CanonicalAttributes attributes;
   {
     const StageScope stage("avatar: canonical attributes (planes, heads)");
-    attributes = device_time.defined() ? compute_attributes(feature_field_->static_features(), device_time)
-                                       : attributes_at(host_time);
+    attributes = device_time.defined() ? attributes_at(device_time) : attributes_at(host_time);
   }
   CanonicalGaussians canonical;
   {
@@ -286,7 +281,7 @@ CanonicalAttributes AvatarImpl::compute_attributes(const StaticFeatures& feature
 
 CanonicalAttributes AvatarImpl::with_observation_prior(CanonicalAttributes a) const {
   const at::Tensor initial = body_->initial_log_scales();
-  a.colour_logits = propagate_from_observed(a.colour_logits, confidence_.squeeze(1), neighbours_);
+  a.colour_logits = propagate_from_observed(a.colour_logits, *propagation_);
   a.mean_offset = trusted(a.mean_offset);
   a.log_scales = initial + trusted((a.log_scales - initial).unsqueeze(1)).squeeze(1);
   return a;
@@ -298,6 +293,7 @@ at::Tensor AvatarImpl::trusted(const at::Tensor& learned) const {
 
 void AvatarImpl::set_observation(const at::Tensor& observed_fraction) {
   clear_cache();
+  propagation_.reset();
   if (!observed_fraction.defined()) {
     observed_fraction_ = confidence_ = at::Tensor();
     return;
@@ -312,6 +308,32 @@ void AvatarImpl::set_observation(const at::Tensor& observed_fraction) {
               "Avatar: the observation record must be finite and non-negative");
   confidence_ = observation_confidence(observed_fraction_).unsqueeze(1);
   if (!neighbours_.indices.defined()) neighbours_ = body::vertex_neighbours(body_->faces().cpu(), n);
+}
+
+void AvatarImpl::plan_observation_prior() {
+  if (!confidence_.defined()) return;
+  const auto options = body_->vertices().options();
+  if (confidence_.device() != options.device()) confidence_ = confidence_.to(options.device());
+  if (is_training()) return;  // training ignores the record (and may be recording a CUDA graph: no host reads)
+  if (propagation_ && propagation_->trust.defined() && propagation_->trust.device() == options.device() &&
+      propagation_->trust.scalar_type() == options.dtype().toScalarType())
+    return;
+  if (propagation_ && !propagation_->any_known) return;  // nothing observed: no tensors to move
+  propagation_ = std::make_unique<PropagationPlan>(
+      plan_propagation(confidence_.squeeze(1), neighbours_, options.dtype().toScalarType()));
+}
+
+CanonicalAttributes AvatarImpl::attributes_at(const at::Tensor& device_time) {
+  if (!cache_) return compute_attributes(feature_field_->static_features(), device_time);
+  TORCH_CHECK(!is_training(),
+              "Avatar: the static-feature cache is for inference; call clear_cache() before training (or eval())");
+  TORCH_CHECK(cache_->device() == body_->vertices().device(), "Avatar: the cache was made on ", cache_->device(),
+              " but the module is on ", body_->vertices().device(), "; call cache_static_features() again");
+  CanonicalAttributes a = compute_attributes(cache_->features(), device_time);
+  // The fused structure offset reads the projection in half precision, as from the cache.
+  if (a.structure_projection.defined() && a.structure_projection.is_cuda())
+    a.structure_projection_half = a.structure_projection.to(at::kHalf);
+  return a;
 }
 
 CanonicalAttributes AvatarImpl::attributes_at(FrameTime time) {
@@ -365,11 +387,16 @@ at::Tensor AvatarImpl::appearance(const FramePose& frame, const CanonicalAttribu
 
 void AvatarImpl::cache_static_features() {
   at::NoGradGuard no_grad;
+  plan_observation_prior();
+  ++cache_generation_;
   cache_ = std::make_unique<InferenceCache>(feature_field_->static_features(), config_.use_hexplane);
   cache_->keep(compute_attributes(cache_->features(), at::Tensor()), std::nullopt);
 }
 
-void AvatarImpl::clear_cache() { cache_.reset(); }
+void AvatarImpl::clear_cache() {
+  if (cache_) ++cache_generation_;
+  cache_.reset();
+}
 
 Gaussians to_gaussians(const AvatarOutput& out) {
   Gaussians g;

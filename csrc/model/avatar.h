@@ -36,6 +36,7 @@ namespace sfgs::model {
 
 class InferenceCache;
 struct CanonicalAttributes;
+struct PropagationPlan;
 struct CanonicalGaussians;
 
 struct AvatarConfig {
@@ -130,7 +131,8 @@ class AvatarImpl : public torch::nn::Module {
   AvatarOutput forward_trusted_pose(const body::SmplxPose& pose, FrameTime time);
   // forward_trusted_pose with the time as a 0-dim tensor of the avatar's dtype and device (undefined: none), not
   // checked against [-1, 1]: for a caller that records the work as a CUDA graph and writes each replay's time into that
-  // tensor (train/step_graphs.h). Training mode only (the inference cache keys on host times).
+  // tensor (train/step_graphs.h, animate::Animator). With the inference cache, the time-dependent attributes are
+  // computed from the cached static features every call (the cache keeps only host times' attributes).
   AvatarOutput forward_trusted_pose(const body::SmplxPose& pose, const at::Tensor& device_time);
 
   // The observation record of training (observation_prior.h): per Gaussian, the share of training steps that saw it
@@ -145,6 +147,9 @@ class AvatarImpl : public torch::nn::Module {
   // after training (or after loading a checkpoint, or moving the module); any parameter update invalidates it.
   void cache_static_features();
   void clear_cache();
+  bool has_cache() const { return cache_ != nullptr; }
+  // Counts the cache's replacements (made, cleared): a recorded CUDA graph that read the cache is stale once it moves.
+  int64_t cache_generation() const { return cache_generation_; }
 
   int64_t gaussian_count() const;
   const at::Tensor& part_labels() const;  // (N) uint8 body::BodyPart, on the module's device
@@ -166,6 +171,9 @@ class AvatarImpl : public torch::nn::Module {
   FramePose frame_pose(const body::SmplxPose& pose) const;
   AvatarOutput posed(const body::SmplxPose& pose, FrameTime time, const at::Tensor& device_time);
   CanonicalAttributes attributes_at(FrameTime time);
+  CanonicalAttributes attributes_at(const at::Tensor& device_time);
+  // The observation prior's plan on the module's device (made when first needed there).
+  void plan_observation_prior();
   // time: 0-dim on the module's device, or undefined for none.
   CanonicalAttributes compute_attributes(const StaticFeatures& features, const at::Tensor& time) const;
   bool trusts_observation() const { return confidence_.defined() && !is_training(); }
@@ -188,8 +196,10 @@ class AvatarImpl : public torch::nn::Module {
   at::Tensor opacities_;
   at::Tensor observed_fraction_, confidence_;  // (N) and (N, 1) on the module's device, or undefined
   body::VertexNeighbours neighbours_;          // of the mesh points, for the observation prior
+  std::unique_ptr<PropagationPlan> propagation_;  // of confidence_, on its device; null until planned
   body::VertexFaces faces_around_;             // of the mesh points on the CUDA device, for their normals
   std::unique_ptr<InferenceCache> cache_;
+  int64_t cache_generation_ = 0;
 };
 TORCH_MODULE(Avatar);
 

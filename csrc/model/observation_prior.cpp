@@ -49,43 +49,81 @@ at::Tensor observation_confidence(const at::Tensor& observed_fraction) {
   return (observed_fraction / kWellObservedFraction).clamp(0.0, 1.0);
 }
 
-at::Tensor propagate_from_observed(const at::Tensor& values, const at::Tensor& confidence,
-                                   const body::VertexNeighbours& neighbours) {
-  const int64_t n = values.size(0);
-  TORCH_CHECK(values.dim() == 2 && confidence.dim() == 1 && confidence.size(0) == n && neighbours.counts.size(0) == n,
-              "propagate_from_observed: values (N, C), confidence (N) and neighbours of N points expected, got ",
-              describe(values), " and ", describe(confidence), " for ", neighbours.counts.size(0), " points");
+PropagationPlan plan_propagation(const at::Tensor& confidence, const body::VertexNeighbours& neighbours,
+                                 at::ScalarType dtype) {
+  const int64_t n = confidence.size(0);
+  TORCH_CHECK(confidence.dim() == 1 && neighbours.counts.dim() == 1 && neighbours.counts.size(0) == n &&
+                  neighbours.indices.dim() == 2 && neighbours.indices.size(0) == n,
+              "propagate_from_observed: confidence (N) and neighbours of N points expected, got ", describe(confidence),
+              " for ", neighbours.counts.size(0), " points");
   at::NoGradGuard no_grad;
+  const auto options = confidence.options().dtype(dtype);
+  PropagationPlan plan;
+  plan.point_count = n;
   const at::Tensor known = confidence >= 1.0;
-  if (!known.any().item<bool>()) return values;
-  const at::Tensor indices = neighbours.indices.to(values.device()).reshape({-1});
-  const int64_t k = neighbours.indices.size(1), c = values.size(1);
-  const at::Tensor counts = neighbours.counts.to(values.device());
-  const at::Tensor slot_valid =
-      (at::arange(k, counts.options()).unsqueeze(0) < counts.unsqueeze(1)).to(values.scalar_type());  // (N, K)
-  const auto neighbour_values = [&](const at::Tensor& x) { return x.index_select(0, indices).view({n, k, c}); };
+  plan.any_known = known.any().item<bool>();
+  if (!plan.any_known) return plan;
+  const int64_t k = neighbours.indices.size(1);
+  const at::Tensor indices = neighbours.indices.to(confidence.device()).reshape({-1});
+  const at::Tensor counts = neighbours.counts.to(confidence.device());
+  const at::Tensor slot_valid = (at::arange(k, counts.options()).unsqueeze(0) < counts.unsqueeze(1)).to(options);
+  plan.trust = confidence.to(options).unsqueeze(1);
+  plan.known = known.unsqueeze(1);
+  plan.neighbours = indices;
+  plan.slot_weight = slot_valid.unsqueeze(2);
+  plan.divisor = counts.clamp_min(1).to(options).unsqueeze(1);
 
   // The front: each ring of unfilled points next to filled ones takes the mean of its filled neighbours.
-  at::Tensor filled = known.to(values.scalar_type());
-  at::Tensor x = values * filled.unsqueeze(1);
+  at::Tensor filled = known.to(options);
   while (true) {
     const at::Tensor filled_neighbours = filled.index_select(0, indices).view({n, k}) * slot_valid;
     const at::Tensor filled_count = filled_neighbours.sum(1);
     const at::Tensor reached = (filled == 0) & (filled_count > 0);
-    if (!reached.any().item<bool>()) break;
-    const at::Tensor mean = (neighbour_values(x) * filled_neighbours.unsqueeze(2)).sum(1) /
-                            filled_count.clamp_min(1).unsqueeze(1);
-    x = at::where(reached.unsqueeze(1), mean, x);
-    filled = filled + reached.to(filled.scalar_type());
+    const at::Tensor points = reached.nonzero().squeeze(1);
+    if (points.size(0) == 0) break;
+    PropagationPlan::Ring ring;
+    ring.points = points;
+    ring.neighbours = neighbours.indices.to(confidence.device()).index_select(0, points).reshape({-1});
+    ring.filled = filled_neighbours.index_select(0, points).unsqueeze(2);
+    ring.count = filled_count.index_select(0, points).clamp_min(1).unsqueeze(1);
+    plan.rings.push_back(std::move(ring));
+    filled = filled + reached.to(options);
   }
-  x = at::where((filled > 0).unsqueeze(1), x, values);  // mesh parts without an observed point keep theirs
+  plan.reached = (filled > 0).unsqueeze(1);
+  return plan;
+}
+
+at::Tensor propagate_from_observed(const at::Tensor& values, const PropagationPlan& plan) {
+  TORCH_CHECK(values.dim() == 2 && values.size(0) == plan.point_count,
+              "propagate_from_observed: values (N, C) for the plan's ", plan.point_count, " points expected, got ",
+              describe(values));
+  if (!plan.any_known) return values;
+  TORCH_CHECK(values.device() == plan.trust.device() && values.scalar_type() == plan.trust.scalar_type(),
+              "propagate_from_observed: values on ", plan.trust.device(), " in ", plan.trust.scalar_type(),
+              " expected (the plan's), got ", describe(values));
+  at::NoGradGuard no_grad;
+  const int64_t n = values.size(0), c = values.size(1), k = plan.slot_weight.size(1);
+  at::Tensor x = values * plan.known;
+  for (const PropagationPlan::Ring& ring : plan.rings) {
+    const int64_t m = ring.points.size(0);
+    const at::Tensor mean = (x.index_select(0, ring.neighbours).view({m, k, c}) * ring.filled).sum(1) / ring.count;
+    x.index_copy_(0, ring.points, mean);
+  }
+  x = at::where(plan.reached, x, values);  // mesh parts without an observed point keep theirs
   // Smoothing: the propagated values relax towards the mean of their neighbours; the observed ones stay.
-  const at::Tensor slot_weight = slot_valid.unsqueeze(2);
-  const at::Tensor divisor = counts.clamp_min(1).to(values.scalar_type()).unsqueeze(1);
   for (int64_t pass = 0; pass < kObservationSmoothingPasses; ++pass)
-    x = at::where(known.unsqueeze(1), x, (neighbour_values(x) * slot_weight).sum(1) / divisor);
-  const at::Tensor trust = confidence.to(values.scalar_type()).unsqueeze(1);
-  return trust * values + (1 - trust) * x;
+    x = at::where(plan.known, x,
+                  (x.index_select(0, plan.neighbours).view({n, k, c}) * plan.slot_weight).sum(1) / plan.divisor);
+  return plan.trust * values + (1 - plan.trust) * x;
+}
+
+at::Tensor propagate_from_observed(const at::Tensor& values, const at::Tensor& confidence,
+                                   const body::VertexNeighbours& neighbours) {
+  TORCH_CHECK(values.dim() == 2 && confidence.dim() == 1 && confidence.size(0) == values.size(0),
+              "propagate_from_observed: values (N, C), confidence (N) and neighbours of N points expected, got ",
+              describe(values), " and ", describe(confidence), " for ", neighbours.counts.size(0), " points");
+  return propagate_from_observed(values, plan_propagation(confidence.to(values.device()), neighbours,
+                                                          values.scalar_type()));
 }
 
 }  // namespace sfgs::model

@@ -5,9 +5,11 @@
 #include <cmath>
 #include <filesystem>
 #include <map>
+#include <memory>
 
 #include <ATen/ATen.h>
 
+#include "animate/animator.h"
 #include "io/npz.h"
 #include "data/image_io.h"
 #include "train/run_folder.h"
@@ -29,17 +31,25 @@ AvatarEvaluation evaluate_avatar(const data::Dataset& dataset, data::Split split
   std::map<int64_t, std::vector<size_t>> frames_of_sequence;
   int64_t previous_sequence = -1, previous_frame = -2;
   double render_ms = 0;
+  // Every frame through the Animator: on CUDA one graph replay per frame, whatever the frame's camera.
+  std::unique_ptr<animate::Animator> animator;
   for (int64_t f : frames) {
     const data::FrameRecord& record = dataset.frames[size_t(f)];
     if (record.sequence != previous_sequence || f != previous_frame + 1) evaluator.begin_sequence();
     previous_sequence = record.sequence;
     previous_frame = f;
     const data::Frame frame = dataset.load(f);
+    const Camera camera = render_camera(record);
     const auto start = std::chrono::steady_clock::now();
-    const model::AvatarOutput out = pose_avatar(avatar, dataset, f);
-    const RenderResult r = render(to_gaussians(out), at::ones({3}, out.means.options()), render_camera(record));
-    const at::Tensor image = r.image.to(at::kCPU);
+    if (!animator)
+      animator = std::make_unique<animate::Animator>(avatar, camera, at::ones({3}));
+    else
+      animator->set_camera(camera);
+    // The Animator returns once the frame is done (it reads the splatting's counts); the copy to the host belongs
+    // to the metrics, which run on the CPU.
+    const at::Tensor rendered = animator->render(record.pose, dataset.replay_time(f));
     render_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+    const at::Tensor image = rendered.to(at::kCPU);
     frames_of_sequence[record.sequence].push_back(result.frames.size());
     result.frames.push_back(evaluator.add_frame(image, frame.image, frame.eval_mask));
     result.frame_names.push_back(record.name);
@@ -47,7 +57,7 @@ AvatarEvaluation evaluate_avatar(const data::Dataset& dataset, data::Split split
       const auto [compared_prediction, compared_target] =
           evaluator.compared_images(image, frame.image, frame.eval_mask);
       regions.add(compared_prediction, compared_target,
-                  region_masks(*truth, io::read_npy(record.mesh_path), render_camera(record), frame.eval_mask));
+                  region_masks(*truth, io::read_npy(record.mesh_path), camera, frame.eval_mask));
     }
     if (!save_folder.empty()) {
       std::string name = record.name;

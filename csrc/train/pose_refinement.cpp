@@ -130,6 +130,7 @@ PoseRefinement::PoseRefinement(const data::Dataset& dataset, const PoseRefinemen
   rates_ = column_rates(config.learning_rate, config.translation_learning_rate, device);
   steps_.assign(size_t(rows), 0);
   smooth_refined_fits();
+  keep_fits_on_host();
   for (const double share : config.align_at) align_iterations_.push_back(iteration_at(share, iterations));
   align_joints_from_ = iteration_at(config.align_joints_from, iterations);
   align_orientation_from_ = iteration_at(config.align_orientation_from, iterations);
@@ -245,6 +246,7 @@ nlohmann::json PoseRefinement::align(int64_t iteration, model::Avatar& avatar, c
   avatar->train();
   const nlohmann::json error_aligned = config_.smoothing_seconds > 0 ? error_against_truth() : nlohmann::json();
   smooth_refined_fits();
+  keep_fits_on_host();
   const double rows = double(frames_.size());
   nlohmann::json entry{{"event", "pose_alignment"},
                        {"iteration", iteration},
@@ -323,6 +325,16 @@ void PoseRefinement::restore(const at::Tensor& state) {
   exp_avg_sq_.copy_(state.narrow(1, 2 * kCorrectionWidth, kCorrectionWidth).to(options));
   const at::Tensor steps = state.select(1, 3 * kCorrectionWidth).round().to(at::kLong).contiguous();
   for (int64_t r = 0; r < rows; ++r) steps_[size_t(r)] = steps[r].item<int64_t>();
+  keep_fits_on_host();
+}
+
+void PoseRefinement::keep_fits_on_host() {
+  if (!config_.per_step()) host_corrections_ = corrections_.detach().to(at::kCPU).clone();
+}
+
+body::SmplxPose PoseRefinement::fit(int64_t frame) const {
+  TORCH_CHECK(!config_.per_step(), "pose refinement: fit() is for runs without per-step corrections; use pose()");
+  return corrected_pose(dataset_.frames[size_t(frame)].pose, host_corrections_[row_of(frame)]);
 }
 
 void PoseRefinement::write_fits(const std::string& path) const {

@@ -53,6 +53,10 @@ class PoseRefinement {
   // corrected fit (with a gradient to its correction) from config.start on, adding the weighted "pose_prior" and
   // "pose_smoothness" to `terms`; the input fit (and zero terms) before.
   body::SmplxPose pose(int64_t frame, int64_t iteration, LossTerms& terms);
+  // Without per-step corrections: training frame `frame`'s fit as the last alignment pass left it, on the CPU (the
+  // step uploads it with the frame, and a recorded step can take it). Refused with per-step corrections.
+  body::SmplxPose fit(int64_t frame) const;
+  bool per_step() const { return config_.per_step(); }
   // With per-step corrections and keypoints (keypoint_map given, config.keypoint_weight > 0, some training frame
   // with detections): adds the weighted "pose_keypoints", the reprojection error of `out` (the avatar posed at
   // pose(frame, ...)) against the frame's detections, from config.start on (zero before, and for a frame without
@@ -84,6 +88,8 @@ class PoseRefinement {
   int64_t row_of(int64_t frame) const;
   // Replaces the refined fits by their temporal smoothing (config.smoothing_seconds; nothing when 0).
   void smooth_refined_fits();
+  // Copies the corrections to host_corrections_ where fit() reads them (after anything that changes them).
+  void keep_fits_on_host();
 
   const data::Dataset& dataset_;
   PoseRefinementConfig config_;
@@ -96,6 +102,7 @@ class PoseRefinement {
   std::vector<int64_t> previous_, next_;   // row -> neighbouring row in its sequence, -1 at an end
   at::Tensor base_;                        // (F, kCorrectionWidth) the input fits' corrected fields, on the device
   at::Tensor corrections_;                 // (F, kCorrectionWidth) leaf with a gradient
+  at::Tensor host_corrections_;            // their copy on the CPU without per-step corrections (fit())
   at::Tensor exp_avg_, exp_avg_sq_;        // Adam moments, (F, kCorrectionWidth)
   at::Tensor rates_;                       // (kCorrectionWidth) learning rate per column (rotations, translation)
   std::vector<int64_t> steps_;             // Adam steps taken per row

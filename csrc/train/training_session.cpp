@@ -75,9 +75,10 @@ TrainingSession::TrainingSession(const data::Dataset& dataset, const TrainConfig
                                                    map ? &*map : nullptr);
   }
   // A benchmark's stage recorder times stages by synchronising, which a graph cannot hold; pose refinement's
-  // per-frame corrections and alignment passes are host-driven.
-  if (device_.is_cuda() && config.schedule.cuda_graphs && device_graphs_available() && !refinement_ &&
-      !stage_recorder_installed())
+  // per-step corrections are host-driven (its alignment passes run between recorded steps, and without per-step
+  // corrections a step trains on the fits the last pass left, uploaded like any frame's fit).
+  if (device_.is_cuda() && config.schedule.cuda_graphs && device_graphs_available() &&
+      (!refinement_ || !refinement_->per_step()) && !stage_recorder_installed())
     graphs_ = std::make_unique<StepGraphs>(avatar_, device_);
   observation_sum_ = at::zeros({avatar_->gaussian_count()}, at::TensorOptions().dtype(at::kFloat).device(device_));
   summary_.validation_psnr = std::nan("");
@@ -131,9 +132,15 @@ void TrainingSession::step(int64_t it) {
   std::uniform_real_distribution<float> colour(0.0f, 1.0f);
   const int64_t f = train_frames[pick(rng_)];
   const data::FrameRecord& record = dataset_.frames[size_t(f)];
+  if (refinement_) {
+    const nlohmann::json aligned = refinement_->align(it, avatar_, config_.loss);
+    if (!aligned.empty()) log_->write(aligned);
+  }
   StepData data;
   data.background = {colour(rng_), colour(rng_), colour(rng_)};
-  data.pose = record.pose;
+  // With pose refinement but no per-step corrections the frame trains on its fit as the last alignment pass left it.
+  const bool refined_fit = refinement_ && !refinement_->per_step();
+  data.pose = refined_fit ? refinement_->fit(f) : record.pose;
   data.camera = render_camera(record);
   // The time branch is a residual that new motions go without: some steps train without it (docs/avatar.md).
   data.time = replay_clock_.time_of(record);
@@ -157,17 +164,14 @@ void TrainingSession::step(int64_t it) {
   }
   if (!graphs_) {
     LossTerms terms;
-    if (refinement_) {
-      const nlohmann::json aligned = refinement_->align(it, avatar_, config_.loss);
-      if (!aligned.empty()) log_->write(aligned);
-    }
     StepInputs inputs(data, device_);
     inputs.upload(data);
-    // With pose refinement the pose is the refined fit: with per-step corrections with its gradient (a non-finite
-    // correction shows as a non-finite loss), without them as the last alignment pass left it.
-    const body::SmplxPose pose = refinement_ ? refinement_->pose(f, it, terms) : inputs.pose;
+    // With per-step corrections the pose is the refined fit with its gradient (a non-finite correction shows as a
+    // non-finite loss).
+    const bool corrected = refinement_ && refinement_->per_step();
+    const body::SmplxPose pose = corrected ? refinement_->pose(f, it, terms) : inputs.pose;
     TrainingStep::OutputTerms keypoint_term;
-    if (refinement_)
+    if (corrected)
       keypoint_term = [&](const model::AvatarOutput& out, LossTerms& t) {
         refinement_->add_keypoint_term(f, it, avatar_, out, t);
       };

@@ -15,25 +15,7 @@
 namespace sfgs::train {
 namespace {
 
-// The upper triangle of a symmetric 3x3 matrix in the splatting op's order: xx, xy, xz, yy, yz, zz.
-constexpr int kCovariancePairs[6][2] = {{0, 0}, {0, 1}, {0, 2}, {1, 1}, {1, 2}, {2, 2}};
-constexpr int64_t kBackgroundChannels = 3, kRotationValues = 9, kTranslationValues = 3, kCovarianceMapValues = 36;
-constexpr int64_t kCameraValues = kRotationValues + kTranslationValues + kCovarianceMapValues;
-
-// The (6, 6) matrix that turns a covariance's six values into those of R Sigma R^T: row (a, b), column (i, j) holds
-// R_ai R_bj + R_aj R_bi (one term when i == j). Made on the host with the camera, so the device applies one product.
-void covariance_map(const std::array<double, 16>& view, float* out) {
-  const auto r = [&](int row, int column) { return view[size_t(4 * row + column)]; };
-  for (int k = 0; k < 6; ++k) {
-    const int a = kCovariancePairs[k][0], b = kCovariancePairs[k][1];
-    for (int l = 0; l < 6; ++l) {
-      const int i = kCovariancePairs[l][0], j = kCovariancePairs[l][1];
-      double value = r(a, i) * r(b, j);
-      if (i != j) value += r(a, j) * r(b, i);
-      out[6 * k + l] = float(value);
-    }
-  }
-}
+constexpr int64_t kBackgroundChannels = 3;
 
 }  // namespace
 
@@ -55,21 +37,18 @@ StepInputs::StepInputs(const StepData& like, at::Device device) : kind_(step_kin
   const at::Tensor like_pose = like.pose.packed();
   pose_values_ = like_pose.size(0);
   const bool moves = !camera_at_origin(like.camera);
-  const int64_t count = pose_values_ + kBackgroundChannels + (moves ? kCameraValues : 0) + (like.time ? 1 : 0);
+  const int64_t count = pose_values_ + kBackgroundChannels + (moves ? kCameraFrameValues : 0) + (like.time ? 1 : 0);
   values_ = at::empty({count}, options);
   pose = like.pose.views_of(values_.narrow(0, 0, pose_values_));
   int64_t offset = pose_values_;
   background = values_.narrow(0, offset, kBackgroundChannels);
   offset += kBackgroundChannels;
   if (moves) {
-    world_to_camera = values_.narrow(0, offset, kRotationValues + kTranslationValues);
-    offset += kRotationValues + kTranslationValues;
-    covariance_rotation = values_.narrow(0, offset, kCovarianceMapValues).view({6, 6});
-    offset += kCovarianceMapValues;
+    camera_frame = CameraFrame(values_.narrow(0, offset, kCameraFrameValues));
+    offset += kCameraFrameValues;
   }
   if (like.time) time = values_.select(0, offset);
-  camera = like.camera;
-  camera.world_to_camera = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+  camera = camera_at_origin_of(like.camera);
 }
 
 void StepInputs::upload(const StepData& data) {
@@ -87,13 +66,9 @@ void StepInputs::upload(const StepData& data) {
   std::copy(pose_values.data_ptr<float>(), pose_values.data_ptr<float>() + pose_values_, v);
   int64_t offset = pose_values_;
   for (float c : data.background) v[offset++] = c;
-  if (world_to_camera.defined()) {
-    const auto& m = data.camera.world_to_camera;
-    for (int row = 0; row < 3; ++row)
-      for (int column = 0; column < 3; ++column) v[offset++] = float(m[size_t(4 * row + column)]);
-    for (int row = 0; row < 3; ++row) v[offset++] = float(m[size_t(4 * row + 3)]);
-    covariance_map(m, v + offset);
-    offset += kCovarianceMapValues;
+  if (camera_frame.defined()) {
+    write_camera_frame(data.camera, v + offset);
+    offset += kCameraFrameValues;
   }
   if (time.defined()) v[offset++] = float(*data.time);
   values_.copy_(host, /*non_blocking=*/cuda);
@@ -101,18 +76,15 @@ void StepInputs::upload(const StepData& data) {
 }
 
 at::Tensor StepInputs::points_to_camera(const at::Tensor& points) const {
-  if (!world_to_camera.defined()) return points;
-  const at::Tensor translation = world_to_camera.narrow(0, kRotationValues, kTranslationValues);
-  return at::addmm(translation.unsqueeze(0), points, world_to_camera.narrow(0, 0, kRotationValues).view({3, 3}).t());
+  return camera_frame.defined() ? camera_frame.points(points) : points;
 }
 
 at::Tensor StepInputs::directions_to_camera(const at::Tensor& directions) const {
-  if (!world_to_camera.defined()) return directions;
-  return directions.matmul(world_to_camera.narrow(0, 0, kRotationValues).view({3, 3}).t());
+  return camera_frame.defined() ? camera_frame.directions(directions) : directions;
 }
 
 at::Tensor StepInputs::covariances_to_camera(const at::Tensor& covariances) const {
-  return world_to_camera.defined() ? covariances.matmul(covariance_rotation.t()) : covariances;
+  return camera_frame.defined() ? camera_frame.covariances(covariances) : covariances;
 }
 
 TrainingStep::TrainingStep(model::Avatar avatar, const ImageLoss& image_loss, const Regularisers& regularisers)

@@ -12,6 +12,7 @@
 
 #include "body/smplx_pose.h"
 #include "model/avatar.h"
+#include "splat/camera_frame.h"
 #include "splat/splat.h"
 #include "train/losses.h"
 
@@ -48,9 +49,7 @@ class StepInputs {
 
   at::Tensor frame;       // (H, W, 4) uint8
   at::Tensor background;  // (3) float32
-  // A camera away from the origin (else undefined): world_to_camera's rotation, row-major, then its translation
-  // (12), and the (6, 6) map of a covariance's six values to those of the rotated covariance.
-  at::Tensor world_to_camera, covariance_rotation;
+  CameraFrame camera_frame;  // a camera away from the origin: its placement (else undefined)
   at::Tensor time;       // () float32; undefined when the kind has no time
   body::SmplxPose pose;  // float32 views of one buffer, in the kind's layout
   Camera camera;         // the kind's camera at the origin (the intrinsics and image size of its steps)

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <limits>
 #include <string>
+#include <vector>
 
 #include <ATen/ATen.h>
 #include <gtest/gtest.h>
@@ -12,6 +13,7 @@
 
 #include "animate/animator.h"
 #include "animate/visibility.h"
+#include "splat/camera_frame.h"
 #include "metrics/image_metrics.h"
 #include "test_avatar_utils.h"
 
@@ -41,7 +43,8 @@ TEST(Animator, CpuFrameEqualsTheAvatarPosedAndRenderedDirectly) {
   at::NoGradGuard no_grad;
   const at::Tensor direct = render(model::to_gaussians(avatar->forward(pose, std::nullopt)), background,
                                    front_camera()).image;
-  EXPECT_TRUE(image.equal(direct));
+  // The Animator splats in the camera's frame (a graph's camera is an input): equal up to float rounding.
+  EXPECT_LT((image - direct).abs().max().item<double>(), 1e-5);
   EXPECT_GT((image - 0.25).abs().max().item<double>(), 0.1) << "the body is in view";
   EXPECT_EQ(animator.stats().frames, 1);
   EXPECT_EQ(animator.stats().graph_frames, 0);
@@ -56,7 +59,69 @@ TEST(Animator, ReplaysATrainingFrameWithItsTime) {
   at::NoGradGuard no_grad;
   const at::Tensor direct =
       render(model::to_gaussians(avatar->forward(pose, kTestTime)), background, front_camera()).image;
-  EXPECT_TRUE(image.equal(direct));
+  EXPECT_LT((image - direct).abs().max().item<double>(), 1e-5);
+  EXPECT_GT((image - animator.render(pose)).abs().max().item<double>(), 1e-4) << "the time moves the frame";
+}
+
+TEST(Animator, FollowsAMovingCameraAndBackground) {
+  model::Avatar avatar = trained_looking_avatar();
+  animate::Animator animator(avatar, front_camera(), at::zeros({3}));
+  const body::SmplxPose pose = test_pose(8, 0.3, true);
+  at::NoGradGuard no_grad;
+  const Gaussians posed = model::to_gaussians(avatar->forward(pose, std::nullopt));
+  for (int k = 0; k < 3; ++k) {
+    const double angle = 0.4 * k, c = std::cos(angle), s = std::sin(angle);
+    Camera camera = front_camera();
+    camera.world_to_camera = {c, 0, -s, 0, 0, -1, 0, 0.3, -s, 0, -c, 3, 0, 0, 0, 1};
+    const at::Tensor background = at::full({3}, 0.1 * k);
+    animator.set_camera(camera);
+    animator.set_background(background);
+    const at::Tensor image = animator.render(pose);
+    const RenderResult direct = render(posed, background, camera);
+    EXPECT_LT((image - direct.image).abs().max().item<double>(), 1e-5) << "camera " << k;
+    EXPECT_LT((animator.latest().alpha - direct.alpha).abs().max().item<double>(), 1e-5) << "camera " << k;
+    EXPECT_LT((animator.latest().depth - direct.depth).abs().max().item<double>(), 1e-4) << "camera " << k;
+  }
+}
+
+TEST(Animator, GaussiansMovedIntoTheCameraFrameRenderAsSeenByTheCamera) {
+  // splat/camera_frame.h: the Gaussians moved into the camera's frame give the same image, alpha and depth.
+  at::manual_seed(3);
+  const int64_t n = 300;
+  Gaussians g;
+  g.means = at::randn({n, 3}, at::kDouble) * 0.3;
+  const at::Tensor a = at::randn({n, 3, 3}, at::kDouble) * 0.05;
+  const at::Tensor full = at::matmul(a, a.transpose(1, 2)) + 1e-4 * at::eye(3, at::kDouble);
+  g.covariances = at::stack({full.select(1, 0).select(1, 0), full.select(1, 0).select(1, 1),
+                             full.select(1, 0).select(1, 2), full.select(1, 1).select(1, 1),
+                             full.select(1, 1).select(1, 2), full.select(1, 2).select(1, 2)},
+                            1);
+  g.opacities = at::rand({n}, at::kDouble) * 0.9;
+  g.features = at::rand({n, 3}, at::kDouble);
+  Camera camera = Camera::looking_forward(80, 64, 48);
+  const double c = std::cos(0.7), s = std::sin(0.7);
+  camera.world_to_camera = {c, 0, s, 0.1, 0, 1, 0, -0.2, -s, 0, c, 2.5, 0, 0, 0, 1};
+  std::vector<float> values(kCameraFrameValues);
+  write_camera_frame(camera, values.data());
+  const CameraFrame frame(at::tensor(values, at::kFloat).to(at::kDouble));
+  Gaussians moved_gaussians = g;
+  moved_gaussians.means = frame.points(g.means);
+  moved_gaussians.covariances = frame.covariances(g.covariances);
+  const at::Tensor background = at::full({3}, 0.3, at::kDouble);
+  const RenderResult seen = render(g, background, camera);
+  const RenderResult moved = render(moved_gaussians, background, camera_at_origin_of(camera));
+  EXPECT_GT(seen.alpha.max().item<double>(), 0.5) << "the Gaussians are in view";
+  // The placement travels in float32: agreement to its rounding.
+  EXPECT_LT((seen.image - moved.image).abs().max().item<double>(), 1e-5);
+  EXPECT_LT((seen.alpha - moved.alpha).abs().max().item<double>(), 1e-5);
+  EXPECT_LT((seen.depth - moved.depth).abs().max().item<double>(), 1e-5);
+  // The covariance map is R Sigma R^T.
+  const at::Tensor r = frame.rotation;
+  const at::Tensor rotated = at::matmul(at::matmul(r, full), r.t());
+  const at::Tensor packed = moved_gaussians.covariances;
+  EXPECT_LT((packed.select(1, 1) - rotated.select(1, 0).select(1, 1)).abs().max().item<double>(), 1e-8);
+  EXPECT_LT((packed.select(1, 5) - rotated.select(1, 2).select(1, 2)).abs().max().item<double>(), 1e-8);
+  EXPECT_THROW(CameraFrame(at::zeros({12})), c10::Error);
 }
 
 TEST(BackFacing, CullsExactlyThePointsFacingAwayByMoreThanTheMargin) {

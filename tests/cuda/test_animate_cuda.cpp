@@ -328,5 +328,71 @@ TEST(AnimatorCuda, GraphFrameOfANewPoseLayoutCapturesAgain) {
   EXPECT_EQ(graphed.stats().captures, captures + 1);
 }
 
+// The camera circling the body: a new placement every frame, the same intrinsics.
+Camera circling_camera(int64_t k) {
+  const double angle = 0.25 * double(k), c = std::cos(angle), s = std::sin(angle);
+  Camera camera = front_camera(96, 128);
+  // Rotated about the body's vertical axis, then the front camera's flip and distance: [R | t] with R = F Ry.
+  camera.world_to_camera = {c, 0, -s, 0, 0, -1, 0, 0.3, -s, 0, -c, 3, 0, 0, 0, 1};
+  return camera;
+}
+
+TEST(AnimatorCuda, GraphFramesFollowAMovingCameraWithoutRecordingAgain) {
+  SKIP_WITHOUT_CUDA();
+  model::Avatar avatar = cuda_avatar();
+  const at::Tensor background = at::full({3}, 0.5);
+  animate::AnimatorOptions eager_options;
+  eager_options.use_graph = false;
+  animate::Animator eager(avatar, circling_camera(0), background, eager_options);
+  animate::Animator graphed(avatar, circling_camera(0), background);
+  at::NoGradGuard no_grad;
+  for (int64_t k = 0; k < 5; ++k) {
+    const body::SmplxPose pose = test_pose(50 + k, 0.2, true);
+    graphed.set_camera(circling_camera(k));
+    eager.set_camera(circling_camera(k));
+    const at::Tensor from_graph = graphed.render(pose).clone();
+    EXPECT_LT(max_difference(from_graph, eager.render(pose)), 1e-6) << "frame " << k;
+    // The reference: the avatar posed and rendered by the camera itself (no move into its frame).
+    const at::Tensor direct = render(model::to_gaussians(avatar->forward(pose, std::nullopt)),
+                                     background.cuda(), circling_camera(k)).image;
+    const double psnr = metrics::psnr(from_graph.cpu(), direct.cpu()).item<double>();
+    std::printf("moving camera, frame %lld: graph vs direct render %.1f dB\n", static_cast<long long>(k), psnr);
+    EXPECT_GT(psnr, 90.0) << "frame " << k;
+  }
+  EXPECT_EQ(graphed.stats().graph_frames, 5);
+  EXPECT_EQ(graphed.stats().captures, 1) << "a new placement is an input of the recorded frame";
+  Camera wider = circling_camera(0);
+  wider.fx *= 0.8;
+  graphed.set_camera(wider);
+  graphed.render(test_pose(60, 0.2, true));
+  EXPECT_EQ(graphed.stats().captures, 2) << "new intrinsics are recorded again";
+}
+
+TEST(AnimatorCuda, GraphFramesReplayTrainingTimesWithTheObservationPrior) {
+  SKIP_WITHOUT_CUDA();
+  model::Avatar avatar = cuda_avatar();
+  // A third of the points well observed, the rest never: the prior's propagation runs in every timed frame.
+  const int64_t n = avatar->gaussian_count();
+  avatar->set_observation((at::arange(n) < n / 3).to(at::kFloat));
+  const at::Tensor background = at::full({3}, 0.5);
+  animate::AnimatorOptions eager_options;
+  eager_options.use_graph = false;
+  animate::Animator eager(avatar, front_camera(96, 128), background, eager_options);
+  animate::Animator graphed(avatar, front_camera(96, 128), background);
+  const body::SmplxPose pose = test_pose(70, 0.2, false);
+  at::Tensor previous;
+  for (const double time : {-0.9, -0.1, 0.4, 0.95}) {
+    const at::Tensor from_graph = graphed.render(pose, time).clone();
+    EXPECT_LT(max_difference(from_graph, eager.render(pose, time)), 1e-6) << "time " << time;
+    if (previous.defined()) EXPECT_GT(max_difference(from_graph, previous), 1e-4) << "the time moves the frame";
+    previous = from_graph;
+  }
+  EXPECT_EQ(graphed.stats().graph_frames, 4);
+  EXPECT_EQ(graphed.stats().captures, 1) << "the time is an input of the recorded frame";
+  const at::Tensor new_motion = graphed.render(pose).clone();
+  EXPECT_LT(max_difference(new_motion, eager.render(pose)), 1e-6);
+  EXPECT_EQ(graphed.stats().captures, 2) << "a frame without a time is recorded apart";
+}
+
 }  // namespace
 }  // namespace sfgs::testing

@@ -1,0 +1,77 @@
+"""Avatar.render from Python on a trained avatar, as a user calls it: the median and 90th-percentile milliseconds
+of a frame (pose moving, camera circling the body, the image returned as a CUDA tensor), for new-motion frames (no
+time) and replayed training frames (with their time), after a warm-up that holds the graphs' recordings; and the
+fast frame's PSNR against the eager, differentiable render of the same pose.
+
+Usage: python3 bench/python_render.py RUN [--frames 200] [--device cuda]
+"""
+import argparse
+import math
+import statistics
+import time
+
+import torch
+
+import sfgs
+
+
+def circling(camera, angle):
+    """The dataset camera turned about the vertical axis through the point 3 m ahead of it."""
+    view = camera["world_to_camera"].double()
+    c, s = math.cos(angle), math.sin(angle)
+    turn = torch.tensor([[c, 0, s, 0], [0, 1, 0, 0], [-s, 0, c, 0], [0, 0, 0, 1]], dtype=torch.float64)
+    ahead = torch.eye(4, dtype=torch.float64)
+    ahead[2, 3] = 3.0
+    moved = dict(camera)
+    moved["world_to_camera"] = torch.linalg.inv(ahead) @ turn @ ahead @ view
+    return moved
+
+
+def time_frames(avatar, camera, pose, frames, timed):
+    base = pose.get("body_pose", torch.zeros(21, 3)).double()
+    times = []
+    for k in range(frames + 10):
+        p = dict(pose)
+        p["body_pose"] = base + 0.1 * math.sin(k / 10.0)
+        if timed:
+            p["time"] = max(-1.0, min(1.0, math.sin(k / 30.0)))
+        else:
+            p.pop("time", None)
+        cam = circling(camera, 0.02 * k)
+        start = time.perf_counter()
+        image = avatar.render(cam, p)["image"]
+        if image.is_cuda:
+            torch.cuda.synchronize()
+        if k >= 10:
+            times.append(1e3 * (time.perf_counter() - start))
+    times.sort()
+    return statistics.median(times), times[int(0.9 * (len(times) - 1))], image
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("run")
+    parser.add_argument("--frames", type=int, default=200)
+    parser.add_argument("--device", default="cuda")
+    args = parser.parse_args()
+    avatar = sfgs.load_avatar(args.run, device=args.device)
+    frame = avatar.frame(0)
+    camera, pose = frame["camera"], frame["pose"]
+    print(f"python Avatar.render: {avatar.gaussian_count} Gaussians, {camera['width']}x{camera['height']}, "
+          f"{args.frames} frames, device {args.device}")
+    with torch.no_grad():
+        for timed in (False, True):
+            median, p90, image = time_frames(avatar, camera, pose, args.frames, timed)
+            kind = "replayed (time)" if timed else "new motion"
+            print(f"  {kind:16s} median {median:.3f} ms  p90 {p90:.3f} ms  ({image.device}, {tuple(image.shape)})")
+    # The fast frame against the eager render of the same pose (a pose that asks for a gradient takes that path).
+    fast = avatar.render(camera, {k: v for k, v in pose.items() if k != "time"})["image"]
+    body_pose = pose.get("body_pose", torch.zeros(21, 3)).clone().float().requires_grad_(True)
+    eager_pose = {k: v for k, v in pose.items() if k not in ("time", "body_pose")}
+    eager_pose["body_pose"] = body_pose
+    eager = avatar.render(camera, eager_pose)["image"].detach()
+    print(f"  fast vs eager render: PSNR {sfgs.psnr(fast.cpu(), eager.cpu()).item():.1f} dB")
+
+
+if __name__ == "__main__":
+    main()
