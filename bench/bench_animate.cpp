@@ -4,10 +4,13 @@
 // CUDA: graph frames are also timed per back-facing cull cosine (--cull-cosines, default 0.3,0.5,0.7,1; 1 culls
 // nothing), each with the lowest PSNR of its frames against the exact render (the LibTorch float32 structure
 // offset, nothing culled): the cull's run time against its error. And per forward-blend segment length
-// (--blend-segments, default 0,128,192,256,384,512; 0 never cuts a tile's run; csrc/cuda/blend_forward.cu) the median
-// graph frame and the largest difference to the uncut image.
+// (--blend-segments, default 0,128,192,256,384,512; 0 never cuts a tile's run; csrc/cuda/blend_forward.cu) and per
+// cut share (--blend-cut-shares, default 0,0.5,1,1.5,2,4: runs longer than that many times the intersections per
+// resident block are cut; 0 cuts every run longer than a segment; kBlendCutShare) the median graph frame and the
+// largest difference to the uncut image.
 // Usage: bench_animate [--device cpu|cuda] [--shared DIR] [--run DIR] [--levels L] [--sizes 800x1200,540x960]
-//                      [--frames N] [--cull-cosines C,...] [--blend-segments L,...] [--profile 1]
+//                      [--frames N] [--cull-cosines C,...] [--blend-segments L,...] [--blend-cut-shares S,...]
+//                      [--profile 1]
 //   --shared DIR: the Anny stand-in body of DIR/bodies (with MANO hands and face ids) instead of the procedural body.
 //   --run DIR: a trained avatar (a run folder of `sfgs train`) instead of an untrained one; --shared, --levels unused.
 //   --profile 1: for Nsight Compute (`ncu --profile-from-start off --nvtx`): after the warm-up, one eager frame and
@@ -53,12 +56,13 @@ struct Arguments {
   bool profile = false;
   std::vector<double> cull_cosines{0.3, 0.5, 0.7, 1.0};
   std::vector<int64_t> blend_segments{0, 128, 192, 256, 384, 512};
+  std::vector<double> blend_cut_shares{0.0, 0.5, 1.0, 1.5, 2.0, 4.0};
 };
 
 [[noreturn]] void usage() {
   std::fprintf(stderr, "usage: bench_animate [--device cpu|cuda] [--shared DIR] [--run DIR] [--levels L] "
                        "[--sizes WxH,...] [--frames N] [--cull-cosines C,...] [--blend-segments L,...] "
-                       "[--profile 1]\n");
+                       "[--blend-cut-shares S,...] [--profile 1]\n");
   std::exit(2);
 }
 
@@ -84,6 +88,11 @@ Arguments parse(int argc, char** argv) {
       std::stringstream list(value);
       for (std::string item; std::getline(list, item, ',');) a.blend_segments.push_back(std::atol(item.c_str()));
       if (a.blend_segments.empty()) usage();
+    } else if (flag == "--blend-cut-shares") {
+      a.blend_cut_shares.clear();
+      std::stringstream list(value);
+      for (std::string item; std::getline(list, item, ',');) a.blend_cut_shares.push_back(std::atof(item.c_str()));
+      if (a.blend_cut_shares.empty()) usage();
     }
     else if (flag == "--sizes") {
       a.sizes.clear();
@@ -206,7 +215,8 @@ void print_blend_segment_table(sfgs::model::Avatar& avatar, const sfgs::Camera& 
                                const SmplxPose& a, const SmplxPose& b, const Arguments& args) {
 #ifdef SFGS_BENCH_CUDA_KERNELS
   at::Tensor reference;
-  std::printf("  forward blend segments: length (0: uncut) | graph frame ms | largest difference to the first\n");
+  std::printf("  forward blend segments (cut share %.1f): length (0: uncut) | graph frame ms | largest difference "
+              "to the first\n", sfgs::kBlendCutShare);
   for (int64_t length : args.blend_segments) {
     sfgs::splat::cuda_kernels::set_blend_segment_length(length);
     sfgs::animate::Animator animator(avatar, camera, background);
@@ -217,6 +227,18 @@ void print_blend_segment_table(sfgs::model::Avatar& avatar, const sfgs::Camera& 
     std::printf("    %ld | %.3f | %.2e\n", long(length), ms, (image - reference).abs().max().item<double>());
   }
   sfgs::splat::cuda_kernels::set_blend_segment_length(sfgs::kBlendSegmentLength);
+  std::printf("  forward blend cut share (segments of %ld; 0: every longer run cut) | graph frame ms | largest "
+              "difference to the first length's image\n", long(sfgs::kBlendSegmentLength));
+  for (double share : args.blend_cut_shares) {
+    sfgs::splat::cuda_kernels::set_blend_cut_share(share);
+    sfgs::animate::Animator animator(avatar, camera, background);
+    time_frames(animator, a, b, 3, true);  // captures
+    const double ms = median(time_frames(animator, a, b, args.frames, true));
+    const at::Tensor image = animator.render(a).clone();
+    std::printf("    %.2f | %.3f | %.2e\n", share, ms,
+                reference.defined() ? (image - reference).abs().max().item<double>() : 0.0);
+  }
+  sfgs::splat::cuda_kernels::set_blend_cut_share(sfgs::kBlendCutShare);
 #else
   (void)avatar, (void)camera, (void)background, (void)a, (void)b, (void)args;
 #endif

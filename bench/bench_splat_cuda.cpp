@@ -7,9 +7,11 @@
 // torch autograd (CUDA events around the calls: 10 warm-ups, median of 50), the same through the backend entry
 // points alone (no autograd, no depth division), the backend forward once more with the radix binning path forced
 // (the per-tile sort's alternative), the GPU time of each pipeline stage (events around each stage, taken in
-// separate runs so that they do not slow the timed ones), and the peak of the caching allocator.
+// separate runs so that they do not slow the timed ones), and the peak of the caching allocator. The forward blend
+// once more per cut rule: the default (kBlendCutShare), never cut, and every run longer than a segment cut (the rule
+// before issue 40). Last, one "bench-case" line per workload for scripts/bench_guard.py.
 //
-//   bench_splat_cuda                           the table
+//   bench_splat_cuda                           the tables
 //   bench_splat_cuda --profile N WIDTH HEIGHT  a few forward + backward steps of one workload, for a profiler
 #include <algorithm>
 #include <cmath>
@@ -164,12 +166,19 @@ double sum_of(const std::map<std::string, double>& stages, const std::vector<std
   return total;
 }
 
+// The backend forward and its blend stage under one cut rule of the forward blend.
+struct CutTiming {
+  double forward, blend;
+  bool segmented;  // the blend ran the segmented kernel
+};
+
 struct Result {
   Workload workload;
   int64_t intersections;
   double op_forward, op_training, backend_forward, backend_training, backend_forward_radix, backend_training_rows;
   std::map<std::string, double> stages;
   double peak_mib, peak_above_inputs_mib;
+  CutTiming cut_default, cut_never, cut_every_long_run;
 };
 
 std::vector<at::Tensor> leaves(const Scene& s) {
@@ -180,6 +189,31 @@ std::vector<at::Tensor> leaves(const Scene& s) {
 void train_step(const Scene& s) {
   const sfgs::RenderResult r = sfgs::render(s.gaussians, s.background, s.camera);
   torch::autograd::grad({r.image, r.alpha}, leaves(s), {s.grad_image, s.grad_alpha});
+}
+
+// Median GPU time of the blend stage over kRepeats runs of `run` (after kWarmups).
+template <typename Run> double blend_stage_ms(Run&& run) {
+  StageTimer timer;
+  sfgs::splat::cuda_kernels::set_stage_observer(&timer);
+  for (int i = 0; i < kWarmups + kRepeats; ++i) {
+    run();
+    timer.finish_run();
+  }
+  sfgs::splat::cuda_kernels::set_stage_observer(nullptr);
+  const std::map<std::string, double> stages = timer.medians();
+  return stages.count("blend") ? stages.at("blend") : 0.0;
+}
+
+// The backend forward under a segment length (0: never cut) and cut share; restores the defaults.
+template <typename Run> CutTiming time_cut_rule(Run&& forward, int64_t segment_length, double cut_share) {
+  namespace kernels = sfgs::splat::cuda_kernels;
+  kernels::set_blend_segment_length(segment_length);
+  kernels::set_blend_cut_share(cut_share);
+  CutTiming t{time_ms(forward), blend_stage_ms(forward), false};
+  t.segmented = kernels::last_blend_path() == kernels::BlendPath::kSegmented;
+  kernels::set_blend_segment_length(sfgs::kBlendSegmentLength);
+  kernels::set_blend_cut_share(sfgs::kBlendCutShare);
+  return t;
 }
 
 Result measure(const Workload& w) {
@@ -205,7 +239,7 @@ Result measure(const Workload& w) {
     backend::cuda::backward(inputs, camera, settings, f.outputs.image, f.context, grads);
   };
 
-  Result r{w, 0, 0, 0, 0, 0, 0, 0, {}, 0, 0};
+  Result r{w, 0, 0, 0, 0, 0, 0, 0, {}, 0, 0, {}, {}, {}};
   r.intersections = backend_forward().context.isect_gaussian.numel();
   r.op_forward = time_ms(render);
   r.op_training = time_ms(train);
@@ -217,6 +251,9 @@ Result measure(const Workload& w) {
   sfgs::splat::cuda_kernels::set_tile_order(sfgs::splat::cuda_kernels::TileOrder::kRowMajor);
   r.backend_training_rows = time_ms(backend_train);
   sfgs::splat::cuda_kernels::set_tile_order(sfgs::splat::cuda_kernels::TileOrder::kLongestFirst);
+  r.cut_default = time_cut_rule(backend_forward, sfgs::kBlendSegmentLength, sfgs::kBlendCutShare);
+  r.cut_never = time_cut_rule(backend_forward, 0, sfgs::kBlendCutShare);
+  r.cut_every_long_run = time_cut_rule(backend_forward, sfgs::kBlendSegmentLength, 0.0);
 
   StageTimer timer;
   sfgs::splat::cuda_kernels::set_stage_observer(&timer);
@@ -295,6 +332,25 @@ int main(int argc, char** argv) {
                 (long long)r.workload.height);
     for (const std::string& name : all) std::printf(" %16.4f", r.stages.count(name) ? r.stages.at(name) : 0.0);
     std::printf("\n");
+  }
+  std::printf("\nforward blend per cut rule (ms, median): be fwd and its blend stage; default: runs longer than %.1f\n"
+              "times the intersections per resident block cut (* when any was, so the segmented kernel ran), uncut:\n"
+              "never cut, cut-all: every run longer than %ld cut\n",
+              sfgs::kBlendCutShare, long(sfgs::kBlendSegmentLength));
+  std::printf("%8s %10s | %9s %9s | %9s %9s | %9s %9s\n", "N", "image", "default", "blend", "uncut", "blend",
+              "cut-all", "blend");
+  for (const Result& r : results) {
+    std::printf("%8lld %4lldx%-5lld | %8.3f%s %9.3f | %9.3f %9.3f | %9.3f %9.3f\n", (long long)r.workload.count,
+                (long long)r.workload.width, (long long)r.workload.height, r.cut_default.forward,
+                r.cut_default.segmented ? "*" : " ", r.cut_default.blend, r.cut_never.forward, r.cut_never.blend,
+                r.cut_every_long_run.forward, r.cut_every_long_run.blend);
+  }
+  std::printf("\n");
+  for (const Result& r : results) {
+    const double blend = r.stages.count("blend") ? r.stages.at("blend") : 0.0;
+    std::printf("bench-case n=%lld image=%lldx%lld fwd_ms=%.4f fwd_bwd_ms=%.4f blend_ms=%.4f\n",
+                (long long)r.workload.count, (long long)r.workload.width, (long long)r.workload.height, r.op_forward,
+                r.op_training, blend);
   }
   return 0;
 }

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Checks the CUDA backend on a GPU machine: configures and builds against the machine's CUDA LibTorch, runs the CUDA
 # tests, compute-sanitizer memcheck and racecheck on the small *CudaSanitizer.* cases (and memcheck on the recorded
-# training steps, StepGraphsCuda.*), and the benchmark.
+# training steps, StepGraphsCuda.*), and the benchmark with its regression guard (SFGS_DEVICE_BENCH_BASELINE names
+# another baseline file than bench/baselines/splat_h200.json).
 #
 #   bash scripts/device_check.sh [build] [test] [python] [sanitize] [bench] [profile] [avatar] [animate] [train-step]
 #                                [animate-trained] [stage-profile] [step-profile] [train] [ablate] [novel] [sizes]
@@ -196,9 +197,14 @@ if wants sanitize; then
   grep -E "ERROR SUMMARY|RACECHECK SUMMARY|^\[  PASSED|^\[  FAILED|Invalid|Race reported" "$out/sanitize.log" | head -n 20
 fi
 
+# bench: the benchmark, then its regression guard (scripts/bench_guard.py): every figure against
+# bench/baselines/splat_h200.json (fails beyond +10%) and the gsplat-comparable case.
 if wants bench; then
-  run bench 200 "$bench"
+  run bench 300 "$bench"
   cat "$out/bench.log"
+  run bench-guard 30 python3 "$root/scripts/bench_guard.py" "$out/bench.log" \
+    --baseline "${SFGS_DEVICE_BENCH_BASELINE:-$root/bench/baselines/splat_h200.json}"
+  cat "$out/bench-guard.log"
 fi
 
 if wants profile; then
@@ -213,8 +219,8 @@ if wants profile; then
   run profile-detail 150 "$ncu" --clock-control none --set detailed \
     -k 'regex:blend_|sort_tiles|emit_tile|project_kernel' --launch-skip 10 --launch-count 5 \
     "$bench" --profile 167390 800 1200
-  cuobjdump -sass "$bench" | awk '/Function : .*blend_(forward|backward)_kernelIfLi3E/ {p = 1} \
-    /Function : / && !/blend_(forward|backward)_kernelIfLi3E/ {p = 0} p' >"$out/sass.log" 2>&1
+  cuobjdump -sass "$bench" | awk '/Function : .*blend_(forward|whole_tiles|backward)_kernelIfLi3E/ {p = 1} \
+    /Function : / && !/blend_(forward|whole_tiles|backward)_kernelIfLi3E/ {p = 0} p' >"$out/sass.log" 2>&1
   wc -l "$out/sass.log"
 fi
 

@@ -1,14 +1,19 @@
 // CUDA forward blend (rasterize_kernels.h): one thread per pixel, front to back over the tile's sorted run. A tile
-// takes one block; a tile whose run is longer than the segment length (kBlendSegmentLength) is cut into segments that
-// separate blocks composite at once, and the tile's last segment to finish joins them. Without this, the few longest
-// runs (the face and hands, where the avatar's finest Gaussians pile up) are each one block's serial work and set
-// the pass's time.
+// takes one block; a tile whose run would outlast the pass (kBlendCutShare) is cut into segments of
+// kBlendSegmentLength that separate blocks composite at once, and the tile's last segment to finish joins them.
+// Without this, the few longest runs (the face and hands, where the avatar's finest Gaussians pile up) are each one
+// block's serial work and set the pass's time. Cutting costs work: a segment composites its whole run even where the
+// pixels' transmittance already ran out in an earlier segment, so only the runs that set the pass's length are cut,
+// and a pass that the host can tell has none (from its intersection count and longest run) takes the uncut kernel,
+// unplanned.
 //
 // Joining is exact but for rounding. Segment k composites its run from a transmittance of 1, giving (colour_k,
 // depth_k, T_k); a pixel entering it with transmittance T takes colour + T colour_k and T T_k, which is what the
 // serial loop gives as long as T T_k stays >= kMinTransmittance: the transmittance only falls, so no Gaussian of the
 // segment would have stopped the serial loop. At the first segment where it would not stay, the join composites that
-// segment again from the pixel's true transmittance, with the serial loop's stop rule, and ignores the rest.
+// segment again from the pixel's true transmittance, with the serial loop's stop rule, and ignores the rest; a pixel
+// entering that segment with a transmittance of exactly 1 takes the segment's own composite, which is the serial
+// loop's.
 #include <cub/block/block_scan.cuh>
 #include <type_traits>
 
@@ -22,9 +27,19 @@ namespace {
 template <typename T>
 constexpr int kForwardBlendBlocks = std::is_same_v<T, float> ? 6 : 1;
 constexpr int kPlanThreads = 1024;
-// The transmittance recorded for a segment whose own transmittance fell below kMinTransmittance: the serial loop
-// stops inside it whatever the entering transmittance, so the join composites it again.
-constexpr float kStoppedSegment = -1.0f;
+
+// Which runs the blend cuts into segments of segment_length: those longer than a segment and than `share` times the
+// pass's intersections per resident block (kBlendCutShare says why).
+struct CutRule {
+  int64_t segment_length;
+  int64_t resident_blocks;
+  double share;
+  // The longest run left whole in a pass of `intersections`.
+  __host__ __device__ int64_t longest_uncut(int64_t intersections) const {
+    const int64_t balanced = int64_t(share * double(intersections) / double(resident_blocks));
+    return balanced > segment_length ? balanced : segment_length;
+  }
+};
 
 template <typename T, int kChannels>
 struct ForwardShared {
@@ -54,12 +69,13 @@ struct SegmentPlan {
   SplitTile* split_tiles;
   int32_t* arrivals;  // per split tile: its segments finished so far (the last to finish joins them)
   int32_t* count;     // segments
-  int64_t segment_length;
+  CutRule cut;
 };
 
 template <typename T>
 struct PartialComposites {
-  T* values;      // per slot and pixel: the chunk's colours, transmittance (or kStoppedSegment), depth sum
+  T* values;      // per slot and pixel: the chunk's colours, transmittance (negated where the segment's own
+                  // composite stopped: the serial loop stops inside it whatever the entering transmittance), depth sum
   int32_t* last;  // per slot and pixel: run position + 1 of the last blended Gaussian, 0 for none
 };
 
@@ -176,14 +192,16 @@ __host__ __device__ constexpr int partial_width() {
   return kChannels + 2;
 }
 
-// Cuts every tile's run into segments, in the blend's tile order (longest first), so that the longest runs' blocks
-// start first. One block.
+// Cuts the runs longer than the cut rule's length (from the pass's own intersection count, which a budgeted pass
+// knows only here) into segments, in the blend's tile order (longest first), so that the longest runs' blocks start
+// first. One block.
 __global__ void __launch_bounds__(kPlanThreads)
     plan_segments_kernel(const int32_t* tile_order, const int64_t* tile_offsets, int64_t tiles, SegmentPlan plan) {
   using Scan = cub::BlockScan<int32_t, kPlanThreads>;
   __shared__ typename Scan::TempStorage scan;
   __shared__ int32_t carried[3];  // segments, partial slots and split tiles of the chunks before
   if (threadIdx.x == 0) carried[0] = carried[1] = carried[2] = 0;
+  const int64_t cut_above = plan.cut.longest_uncut(tile_offsets[tiles]);
   __syncthreads();
   for (int64_t chunk = 0; chunk < tiles; chunk += kPlanThreads) {
     const int64_t position = chunk + threadIdx.x;
@@ -194,7 +212,7 @@ __global__ void __launch_bounds__(kPlanThreads)
       begin = tile_offsets[tile];
       end = tile_offsets[tile + 1];
       const int64_t length = end - begin;
-      segments = length > plan.segment_length ? int32_t((length + plan.segment_length - 1) / plan.segment_length) : 1;
+      segments = length > cut_above ? int32_t((length + plan.cut.segment_length - 1) / plan.cut.segment_length) : 1;
     }
     const bool split = segments > 1;
     int32_t first_segment, first_partial, split_index, chunk_segments, chunk_partials, chunk_splits;
@@ -208,9 +226,9 @@ __global__ void __launch_bounds__(kPlanThreads)
     split_index += carried[2];
     if (position < tiles) {
       for (int32_t k = 0; k < segments; ++k) {
-        const int64_t segment_begin = begin + k * plan.segment_length;
+        const int64_t segment_begin = begin + k * plan.cut.segment_length;
         plan.segments[first_segment + k] = split ? BlendSegment{tile, split_index, first_partial + k, segment_begin,
-                                                                smaller(segment_begin + plan.segment_length, end)}
+                                                                smaller(segment_begin + plan.cut.segment_length, end)}
                                                  : BlendSegment{tile, -1, -1, begin, end};
       }
       if (split) {
@@ -233,8 +251,9 @@ __global__ void __launch_bounds__(kPlanThreads)
 // serial loop would stop. The partials come from other blocks of this launch: they are read past the (non-coherent)
 // L1 cache.
 template <typename T, int kChannels>
-__device__ __noinline__ void join_segments(ForwardShared<T, kChannels>& sh, const BlendForwardParams<T>& a, int channel_begin,
-                              int channel_count, const BlockPixel<T>& at, const SplitTile& split) {
+__device__ __noinline__ void join_segments(ForwardShared<T, kChannels>& sh, const BlendForwardParams<T>& a,
+                                           int channel_begin, int channel_count, const BlockPixel<T>& at,
+                                           const SplitTile& split) {
   PixelComposite<T, kChannels> pixel;
   int32_t stopping = split.segments;  // the segment the serial loop stops in; none by default
   if (at.inside) {
@@ -242,6 +261,15 @@ __device__ __noinline__ void join_segments(ForwardShared<T, kChannels>& sh, cons
       const int64_t slot = int64_t(split.first_partial + k) * kBlendThreads + threadIdx.x;
       const T* values = a.partials.values + slot * partial_width<kChannels>();
       const T segment_transmittance = __ldcg(values + kChannels);
+      if (segment_transmittance < T(0) && pixel.transmittance == T(1)) {
+        // Nothing blended before the segment: its own composite is the serial loop's, stop included.
+#pragma unroll
+        for (int c = 0; c < kChannels; ++c) pixel.colour[c] = __ldcg(values + c);
+        pixel.depth = __ldcg(values + kChannels + 1);
+        pixel.transmittance = -segment_transmittance;
+        pixel.last = __ldcg(a.partials.last + slot);
+        break;
+      }
       if (segment_transmittance < T(0) || pixel.transmittance * segment_transmittance < T(kMinTransmittance)) {
         stopping = k;
         break;
@@ -258,9 +286,8 @@ __device__ __noinline__ void join_segments(ForwardShared<T, kChannels>& sh, cons
   for (int32_t k = 0; k < split.segments; ++k) {
     if (!__syncthreads_or(stopping == k)) continue;
     bool done = stopping != k;
-    const int64_t lo = run_begin + k * a.plan.segment_length;
-    composite_run(sh, a, channel_begin, channel_count, at, run_begin, lo, smaller(lo + a.plan.segment_length, run_end),
-                  pixel, done);
+    const int64_t length = a.plan.cut.segment_length, lo = run_begin + k * length;
+    composite_run(sh, a, channel_begin, channel_count, at, run_begin, lo, smaller(lo + length, run_end), pixel, done);
     // Rounding may let the product of the transmittances fall below the threshold where the serial loop's own
     // products do not: such a pixel goes on into the next segment, as the serial loop would.
     if (stopping == k && !done) stopping = k + 1;
@@ -290,7 +317,7 @@ __global__ void __launch_bounds__(kBlendThreads, kForwardBlendBlocks<T>)
   T* values = a.partials.values + slot * partial_width<kChannels>();
 #pragma unroll
   for (int c = 0; c < kChannels; ++c) values[c] = pixel.colour[c];
-  values[kChannels] = done && at.inside ? T(kStoppedSegment) : pixel.transmittance;
+  values[kChannels] = done && at.inside ? -pixel.transmittance : pixel.transmittance;
   values[kChannels + 1] = pixel.depth;
   a.partials.last[slot] = pixel.last;
   // The partial is visible to every block before it is counted.
@@ -302,24 +329,65 @@ __global__ void __launch_bounds__(kBlendThreads, kForwardBlendBlocks<T>)
   if (joins) join_segments(sh, a, channel_begin, channel_count, at, split);
 }
 
+// One block per tile, in the blend's tile order: the pass when no run is cut, with neither a plan to read nor a join
+// to call (whose call frame costs the segmented kernel stack traffic).
+template <typename T, int kChannels>
+__global__ void __launch_bounds__(kBlendThreads, kForwardBlendBlocks<T>)
+    blend_whole_tiles_kernel(const __grid_constant__ BlendForwardParams<T> a, int channel_begin, int channel_count) {
+  __shared__ ForwardShared<T, kChannels> sh;
+  const int tile = a.b.tile_order[blockIdx.x];
+  const BlockPixel<T> at = block_pixel<T>(tile, a.grid);
+  PixelComposite<T, kChannels> pixel;
+  bool done = !at.inside;
+  const int64_t begin = a.b.tile_offsets[tile];
+  composite_run(sh, a, channel_begin, channel_count, at, begin, begin, a.b.tile_offsets[tile + 1], pixel, done);
+  write_pixel(a, channel_begin, channel_count, at, pixel);
+}
+
+template <typename T>
+CutRule cut_rule(int64_t segment_length) {
+  int device = 0, processors = 0;
+  check_cuda(cudaGetDevice(&device), "cudaGetDevice");
+  check_cuda(cudaDeviceGetAttribute(&processors, cudaDevAttrMultiProcessorCount, device), "multiprocessor count");
+  return CutRule{segment_length, int64_t(processors) * kForwardBlendBlocks<T>, blend_cut_share()};
+}
+
+template <typename T>
+void blend_whole_tiles(const BlendForwardParams<T>& params, int64_t tiles, cudaStream_t stream) {
+  record_blend_path(BlendPath::kWholeTiles);
+  if (tiles == 0) return;
+  for_each_channel_chunk(params.channels, [&](auto width, int channel_begin, int channel_count) {
+    blend_whole_tiles_kernel<T, decltype(width)::value>
+        <<<unsigned(tiles), kBlendThreads, 0, stream>>>(params, channel_begin, channel_count);
+    check_cuda(cudaGetLastError(), "blend_whole_tiles_kernel launch");
+  });
+}
+
 }  // namespace
 
 template <typename T>
-void blend(const SplatScene<T>& s, const ForwardBuffers<T>& b, const BinStats& stats, const ScratchAllocator& scratch,
-           cudaStream_t stream) {
+void blend(const SplatScene<T>& s, const ForwardBuffers<T>& b, const BinStats& stats, bool stats_exact,
+           const ScratchAllocator& scratch, cudaStream_t stream) {
   const Stage stage("blend", stream);
   const TileGrid grid = grid_of(s);
   const int64_t tiles = tile_count(grid);
-  const int64_t length = blend_segment_length() > 0 ? blend_segment_length() : INT64_MAX;
+  BlendForwardParams<T> params{b, s.features, s.background, s.channels, grid, {}, {}};
+  const int64_t length = blend_segment_length();
+  if (length <= 0) return blend_whole_tiles(params, tiles, stream);
+  // A budget bounds the longest run but not the intersections below it, so only the pass's own count tells the
+  // host that the plan would cut nothing.
+  const CutRule cut = cut_rule<T>(length);
+  if (stats.max_tile_length <= (stats_exact ? cut.longest_uncut(stats.intersections) : length))
+    return blend_whole_tiles(params, tiles, stream);
+  record_blend_path(BlendPath::kSegmented);
   // A run of n > length intersections takes ceil(n / length) < n / length + 1 segments and partial slots, and a tile
   // is split only when n > length: at most intersections / length split tiles, 2 intersections / length slots.
-  const int64_t most_split = length == INT64_MAX ? 0 : stats.intersections / length;
+  const int64_t most_split = stats.intersections / length;
   const int64_t most_segments = tiles + most_split;
   if (most_segments > int64_t(INT32_MAX))
     throw std::runtime_error("sfgs CUDA backend: the blend's segments exceed 2^31 - 1");
-  BlendForwardParams<T> params{b, s.features, s.background, s.channels, grid, {}, {}};
   params.plan = SegmentPlan{allocate<BlendSegment>(scratch, most_segments), allocate<SplitTile>(scratch, most_split),
-                            allocate<int32_t>(scratch, most_split), allocate<int32_t>(scratch, 1), length};
+                            allocate<int32_t>(scratch, most_split), allocate<int32_t>(scratch, 1), cut};
   const int64_t chunk_channels = s.channels < kMaxChunkChannels ? s.channels : kMaxChunkChannels;
   params.partials = PartialComposites<T>{allocate<T>(scratch, 2 * most_split * kBlendThreads * (chunk_channels + 2)),
                                          allocate<int32_t>(scratch, 2 * most_split * kBlendThreads)};
@@ -336,9 +404,9 @@ void blend(const SplatScene<T>& s, const ForwardBuffers<T>& b, const BinStats& s
   });
 }
 
-template void blend<float>(const SplatScene<float>&, const ForwardBuffers<float>&, const BinStats&,
+template void blend<float>(const SplatScene<float>&, const ForwardBuffers<float>&, const BinStats&, bool,
                            const ScratchAllocator&, cudaStream_t);
-template void blend<double>(const SplatScene<double>&, const ForwardBuffers<double>&, const BinStats&,
+template void blend<double>(const SplatScene<double>&, const ForwardBuffers<double>&, const BinStats&, bool,
                             const ScratchAllocator&, cudaStream_t);
 
 }  // namespace sfgs::splat::cuda_kernels

@@ -11,6 +11,8 @@ Binning g_binning = Binning::kAuto;
 Binning g_last_binning = Binning::kAuto;
 TileOrder g_tile_order = TileOrder::kLongestFirst;
 int64_t g_blend_segment_length = kBlendSegmentLength;
+double g_blend_cut_share = kBlendCutShare;
+BlendPath g_last_blend_path = BlendPath::kWholeTiles;
 
 }  // namespace
 
@@ -19,6 +21,8 @@ void set_binning(Binning binning) { g_binning = binning; }
 Binning last_binning() { return g_last_binning; }
 void set_tile_order(TileOrder order) { g_tile_order = order; }
 void set_blend_segment_length(int64_t length) { g_blend_segment_length = length; }
+void set_blend_cut_share(double share) { g_blend_cut_share = share; }
+BlendPath last_blend_path() { return g_last_blend_path; }
 void set_profiler_capture(bool capture) {
   // Without a profiler attached both calls do nothing; their status is not worth failing a benchmark over.
   (void)(capture ? cudaProfilerStart() : cudaProfilerStop());
@@ -29,5 +33,7 @@ Binning requested_binning() { return g_binning; }
 void record_binning(Binning taken) { g_last_binning = taken; }
 TileOrder tile_order() { return g_tile_order; }
 int64_t blend_segment_length() { return g_blend_segment_length; }
+double blend_cut_share() { return g_blend_cut_share; }
+void record_blend_path(BlendPath taken) { g_last_blend_path = taken; }
 
 }  // namespace sfgs::splat::cuda_kernels

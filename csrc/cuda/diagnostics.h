@@ -19,9 +19,16 @@ Binning last_binning();
 enum class TileOrder { kLongestFirst, kRowMajor };
 void set_tile_order(TileOrder order);
 
-// The run length beyond which the forward blend cuts a tile's run into segments that several blocks composite at
-// once (default kBlendSegmentLength); 0 never cuts. For tests that compare the two and benchmarks that tune it.
+// The length of the segments into which the forward blend cuts a long run, for several blocks to composite at once
+// (default kBlendSegmentLength); 0 never cuts. For tests that compare the two and benchmarks that tune it.
 void set_blend_segment_length(int64_t length);
+// The forward blend cuts only the runs longer than `share` times the pass's intersections per resident block (default
+// kBlendCutShare); 0 cuts every run longer than a segment. For tests of the cut path and benchmarks that tune it.
+void set_blend_cut_share(double share);
+// The kernel the latest forward blend ran: one block per tile with no run cut (the host saw that none would be), or
+// the segmented kernel after the device's plan (which may still cut none, in a budgeted pass).
+enum class BlendPath { kWholeTiles, kSegmented };
+BlendPath last_blend_path();
 
 // Benchmarks time the pipeline's stages by recording their own events when these are called; the stages are named
 // "project", "emit", "tile sort", "blend", "blend backward" and "project backward", and on the radix path

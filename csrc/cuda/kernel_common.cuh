@@ -33,6 +33,8 @@ Binning requested_binning();
 void record_binning(Binning taken);
 TileOrder tile_order();
 int64_t blend_segment_length();
+double blend_cut_share();
+void record_blend_path(BlendPath taken);
 
 inline void check_cuda(cudaError_t status, const char* what) {
   if (status != cudaSuccess)

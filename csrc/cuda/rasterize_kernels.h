@@ -21,9 +21,10 @@
 //                      are radix sorted and cut into tile ranges. Both paths give the same lists.
 //   blend              front-to-back blend, one CTA per tile (longest tiles first); each warp covers a compact 8 x 4
 //                      pixel block and skips, with one ballot per 32 Gaussians, those whose ellipse misses its block
-//                      (pixel_block_touched, the tile test on the block: bit-identical per pixel). A run longer than
-//                      the segment length (kBlendSegmentLength) is cut into segments composited by separate CTAs and
-//                      joined by a merge CTA per tile (exact but for rounding; blend_forward.cu).
+//                      (pixel_block_touched, the tile test on the block: bit-identical per pixel). A run that would
+//                      outlast the pass (kBlendCutShare) is cut into segments (kBlendSegmentLength) composited by
+//                      separate CTAs and joined by the tile's last (exact but for rounding; blend_forward.cu); a pass
+//                      with none takes the uncut kernel alone.
 // Backward: one thread per pixel replays the tile's blend front to back (the forward's transmittances, no division);
 // warps skip, with the same ballot, the Gaussians that miss their block or lie beyond their pixels' last blended
 // Gaussian, and with one vote those that none of their pixels blended. A warp sums its pixels' contributions to a
@@ -130,9 +131,10 @@ BinStats apply_bin_budget(const SplatScene<T>& scene, const ForwardBuffers<T>& b
 template <typename T>
 void bin_intersections(const SplatScene<T>& scene, const ForwardBuffers<T>& buffers, const BinStats& stats,
                        const ScratchAllocator& scratch, cudaStream_t stream);
-// stats: as for bin_intersections (its intersection count bounds the work lists of the split tiles).
+// stats: as for bin_intersections (its intersection count bounds the work lists of the split tiles); stats_exact:
+// they are the pass's own (read on the host), not a budget's bounds, so the host can tell that no run is cut.
 template <typename T>
-void blend(const SplatScene<T>& scene, const ForwardBuffers<T>& buffers, const BinStats& stats,
+void blend(const SplatScene<T>& scene, const ForwardBuffers<T>& buffers, const BinStats& stats, bool stats_exact,
            const ScratchAllocator& scratch, cudaStream_t stream);
 // deterministic: bit-identical gradients across runs (per-intersection slots, fixed-order sums) at the cost of
 // (7 + C) values of memory per intersection. Every array of gradients is fully written.

@@ -165,7 +165,7 @@ Forward forward_typed(const SplatInputs& in, const CameraSpec& camera, const Bac
   c.isect_gaussian = at::empty({stats.intersections}, i32);
   buffers.isect_gaussian = c.isect_gaussian.data_ptr<int32_t>();
   kernels::bin_intersections(scene, buffers, stats, scratch.allocator(), stream);
-  kernels::blend(scene, buffers, stats, scratch.allocator(), stream);
+  kernels::blend(scene, buffers, stats, budget == nullptr, scratch.allocator(), stream);
   return out;
 }
 

@@ -122,13 +122,20 @@ class BinningGuard {
   BinningGuard& operator=(const BinningGuard&) = delete;
 };
 
-// Sets the forward blend's segment length for its lifetime (0: never cut a tile's run).
-class BlendSegmentGuard {
+// Sets the forward blend's segment length (0: never cut a tile's run) and cut share (0: cut every run longer than a
+// segment) for its lifetime.
+class BlendCutGuard {
  public:
-  explicit BlendSegmentGuard(int64_t length) { splat::cuda_kernels::set_blend_segment_length(length); }
-  ~BlendSegmentGuard() { splat::cuda_kernels::set_blend_segment_length(kBlendSegmentLength); }
-  BlendSegmentGuard(const BlendSegmentGuard&) = delete;
-  BlendSegmentGuard& operator=(const BlendSegmentGuard&) = delete;
+  explicit BlendCutGuard(int64_t length, double share = 0.0) {
+    splat::cuda_kernels::set_blend_segment_length(length);
+    splat::cuda_kernels::set_blend_cut_share(share);
+  }
+  ~BlendCutGuard() {
+    splat::cuda_kernels::set_blend_segment_length(kBlendSegmentLength);
+    splat::cuda_kernels::set_blend_cut_share(kBlendCutShare);
+  }
+  BlendCutGuard(const BlendCutGuard&) = delete;
+  BlendCutGuard& operator=(const BlendCutGuard&) = delete;
 };
 
 // float64 CUDA against float64 CPU, plus float32 CUDA for finiteness; returns the CUDA float64 result.
@@ -339,15 +346,65 @@ TEST(CudaBlendSegments, CutRunsMatchTheSerialBlend) {
       {"8k translucent on 64x48, C=5", random_scene(translucent, 37)}};
   for (const auto& [name, scene] : scenes) {
     const Rendered uncut = [&] {
-      const BlendSegmentGuard never(0);
+      const BlendCutGuard never(0);
       return render_on(scene, kCuda, at::kFloat);
     }();
     for (int64_t length : {100, 700}) {
-      const BlendSegmentGuard cut(length);
+      const BlendCutGuard cut(length);
       const std::string label = name + ", segments of " + std::to_string(length);
       expect_parity(scene, label);
       expect_close(render_on(scene, kCuda, at::kFloat), uncut, Bounds{1e-6, 1e-4, true}, label + ", float32 vs uncut");
     }
+  }
+}
+
+// A sparse field whose runs all fit a segment and, with pile > 0, that many more small Gaussians piled onto a few of
+// its tiles (an avatar's face on a generic scene): runs far beyond the pass's share of intersections per block.
+TestScene field_with_pile(int64_t pile) {
+  SceneSpec field;
+  field.count = 600;
+  field.width = 256;
+  field.height = 192;
+  field.min_footprint_px = 0.8;
+  field.max_footprint_px = 2.0;
+  TestScene s = random_scene(field, 41);
+  if (pile == 0) return s;
+  field.count = pile;
+  const Gaussians p = random_scene(field, 43).gaussians;  // the same camera: it depends on the image size alone
+  const at::Tensor centre = p.means[0];
+  Gaussians& g = s.gaussians;
+  g.means = at::cat({g.means, centre + (p.means - centre) * 0.03});
+  g.scales = at::cat({g.scales, p.scales});
+  g.rotations = at::cat({g.rotations, p.rotations});
+  g.opacities = at::cat({g.opacities, p.opacities});
+  g.features = at::cat({g.features, p.features});
+  return s;
+}
+
+TEST(CudaBlendSegments, OnlyRunsBeyondTheShareAreCut) {
+  SKIP_WITHOUT_CUDA();
+  namespace kernels = splat::cuda_kernels;
+  const std::pair<int64_t, kernels::BlendPath> cases[] = {{0, kernels::BlendPath::kWholeTiles},
+                                                          {3000, kernels::BlendPath::kSegmented}};
+  for (const auto& [pile, path] : cases) {
+    const TestScene scene = field_with_pile(pile);
+    const std::string label = pile == 0 ? "short runs only" : "short runs and a pile of " + std::to_string(pile);
+    expect_parity(scene, label);
+    const Rendered eager = render_on(scene, kCuda, at::kFloat);
+    EXPECT_EQ(kernels::last_blend_path(), path) << label;
+    const Rendered uncut = [&] {
+      const BlendCutGuard never(0);
+      return render_on(scene, kCuda, at::kFloat);
+    }();
+    expect_close(eager, uncut, Bounds{1e-6, 1e-4, true}, label + ", float32 vs uncut");
+    // A budget hides the pass's counts from the host: the segmented kernel runs and its plan on the device cuts
+    // what the eager pass cut, so the image is the eager one.
+    const at::Tensor counts = at::zeros({BinningBudget::kCounts}, at::TensorOptions(kCuda).dtype(at::kLong));
+    const ScopedBinningBudget budget(BinningBudget{1 << 22, 1 << 22, counts});
+    const Rendered budgeted = render_on(scene, kCuda, at::kFloat);
+    EXPECT_EQ(kernels::last_blend_path(), kernels::BlendPath::kSegmented) << label;
+    EXPECT_TRUE(budgeted.image.equal(eager.image)) << label;
+    EXPECT_TRUE(budgeted.alpha.equal(eager.alpha)) << label;
   }
 }
 
@@ -545,7 +602,7 @@ TEST(CudaSanitizer, SmallScenes) {
     expect_parity(scene, label + " deterministic", deterministic);
     const BinningGuard radix_only(Binning::kRadix);
     expect_parity(scene, label + " radix binning", deterministic);
-    const BlendSegmentGuard cut(50);
+    const BlendCutGuard cut(50);
     expect_parity(scene, label + " blend segments of 50", deterministic);
   }
   expect_parity(base_scene(0), "sanitizer N = 0");
