@@ -1,9 +1,26 @@
 #pragma once
-// Switches and hooks of the CUDA kernels for tests and benchmarks only: they force a binning path or a tile order,
-// report the path taken, and let a benchmark time each stage. The op never uses them. Global, not thread-safe.
+// Switches and hooks of the CUDA kernels for tests and benchmarks: they force a binning path, a tile order or a blend
+// cut rule, report the path taken, and let a benchmark time each stage. The op uses only their defaults. Global, not
+// thread-safe.
 #include <cstdint>
 
 #include <cuda_runtime_api.h>
+
+namespace sfgs {
+
+// The forward blend cuts runs longer than kBlendSegmentLength (common/constants.h) into segments, but only a run
+// longer than this many times the pass's intersections per resident blend block (multiprocessors times the blocks
+// one holds): with the tiles taken longest first, a run that long is still being composited when
+// the other blocks have shared out the rest of the pass, so it sets the pass's length and cutting it pays. Cutting a
+// shorter run only costs: each segment composites its whole share even where the pixels' transmittance ran out in an
+// earlier one (a dense scene's tiles saturate early), which doubled the generic benchmark's forward when every run
+// longer than a segment was cut (issue 40). 1.5 leaves the generic benchmark's densest runs (about one share, by an
+// estimate from its scene) whole with a margin, and cuts the trained avatar's runs beyond about 600 (324,646
+// intersections at 800x1200 on the H200's 132 x 6 blocks); bench_splat_cuda's cut-rule table and bench_animate
+// --blend-cut-shares measure it (docs/performance.md).
+inline constexpr double kBlendCutShare = 1.5;
+
+}  // namespace sfgs
 
 namespace sfgs::splat::cuda_kernels {
 
