@@ -313,7 +313,7 @@ if wants render-path; then
   done
   run render-video 200 "$build/sfgs" render --run "$scene/run" --out "$scene/render" --motion bend --frames 300 \
     --device cuda --force
-  run render-python 200 env PYTHONPATH="$build/python" python3 "$root/bench/python_render.py" "$scene/run" --frames 200
+  run render-python 200 env PYTHONUNBUFFERED=1 PYTHONPATH="$build/python" python3 "$root/bench/python_render.py" "$scene/run" --frames 200
   grep -h -E "frame|sfgs eval|render |encode|PSNR|median|python" "$out"/render-frame.log "$out"/render-eval-*.log \
     "$out"/render-video.log "$out"/render-python.log | cut -c1-200
   { cat "$scene/config.yaml"; printf 'pose_refinement:\n  enabled: true\n'; } >"$scene/config-refined.yaml"

@@ -19,8 +19,17 @@ constexpr size_t kQueuedFramesPerThread = 4;
 at::Tensor eight_bit_image(const at::Tensor& image) {
   TORCH_CHECK(image.dim() == 3 && image.size(2) == 3 && at::isFloatingType(image.scalar_type()),
               "eight_bit_image: expected an (H, W, 3) floating image, got ", describe(image));
-  TORCH_CHECK(image.isfinite().all().item<bool>(), "the rendered image has NaN or Inf values");
-  return image.detach().to(at::kFloat).clamp(0, 1).mul(kEightBitMax).round().to(at::kByte).cpu().contiguous();
+  const at::Tensor bytes = image.detach().to(at::kFloat).clamp(0, 1).mul(kEightBitMax).round().to(at::kByte);
+  const at::Tensor finite = image.isfinite().all();
+  if (!image.is_cuda()) {
+    TORCH_CHECK(finite.item<bool>(), "the rendered image has NaN or Inf values");
+    return bytes.contiguous();
+  }
+  // Into page-locked memory without waiting; the check's read then waits for the queue, the copy included.
+  at::Tensor host = at::empty(bytes.sizes(), at::TensorOptions().dtype(at::kByte).pinned_memory(true));
+  host.copy_(bytes, /*non_blocking=*/true);
+  TORCH_CHECK(finite.item<bool>(), "the rendered image has NaN or Inf values");
+  return host;
 }
 
 FrameEncoder::FrameEncoder(VideoWriter* video, bool overwrite, int png_threads)

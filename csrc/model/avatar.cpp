@@ -344,9 +344,10 @@ CanonicalAttributes AvatarImpl::attributes_at(FrameTime time) {
   TORCH_CHECK(cache_->device() == body_->vertices().device(), "Avatar: the cache was made on ", cache_->device(),
               " but the module is on ", body_->vertices().device(), "; call cache_static_features() again");
   if (const CanonicalAttributes* kept = cache_->attributes(time)) return *kept;
-  const CanonicalAttributes computed = compute_attributes(cache_->features(), time_value());
-  cache_->keep(computed, time);
-  return computed;
+  cache_->keep(compute_attributes(cache_->features(), time_value()), time);
+  // The kept copy: it carries what inference reads (the half-precision projection of the fused structure offset), so
+  // a time's first frame equals its later ones and a recorded frame at that time.
+  return *cache_->attributes(time);
 }
 
 CanonicalGaussians AvatarImpl::canonical_gaussians(const FramePose& frame, const FrameBody& body,

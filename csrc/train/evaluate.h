@@ -15,7 +15,10 @@ struct AvatarEvaluation {
   metrics::EvaluationSummary summary;
   std::vector<std::string> frame_names;
   std::vector<metrics::FrameMetrics> frames;
-  double render_milliseconds = 0;  // mean time of avatar forward + rasterisation per frame
+  // Avatar forward + rasterisation a frame, on the device the avatar is on: the median over the frames, and the first
+  // frame's, which on CUDA also records the frame's graph (animate::Animator).
+  double render_milliseconds = 0;
+  double first_render_milliseconds = 0;
   std::vector<GroupScore> motions;  // per sequence (a motion of a synthetic video), in order of appearance
   std::vector<GroupScore> regions;  // body, face, hands, seen, unseen; empty without ground-truth geometry
 };
