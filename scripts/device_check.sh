@@ -4,12 +4,15 @@
 # training steps, StepGraphsCuda.*), and the benchmark with its regression guard (SFGS_DEVICE_BENCH_BASELINE names
 # another baseline file than bench/baselines/splat_h200.json).
 #
-#   bash scripts/device_check.sh [build] [test] [python] [sanitize] [bench] [profile] [avatar] [animate] [train-step]
-#                                [animate-trained] [stage-profile] [step-profile] [train] [ablate] [novel] [sizes]
-#                                [fits] [render-path]
-#   (no argument: the first five, in this order)
+#   bash scripts/device_check.sh [build] [test] [python] [pip] [sanitize] [bench] [profile] [avatar] [animate]
+#                                [train-step] [animate-trained] [stage-profile] [step-profile] [train] [ablate] [novel]
+#                                [sizes] [fits] [render-path]
+#   (no argument: build, test, sanitize, bench, profile, in this order)
 #
 # python: the pytest suite against the module built with the machine's pip torch and pybind11 (CUDA included).
+# pip: `python3 -m pip install --no-build-isolation --no-deps --target /tmp/sfgs-pip .` (setup.py; it reuses the
+# build step's folder, so only the module is built, or configures a fresh one), then the pytest suite against that
+# installed copy, run from /tmp: no PYTHONPATH to the build folder and, like the python step, no preload.
 # profile: GPU time of every kernel of three forward + backward steps at 167,390 and 1M Gaussians, 800 x 1200
 # (Nsight Compute, clocks left alone), as CSV.
 #
@@ -21,7 +24,6 @@
 #   .device/libdeps     libbz2.so.1.0 and libcrypto.so.3 (libzip's own dependencies), used only where the image
 #                       lacks them
 #   .device/googletest  /usr/src/googletest
-#   .device/include/yaml-cpp and .device/lib/libyaml-cpp.so.0.7.0 (the training configs)
 #   .device/shared      ../shared/bodies and ../shared/lpips (avatar and train steps)
 #
 # avatar: the avatar benchmark on the GPU and the avatar and trainer tests (CPU, with the GPU build).
@@ -87,8 +89,6 @@ wants() {
 # Carried libraries: libzip always, its dependencies only where the image has none.
 if [ -d "$root/.device/lib" ]; then
   (cd "$root/.device/lib" && [ -e libzip.so.4.0 ] && ln -sf libzip.so.4.0 libzip.so.4 && ln -sf libzip.so.4 libzip.so)
-  (cd "$root/.device/lib" && [ -e libyaml-cpp.so.0.7.0 ] && ln -sf libyaml-cpp.so.0.7.0 libyaml-cpp.so.0.7 &&
-    ln -sf libyaml-cpp.so.0.7 libyaml-cpp.so)
   extra_libs=$root/.device/lib
   for dep in libbz2.so.1.0 libcrypto.so.3; do
     if ! ldconfig -p | grep -q "$dep" && [ -e "$root/.device/libdeps/$dep" ]; then
@@ -174,16 +174,33 @@ if wants test; then
 fi
 
 if wants python; then
-  # The whole pytest suite with the pip stack; the op's opcheck and the avatar API also run on CUDA there.
-  # The carried libyaml-cpp (Debian's, GCC 12) is preloaded: loaded only as the module's dependency, inside a
-  # Python process whose libstdc++ and torch came first, its std:: instantiations mix with the module's and any
-  # C++ exception crashes the interpreter (issue 15 replaces this with a module that carries no such library).
-  preload=$root/.device/lib/libyaml-cpp.so.0.7
-  run python 300 env LD_PRELOAD="$preload" PYTHONPATH="$build/python" SFGS_EXECUTABLE="$build/sfgs" \
-    SFGS_SHARED_DIR="$root/.device/shared" \
+  # The whole pytest suite with the pip stack; the op's opcheck and the avatar API also run on CUDA there. No
+  # preload: the module builds yaml-cpp in (third_party/) and exports only PyInit__C (test_module_isolation.py).
+  run python 300 env PYTHONPATH="$build/python" SFGS_EXECUTABLE="$build/sfgs" SFGS_SHARED_DIR="$root/.device/shared" \
     OMP_NUM_THREADS="$jobs" python3 -m pytest -q -rs -p no:cacheprovider -m "${SFGS_DEVICE_PYTEST_MARKS:-not cli}" \
     "$root/tests/python"
   tail -n 25 "$out/python.log"
+fi
+
+if wants pip; then
+  # The build step's folder when there is one (only the module target is then built), else a folder of its own.
+  pip_build=$build
+  [ -f "$build/CMakeCache.txt" ] || pip_build=/tmp/sfgs-pip-build
+  pip_target=/tmp/sfgs-pip
+  rm -rf "$pip_target"
+  python3 -c 'import setuptools; print("setuptools", setuptools.__version__)' >"$out/pip-install.log" 2>&1
+  run pip-install 450 env SFGS_BUILD_DIR="$pip_build" SFGS_BUILD_JOBS="$jobs" \
+    SFGS_CMAKE_ARGS="-DSFGS_CUDA=ON -DSFGS_EXTRA_INCLUDE_DIRS=$root/.device/include" \
+    python3 -m pip install --no-build-isolation --no-deps --target "$pip_target" "$root"
+  tail -n 5 "$out/pip-install.log"
+  # From /tmp, so that nothing of the source tree or the build folder can stand in for the installed copy.
+  run pip 300 env -C /tmp PYTHONPATH="$pip_target" SFGS_EXECUTABLE="$build/sfgs" \
+    SFGS_SHARED_DIR="$root/.device/shared" OMP_NUM_THREADS="$jobs" \
+    python3 -c 'import sfgs; print("testing the module at", sfgs._C.__file__)'
+  run pip 300 env -C /tmp PYTHONPATH="$pip_target" SFGS_EXECUTABLE="$build/sfgs" \
+    SFGS_SHARED_DIR="$root/.device/shared" OMP_NUM_THREADS="$jobs" \
+    python3 -m pytest -q -rs -p no:cacheprovider -m "${SFGS_DEVICE_PYTEST_MARKS:-not cli}" "$root/tests/python"
+  tail -n 25 "$out/pip.log"
 fi
 
 if wants sanitize; then

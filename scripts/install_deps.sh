@@ -6,7 +6,7 @@ packages=(
   libtorch-dev python3-torch
   pybind11-dev python3-pybind11 python3-pytest
   libopencv-dev libglm-dev libgtest-dev
-  nlohmann-json3-dev libstb-dev libzip-dev libyaml-cpp-dev python3-numpy
+  nlohmann-json3-dev libstb-dev libzip-dev python3-numpy
   libopenblas0-openmp  # an optimised BLAS for LibTorch's CPU matrix products (Debian's default is the reference BLAS)
   chromium  # headless, for the web viewer's test (tests/python/test_web_viewer.py; WebGL2 on SwiftShader, no GPU)
 )

@@ -8,13 +8,12 @@ shared=${1:-../shared}
 lib=/usr/lib/x86_64-linux-gnu
 rm -rf .device && mkdir -p .device/include .device/lib .device/libdeps .device/shared
 # zlib's own zconf.h (other packages ship copies of theirs under /usr/include that do not match zlib.h).
-cp -r /usr/include/{glm,stb,nlohmann,yaml-cpp} /usr/include/zip.h /usr/include/zlib.h /usr/include/zconf.h \
+cp -r /usr/include/{glm,stb,nlohmann} /usr/include/zip.h /usr/include/zlib.h /usr/include/zconf.h \
   .device/include/
 cp "$(find /usr/include -name zipconf.h | head -n 1)" .device/include/
 # Libraries with relative links only: the machine's own system libraries may have other versions.
-for name in libzip.so.4.0 libyaml-cpp.so.0.7.0; do cp "$lib/$name" .device/lib/; done
-(cd .device/lib && ln -sf libzip.so.4.0 libzip.so.4 && ln -sf libzip.so.4 libzip.so &&
-  ln -sf libyaml-cpp.so.0.7.0 libyaml-cpp.so.0.7 && ln -sf libyaml-cpp.so.0.7 libyaml-cpp.so)
+cp "$lib/libzip.so.4.0" .device/lib/
+(cd .device/lib && ln -sf libzip.so.4.0 libzip.so.4 && ln -sf libzip.so.4 libzip.so)
 zlib=$(readlink -f "$lib/libz.so")
 cp "$zlib" .device/lib/ && (cd .device/lib && ln -sf "$(basename "$zlib")" libz.so)
 cp -a "$lib"/libbz2.so.1.0* "$lib"/libcrypto.so.3 .device/libdeps/

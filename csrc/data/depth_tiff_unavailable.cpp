@@ -1,4 +1,4 @@
-// Stands in for depth_tiff.cpp in builds without OpenCV.
+// Stands in for depth_tiff.cpp in builds without OpenCV and in the Python module, which links no OpenCV.
 #include <string>
 
 #include <ATen/ATen.h>
@@ -6,7 +6,8 @@
 namespace sfgs::data {
 
 at::Tensor read_depth_tiff(const std::string& path) {
-  TORCH_CHECK(false, "cannot read depth image '", path, "': this build of sfgs has no OpenCV (needed for TIFF)");
+  TORCH_CHECK(false, "cannot read depth image '", path, "': TIFF needs OpenCV, which the Python module never links ",
+              "and this build may lack (the sfgs executable reads it where CMake found OpenCV)");
 }
 
 }  // namespace sfgs::data
