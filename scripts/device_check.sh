@@ -312,7 +312,8 @@ fi
 # at 800x1200 (SFGS_DEVICE_RENDER_FRAMES frames a motion, default 20; new motions in test, held-out frames of the
 # training motions in val), trained for SFGS_DEVICE_RENDER_ITERATIONS (default 1000); then bench_animate's graph frame,
 # `sfgs eval` on new motions (test) and replayed frames (val), `sfgs render` of 300 frames, Avatar.render from Python
-# (bench/python_render.py), and the training step with pose refinement against a plain one (600 iterations each).
+# (bench/python_render.py), and the training step with pose refinement against a plain one (600 iterations each;
+# SFGS_DEVICE_RENDER_STEPS names the variants, default "plain refined").
 if wants render-path; then
   export SFGS_SHARED_DIR=$shared
   scene=/tmp/sfgs-render-path
@@ -334,7 +335,7 @@ if wants render-path; then
   grep -h -E "frame|sfgs eval|render |encode|PSNR|median|python" "$out"/render-frame.log "$out"/render-eval-*.log \
     "$out"/render-video.log "$out"/render-python.log | cut -c1-200
   { cat "$scene/config.yaml"; printf 'pose_refinement:\n  enabled: true\n'; } >"$scene/config-refined.yaml"
-  for variant in plain refined; do
+  for variant in ${SFGS_DEVICE_RENDER_STEPS-plain refined}; do
     config=$scene/config.yaml
     [ "$variant" = refined ] && config=$scene/config-refined.yaml
     run "render-step-$variant" 300 "$build/sfgs" train --data "$scene/data" --out "$scene/run-$variant" \
