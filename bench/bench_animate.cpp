@@ -10,7 +10,9 @@
 // largest difference to the uncut image.
 // Usage: bench_animate [--device cpu|cuda] [--shared DIR] [--run DIR] [--levels L] [--sizes 800x1200,540x960]
 //                      [--frames N] [--cull-cosines C,...] [--blend-segments L,...] [--blend-cut-shares S,...]
-//                      [--profile 1]
+//                      [--profile 1] [--time T]
+//   --time T: replayed training frames (with the time branch and, for a trained avatar, the observation prior) at
+//   times from T on, each frame its own, instead of new-motion frames; the cull and blend tables stay new-motion.
 //   --shared DIR: the Anny stand-in body of DIR/bodies (with MANO hands and face ids) instead of the procedural body.
 //   --run DIR: a trained avatar (a run folder of `sfgs train`) instead of an untrained one; --shared, --levels unused.
 //   --profile 1: for Nsight Compute (`ncu --profile-from-start off --nvtx`): after the warm-up, one eager frame and
@@ -19,6 +21,7 @@
 // splatting work differs); it shows the motion of a smooth sweep between two random poses, framed by a camera in
 // front of it.
 #include <algorithm>
+#include <optional>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
@@ -46,6 +49,8 @@ namespace {
 
 using sfgs::body::SmplxPose;
 
+constexpr double kReplayTimeStep = 0.01;  // between the times of consecutive replayed frames (--time)
+
 struct Arguments {
   std::string device = "cuda";
   std::string shared;
@@ -54,6 +59,7 @@ struct Arguments {
   std::vector<std::pair<int64_t, int64_t>> sizes{{800, 1200}, {540, 960}};
   int frames = 200;
   bool profile = false;
+  std::optional<double> time;  // replayed frames: times from this on (each frame its own), else new-motion frames
   std::vector<double> cull_cosines{0.3, 0.5, 0.7, 1.0};
   std::vector<int64_t> blend_segments{0, 128, 192, 256, 384, 512};
   std::vector<double> blend_cut_shares{0.0, 0.5, 1.0, 1.5, 2.0, 4.0};
@@ -78,6 +84,7 @@ Arguments parse(int argc, char** argv) {
     else if (flag == "--levels") a.levels = std::max(0, std::atoi(value.c_str()));
     else if (flag == "--frames") a.frames = std::max(1, std::atoi(value.c_str()));
     else if (flag == "--profile") a.profile = value == "1";
+    else if (flag == "--time") a.time = std::clamp(std::atof(value.c_str()), -1.0, 1.0);
     else if (flag == "--cull-cosines") {
       a.cull_cosines.clear();
       std::stringstream list(value);
@@ -149,6 +156,12 @@ sfgs::Camera framing_camera(sfgs::model::Avatar& avatar, const SmplxPose& pose, 
   return c;
 }
 
+// Frame k's time from `first` on (each frame another time, so the eager path's cache of one time never serves it).
+std::optional<double> frame_time(std::optional<double> first, int k) {
+  if (!first) return std::nullopt;
+  return std::clamp(*first + kReplayTimeStep * double(k % 100), -1.0, 1.0);
+}
+
 double median(std::vector<double> v) {
   std::sort(v.begin(), v.end());
   return v[v.size() / 2];
@@ -157,12 +170,12 @@ double median(std::vector<double> v) {
 // Milliseconds of each of `frames` frames of the sweep, the device synchronised after each (the Animator's graph
 // frames end with a wait for the image anyway).
 std::vector<double> time_frames(sfgs::animate::Animator& animator, const SmplxPose& a, const SmplxPose& b, int frames,
-                                bool cuda) {
+                                bool cuda, std::optional<double> time = std::nullopt) {
   std::vector<double> ms;
   for (int k = 0; k < frames; ++k) {
     const SmplxPose pose = blend(a, b, double(k) / double(frames));
     const auto start = std::chrono::steady_clock::now();
-    animator.render(pose);
+    animator.render(pose, frame_time(time, k));
     if (cuda) torch::cuda::synchronize();
     ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count());
   }
@@ -302,13 +315,13 @@ int main(int argc, char** argv) {
       std::printf("profiled one eager and one graph frame at %ldx%ld\n", long(width), long(height));
       return 0;
     }
-    const double eager_ms = median(time_frames(eager, a, b, args.frames, cuda));
+    const double eager_ms = median(time_frames(eager, a, b, args.frames, cuda, args.time));
     sfgs::bench::StageClock clock(cuda);
     {
       const sfgs::ScopedStageRecorder recording(&clock);
       for (int k = 0; k < 10; ++k) {
         const sfgs::StageScope frame("frame (eager, synchronised per stage)");
-        eager.render(blend(a, b, k / 10.0));
+        eager.render(blend(a, b, k / 10.0), frame_time(args.time, k));
       }
     }
     std::printf("%ldx%ld\n", long(width), long(height));
@@ -316,8 +329,8 @@ int main(int argc, char** argv) {
     clock.print(10, "frame (eager, synchronised per stage)");
     if (cuda) {
       sfgs::animate::Animator graphed(avatar, camera, white);
-      time_frames(graphed, a, b, 3, cuda);  // captures
-      const double graph_ms = median(time_frames(graphed, a, b, args.frames, cuda));
+      time_frames(graphed, a, b, 3, cuda, args.time);  // captures
+      const double graph_ms = median(time_frames(graphed, a, b, args.frames, cuda, args.time));
       const at::Tensor from_graph = graphed.render(a).clone(), from_eager = eager.render(a);
       const double difference = (from_graph - from_eager).abs().max().item<double>();
       const sfgs::animate::AnimatorStats& s = graphed.stats();

@@ -1,7 +1,7 @@
 """Avatar.render from Python on a trained avatar, as a user calls it: the median and 90th-percentile milliseconds
-of a frame (pose moving, camera circling the body, the image returned as a CUDA tensor), for new-motion frames (no
-time) and replayed training frames (with their time), after a warm-up that holds the graphs' recordings; and the
-fast frame's PSNR against the eager, differentiable render of the same pose.
+of a frame (pose moving, camera circling the body's centre, the image returned as a CUDA tensor), for new-motion
+frames (no time) and replayed training frames (with their time), after a warm-up that holds the graphs'
+recordings; and the fast frame's PSNR against the eager, differentiable render of the same pose.
 
 Usage: python3 bench/python_render.py RUN [--frames 200] [--device cuda]
 """
@@ -15,21 +15,23 @@ import torch
 import sfgs
 
 
-def circling(camera, angle):
-    """The dataset camera turned about the vertical axis through the point 3 m ahead of it."""
+def circling(camera, centre, angle):
+    """The dataset camera turned about the vertical axis through the body's centre (the body stays in view)."""
     view = camera["world_to_camera"].double()
     c, s = math.cos(angle), math.sin(angle)
     turn = torch.tensor([[c, 0, s, 0], [0, 1, 0, 0], [-s, 0, c, 0], [0, 0, 0, 1]], dtype=torch.float64)
-    ahead = torch.eye(4, dtype=torch.float64)
-    ahead[2, 3] = 3.0
+    to_centre, back = torch.eye(4, dtype=torch.float64), torch.eye(4, dtype=torch.float64)
+    to_centre[:3, 3], back[:3, 3] = centre, -centre
     moved = dict(camera)
-    moved["world_to_camera"] = torch.linalg.inv(ahead) @ turn @ ahead @ view
+    moved["world_to_camera"] = view @ to_centre @ turn @ back
     return moved
 
 
 def time_frames(avatar, camera, pose, frames, timed):
     base = pose.get("body_pose", torch.zeros(21, 3)).double()
-    times = []
+    means = avatar.gaussians({k: v for k, v in pose.items() if k != "time"})["means"].double().cpu()
+    centre = (means.min(0).values + means.max(0).values) / 2
+    times, coverage = [], []
     for k in range(frames + 10):
         p = dict(pose)
         p["body_pose"] = base + 0.1 * math.sin(k / 10.0)
@@ -37,15 +39,17 @@ def time_frames(avatar, camera, pose, frames, timed):
             p["time"] = max(-1.0, min(1.0, math.sin(k / 30.0)))
         else:
             p.pop("time", None)
-        cam = circling(camera, 0.02 * k)
+        cam = circling(camera, centre, 0.02 * k)
         start = time.perf_counter()
-        image = avatar.render(cam, p)["image"]
+        out = avatar.render(cam, p)
+        image = out["image"]
         if image.is_cuda:
             torch.cuda.synchronize()
         if k >= 10:
             times.append(1e3 * (time.perf_counter() - start))
+            coverage.append(float((out["alpha"] > 0.5).float().mean()))
     times.sort()
-    return statistics.median(times), times[int(0.9 * (len(times) - 1))], image
+    return statistics.median(times), times[int(0.9 * (len(times) - 1))], image, statistics.mean(coverage)
 
 
 def main():
@@ -61,9 +65,10 @@ def main():
           f"{args.frames} frames, device {args.device}")
     with torch.no_grad():
         for timed in (False, True):
-            median, p90, image = time_frames(avatar, camera, pose, args.frames, timed)
+            median, p90, image, coverage = time_frames(avatar, camera, pose, args.frames, timed)
             kind = "replayed (time)" if timed else "new motion"
-            print(f"  {kind:16s} median {median:.3f} ms  p90 {p90:.3f} ms  ({image.device}, {tuple(image.shape)})")
+            print(f"  {kind:16s} median {median:.3f} ms  p90 {p90:.3f} ms  ({image.device}, {tuple(image.shape)}; "
+                  f"the body covers {100 * coverage:.1f} % of the image)")
     # The fast frame against the eager render of the same pose (a pose that asks for a gradient takes that path).
     fast = avatar.render(camera, {k: v for k, v in pose.items() if k != "time"})["image"]
     body_pose = pose.get("body_pose", torch.zeros(21, 3)).clone().float().requires_grad_(True)

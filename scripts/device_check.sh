@@ -310,7 +310,8 @@ fi
 
 # render-path: the product paths on one trained avatar (issue 40): the Anny body filmed walking, waving and turning
 # at 800x1200 (SFGS_DEVICE_RENDER_FRAMES frames a motion, default 20; new motions in test, held-out frames of the
-# training motions in val), trained for SFGS_DEVICE_RENDER_ITERATIONS (default 1000); then bench_animate's graph frame,
+# training motions in val), trained for SFGS_DEVICE_RENDER_ITERATIONS (default 1000); then bench_animate's graph frame
+# (new-motion and replayed frames),
 # `sfgs eval` on new motions (test) and replayed frames (val), `sfgs render` of 300 frames, Avatar.render from Python
 # (bench/python_render.py), and the training step with pose refinement against a plain one (600 iterations each;
 # SFGS_DEVICE_RENDER_STEPS names the variants, default "plain refined").
@@ -326,13 +327,15 @@ if wants render-path; then
   tail -n 3 "$out/render-train.log"
   run render-frame 200 "$build/bench/bench_animate" --device cuda --run "$scene/run" --sizes 800x1200 --frames 300 \
     --cull-cosines 1 --blend-segments 256
+  run render-frame-replayed 200 "$build/bench/bench_animate" --device cuda --run "$scene/run" --sizes 800x1200 \
+    --frames 300 --cull-cosines 1 --blend-segments 256 --blend-cut-shares 1.5 --time -0.5
   for split in test val; do
     run "render-eval-$split" 200 "$build/sfgs" eval --run "$scene/run" --split "$split" --device cuda --force
   done
   run render-video 200 "$build/sfgs" render --run "$scene/run" --out "$scene/render" --motion bend --frames 300 \
     --device cuda --force
   run render-python 200 env PYTHONUNBUFFERED=1 PYTHONPATH="$build/python" python3 "$root/bench/python_render.py" "$scene/run" --frames 200
-  grep -h -E "frame|sfgs eval|render |encode|PSNR|median|python" "$out"/render-frame.log "$out"/render-eval-*.log \
+  grep -h -E "frame|sfgs eval|render |encode|PSNR|median|python" "$out"/render-frame*.log "$out"/render-eval-*.log \
     "$out"/render-video.log "$out"/render-python.log | cut -c1-200
   { cat "$scene/config.yaml"; printf 'pose_refinement:\n  enabled: true\n'; } >"$scene/config-refined.yaml"
   for variant in ${SFGS_DEVICE_RENDER_STEPS-plain refined}; do
