@@ -141,8 +141,8 @@ int run_eval(Arguments& args) {
   const train::AvatarEvaluation e = train::evaluate_avatar(
       dataset, split, t.avatar, options, save ? (fs::path(run.path) / "eval_images").string() : "", force);
   write_text_atomically((fs::path(run.path) / "metrics.json").string(), evaluation_json(e).dump(1) + "\n");
-  std::printf("sfgs eval: %s\n  %s\n  render %.2f ms a frame (median; avatar + rasterisation; the first frame %.1f ms%s);"
-              " metrics.json in %s\n%s",
+  std::printf("sfgs eval: %s\n  %s\n  render %.2f ms a frame (median; avatar + rasterisation; the first frame "
+              "%.1f ms%s); metrics.json in %s\n%s",
               dataset.source.c_str(), metrics::to_string(e.summary).c_str(), e.render_milliseconds,
               e.first_render_milliseconds, t.avatar->part_labels().is_cuda() ? ", recording the CUDA graph" : "",
               run.path.c_str(), group_lines(e).c_str());

@@ -35,9 +35,12 @@ at::Tensor eight_bit_image(const at::Tensor& image) {
 FrameEncoder::FrameEncoder(VideoWriter* video, bool overwrite, int png_threads)
     : video_(video), overwrite_(overwrite),
       capacity_(kQueuedFramesPerThread * size_t(std::max(png_threads, 1) + 1)) {
-  const auto write_png = [this](const at::Tensor& image, const Frame& f) { data::write_png(f.path, image, overwrite_); };
+  const auto write_png = [this](const at::Tensor& image, const Frame& f) {
+    data::write_png(f.path, image, overwrite_);
+  };
   const auto add_to_video = [this](const at::Tensor& image, const Frame&) { video_->add(image); };
-  for (int i = 0; i < std::max(png_threads, 1); ++i) workers_.emplace_back([this, write_png] { drain(pngs_, write_png); });
+  for (int i = 0; i < std::max(png_threads, 1); ++i)
+    workers_.emplace_back([this, write_png] { drain(pngs_, write_png); });
   if (video_ != nullptr) workers_.emplace_back([this, add_to_video] { drain(videos_, add_to_video); });
 }
 
@@ -88,7 +91,8 @@ void FrameEncoder::rethrow() {
   if (error_) std::rethrow_exception(error_);
 }
 
-void FrameEncoder::drain(std::deque<Frame>& queue, const std::function<void(const at::Tensor&, const Frame&)>& encode) {
+void FrameEncoder::drain(std::deque<Frame>& queue,
+                         const std::function<void(const at::Tensor&, const Frame&)>& encode) {
   for (;;) {
     Frame frame;
     {
