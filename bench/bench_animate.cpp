@@ -34,6 +34,7 @@
 #include <torch/cuda.h>
 
 #include "animate/animator.h"
+#include "body/mesh.h"
 #include "body/skeleton.h"
 #include "common/host_memory.h"
 #ifdef SFGS_BENCH_CUDA_KERNELS
@@ -41,6 +42,7 @@
 #include "cuda/diagnostics.h"
 #endif
 #include "metrics/image_metrics.h"
+#include "model/observation_prior.h"
 #include "train/run_folder.h"
 #include "profiled_range.h"
 #include "stage_clock.h"
@@ -259,6 +261,36 @@ void print_blend_segment_table(sfgs::model::Avatar& avatar, const sfgs::Camera& 
 
 }  // namespace
 
+// A trained avatar's observation prior (model/observation_prior.h): how much of the body is well observed, the rings
+// its propagation fills the rest in, and the propagation's time over the colour logits (eager, the device
+// synchronised): what a replayed frame pays for it.
+void print_observation_prior(sfgs::model::Avatar& avatar, bool cuda) {
+  const at::Tensor& observed = avatar->observation();
+  if (!observed.defined()) return;
+  const int64_t n = avatar->gaussian_count();
+  const sfgs::body::VertexNeighbours neighbours = sfgs::body::vertex_neighbours(avatar->faces().cpu(), n);
+  const at::Tensor confidence = sfgs::model::observation_confidence(observed);
+  const sfgs::model::PropagationPlan plan = sfgs::model::plan_propagation(confidence, neighbours, at::kFloat);
+  int64_t filled = 0, widest = 0;
+  for (const sfgs::model::PropagationPlan::Ring& ring : plan.rings) {
+    filled += ring.points.size(0);
+    widest = std::max(widest, ring.points.size(0));
+  }
+  const at::Tensor values = at::rand({n, 3}, confidence.options());
+  std::vector<double> ms;
+  for (int k = 0; k < 23; ++k) {
+    const auto start = std::chrono::steady_clock::now();
+    sfgs::model::propagate_from_observed(values, plan);
+    if (cuda) torch::cuda::synchronize();
+    const double elapsed = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+    if (k >= 3) ms.push_back(elapsed);
+  }
+  std::printf("  observation prior: %ld of %ld points well observed; %zu rings fill %ld points (the widest %ld); "
+              "propagation %.3f ms (eager, median of 20)\n",
+              long((confidence >= 1).sum().item<int64_t>()), long(n), plan.rings.size(), long(filled), long(widest),
+              median(ms));
+}
+
 int main(int argc, char** argv) {
   sfgs::reuse_freed_host_memory();
   const Arguments args = parse(argc, argv);
@@ -292,6 +324,7 @@ int main(int argc, char** argv) {
   const SmplxPose a = random_pose(11), b = random_pose(12);
   std::printf("sfgs animation benchmark: %s, %ld Gaussians, %s, %d frames per size (median)\n", description.c_str(),
               long(avatar->gaussian_count()), args.device.c_str(), args.frames);
+  print_observation_prior(avatar, cuda);
   for (const auto& [width, height] : args.sizes) {
     const sfgs::Camera camera = framing_camera(avatar, a, width, height);
     const at::Tensor white = at::ones({3});
