@@ -56,11 +56,15 @@ Animator::Animator(model::Avatar avatar, const Camera& camera, const at::Tensor&
   time_ = frame_values_.select(0, kCameraFrameValues + kCentreValues);
   set_camera(camera);
   avatar_->eval();
-  avatar_->cache_static_features();
+  keep_cache();
   if (device_.is_cuda()) budget_ = std::make_unique<GrowingBudget>(device_, options_.budget_slack, "Animator");
 }
 
 Animator::~Animator() = default;
+
+void Animator::keep_cache() {
+  if (!avatar_->has_cache()) avatar_->cache_static_features();
+}
 
 void Animator::set_camera(const Camera& camera) {
   const std::string problem = camera_problem(camera);
@@ -109,7 +113,7 @@ at::Tensor Animator::render(const body::SmplxPose& pose, model::FrameTime time) 
 
 at::Tensor Animator::render_eagerly(const body::SmplxPose& pose, model::FrameTime time) {
   at::NoGradGuard no_grad;
-  if (!avatar_->has_cache()) avatar_->cache_static_features();
+  keep_cache();
   splat(avatar_->forward_trusted_pose(pose, time));
   return result_.image;
 }
@@ -128,7 +132,7 @@ void Animator::stage_pose(const body::SmplxPose& pose) {
 }
 
 void Animator::capture(bool timed) {
-  if (!avatar_->has_cache()) avatar_->cache_static_features();
+  keep_cache();
   cache_generation_ = avatar_->cache_generation();
   const auto frame = [this, timed] {
     at::NoGradGuard no_grad;

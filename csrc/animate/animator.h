@@ -56,8 +56,9 @@ struct AnimatorStats {
 
 class Animator {
  public:
-  // The avatar is switched to eval mode and keeps its static-feature cache (made again when someone else clears or
-  // replaces it, and the graph recorded again); background (C) matches its colours.
+  // The avatar is switched to eval mode and keeps its static-feature cache (made here unless the avatar has one, and
+  // made again when someone else clears it; a replaced cache records the graph again); background (C) matches its
+  // colours.
   Animator(model::Avatar avatar, const Camera& camera, const at::Tensor& background, AnimatorOptions options = {});
   ~Animator();
   Animator(const Animator&) = delete;
@@ -87,6 +88,8 @@ class Animator {
   void stage_pose(const body::SmplxPose& pose);
   void stage_frame(model::FrameTime time);
   void capture(bool timed);
+  // Makes the avatar's static-feature cache when it has none.
+  void keep_cache();
 
   model::Avatar avatar_;
   Camera camera_;

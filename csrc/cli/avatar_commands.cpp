@@ -5,7 +5,6 @@
 #include <cstdio>
 #include <algorithm>
 #include <filesystem>
-#include <memory>
 #include <optional>
 #include <stdexcept>
 #include <thread>
@@ -258,16 +257,12 @@ RenderPace render_frames(train::TrainedAvatar& t, RenderRequest& request, Writte
   std::vector<double> frame_ms;
   {
     FrameEncoder encoder(video.available() ? &video : nullptr, request.force, pace.encode_threads);
-    std::unique_ptr<animate::Animator> animator;
+    animate::Animator animator(t.avatar, camera_at(0, first_pose), at::ones({3}));
     for (int64_t i = 0; i < request.frames; ++i) {
-      const body::SmplxPose pose = source.pose(t.avatar, i);
-      const Camera camera = camera_at(i, pose);
-      if (!animator)
-        animator = std::make_unique<animate::Animator>(t.avatar, camera, at::ones({3}));
-      else
-        animator->set_camera(camera);
+      const body::SmplxPose pose = i == 0 ? first_pose : source.pose(t.avatar, i);
+      animator.set_camera(camera_at(i, pose));
       const auto start = std::chrono::steady_clock::now();
-      const at::Tensor image = eight_bit_image(animator->render(pose, source.replay_time(i)));
+      const at::Tensor image = eight_bit_image(animator.render(pose, source.replay_time(i)));
       frame_ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count());
       char name[32];
       std::snprintf(name, sizeof(name), "frame_%04lld.png", (long long)i);

@@ -64,7 +64,8 @@ PropagationPlan plan_propagation(const at::Tensor& confidence, const body::Verte
   plan.any_known = known.any().item<bool>();
   if (!plan.any_known) return plan;
   const int64_t k = neighbours.indices.size(1);
-  const at::Tensor indices = neighbours.indices.to(confidence.device()).reshape({-1});
+  const at::Tensor rows = neighbours.indices.to(confidence.device());  // (N, K)
+  const at::Tensor indices = rows.reshape({-1});
   const at::Tensor counts = neighbours.counts.to(confidence.device());
   const at::Tensor slot_valid = (at::arange(k, counts.options()).unsqueeze(0) < counts.unsqueeze(1)).to(options);
   plan.trust = confidence.to(options).unsqueeze(1);
@@ -83,7 +84,7 @@ PropagationPlan plan_propagation(const at::Tensor& confidence, const body::Verte
     if (points.size(0) == 0) break;
     PropagationPlan::Ring ring;
     ring.points = points;
-    ring.neighbours = neighbours.indices.to(confidence.device()).index_select(0, points).reshape({-1});
+    ring.neighbours = rows.index_select(0, points).reshape({-1});
     ring.filled = filled_neighbours.index_select(0, points).unsqueeze(2);
     ring.count = filled_count.index_select(0, points).clamp_min(1).unsqueeze(1);
     plan.rings.push_back(std::move(ring));

@@ -6,7 +6,6 @@
 #include <cmath>
 #include <filesystem>
 #include <map>
-#include <memory>
 #include <vector>
 
 #include <ATen/ATen.h>
@@ -34,7 +33,7 @@ AvatarEvaluation evaluate_avatar(const data::Dataset& dataset, data::Split split
   int64_t previous_sequence = -1, previous_frame = -2;
   std::vector<double> render_ms;
   // Every frame through the Animator: on CUDA one graph replay per frame, whatever the frame's camera.
-  std::unique_ptr<animate::Animator> animator;
+  animate::Animator animator(avatar, render_camera(dataset.frames[size_t(frames.front())]), at::ones({3}));
   for (int64_t f : frames) {
     const data::FrameRecord& record = dataset.frames[size_t(f)];
     if (record.sequence != previous_sequence || f != previous_frame + 1) evaluator.begin_sequence();
@@ -42,14 +41,11 @@ AvatarEvaluation evaluate_avatar(const data::Dataset& dataset, data::Split split
     previous_frame = f;
     const data::Frame frame = dataset.load(f);
     const Camera camera = render_camera(record);
-    if (!animator)
-      animator = std::make_unique<animate::Animator>(avatar, camera, at::ones({3}));
-    else
-      animator->set_camera(camera);
+    animator.set_camera(camera);
     const auto start = std::chrono::steady_clock::now();
     // The Animator returns once the frame is done (it reads the splatting's counts); the copy to the host belongs
     // to the metrics, which run on the CPU.
-    const at::Tensor rendered = animator->render(record.pose, dataset.replay_time(f));
+    const at::Tensor rendered = animator.render(record.pose, dataset.replay_time(f));
     render_ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count());
     const at::Tensor image = rendered.to(at::kCPU);
     frames_of_sequence[record.sequence].push_back(result.frames.size());

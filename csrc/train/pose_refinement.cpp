@@ -163,13 +163,9 @@ int64_t PoseRefinement::row_of(int64_t frame) const {
 }
 
 body::SmplxPose PoseRefinement::pose(int64_t frame, int64_t iteration, LossTerms& terms) {
+  // The fit as the last alignment pass left it, with no gradient: the body takes its fused kernels.
+  if (!config_.per_step()) return fit(frame);
   const data::FrameRecord& record = dataset_.frames[size_t(frame)];
-  if (!config_.per_step()) {
-    // The fit as the last alignment pass left it, with no gradient: the body takes its fused kernels. A copy of the
-    // correction: a field the fit lacks would otherwise be a view of the corrections the next pass rewrites.
-    at::NoGradGuard no_grad;
-    return corrected_pose(record.pose, corrections_[row_of(frame)].clone());
-  }
   if (iteration < start_iteration_) {
     // The same terms every step (the loss watch compares steps), zero while the corrections wait.
     terms["pose_prior"] = terms["pose_smoothness"] = at::zeros({}, base_.options());
@@ -329,6 +325,8 @@ void PoseRefinement::restore(const at::Tensor& state) {
 }
 
 void PoseRefinement::keep_fits_on_host() {
+  // A new tensor, not a copy into the old one: a fit handed out before (a field the input fit lacks is a view of its
+  // row) keeps its values when the next pass moves the corrections.
   if (!config_.per_step()) host_corrections_ = corrections_.detach().to(at::kCPU).clone();
 }
 

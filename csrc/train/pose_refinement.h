@@ -48,10 +48,10 @@ class PoseRefinement {
   PoseRefinement(const data::Dataset& dataset, const PoseRefinementConfig& config, int64_t iterations,
                  at::Device device, const body::WholeBodyKeypointMap* keypoint_map);
 
-  // The pose training frame `frame` is trained with at `iteration`. Without per-step corrections: its fit as the last
-  // alignment pass left it (the input fit before the first), without a gradient, adding no terms. With them: its
-  // corrected fit (with a gradient to its correction) from config.start on, adding the weighted "pose_prior" and
-  // "pose_smoothness" to `terms`; the input fit (and zero terms) before.
+  // The pose training frame `frame` is trained with at `iteration`. Without per-step corrections: fit(frame), the
+  // fit as the last alignment pass left it (the input fit before the first), without a gradient, adding no terms.
+  // With them: its corrected fit (with a gradient to its correction) from config.start on, adding the weighted
+  // "pose_prior" and "pose_smoothness" to `terms`; the input fit (and zero terms) before.
   body::SmplxPose pose(int64_t frame, int64_t iteration, LossTerms& terms);
   // Without per-step corrections: training frame `frame`'s fit as the last alignment pass left it, on the CPU (the
   // step uploads it with the frame, and a recorded step can take it). Refused with per-step corrections.
