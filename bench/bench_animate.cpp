@@ -16,7 +16,8 @@
 //   --shared DIR: the Anny stand-in body of DIR/bodies (with MANO hands and face ids) instead of the procedural body.
 //   --run DIR: a trained avatar (a run folder of `sfgs train`) instead of an untrained one; --shared, --levels unused.
 //   --profile 1: for Nsight Compute (`ncu --profile-from-start off --nvtx`): after the warm-up, one eager frame and
-//   one graph frame of the first size are profiled, their stages as NVTX ranges (profiled_range.h); no timing.
+//   one graph frame of the first size are profiled (replayed frames with --time), their stages as NVTX ranges
+//   (profiled_range.h); no timing.
 // Without --run the avatar is untrained (same network work per frame as a trained one of its configuration; the
 // splatting work differs); it shows the motion of a smooth sweep between two random poses, framed by a camera in
 // front of it.
@@ -271,11 +272,6 @@ void print_observation_prior(sfgs::model::Avatar& avatar, bool cuda) {
   const sfgs::body::VertexNeighbours neighbours = sfgs::body::vertex_neighbours(avatar->faces().cpu(), n);
   const at::Tensor confidence = sfgs::model::observation_confidence(observed);
   const sfgs::model::PropagationPlan plan = sfgs::model::plan_propagation(confidence, neighbours, at::kFloat);
-  int64_t filled = 0, widest = 0;
-  for (const sfgs::model::PropagationPlan::Ring& ring : plan.rings) {
-    filled += ring.points.size(0);
-    widest = std::max(widest, ring.points.size(0));
-  }
   const at::Tensor values = at::rand({n, 3}, confidence.options());
   std::vector<double> ms;
   for (int k = 0; k < 23; ++k) {
@@ -285,9 +281,10 @@ void print_observation_prior(sfgs::model::Avatar& avatar, bool cuda) {
     const double elapsed = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
     if (k >= 3) ms.push_back(elapsed);
   }
-  std::printf("  observation prior: %ld of %ld points well observed; %zu rings fill %ld points (the widest %ld); "
+  std::printf("  observation prior: %ld of %ld points well observed; %ld rings fill %ld points (the widest %ld); "
               "propagation %.3f ms (eager, median of 20)\n",
-              long((confidence >= 1).sum().item<int64_t>()), long(n), plan.rings.size(), long(filled), long(widest),
+              long((confidence >= 1).sum().item<int64_t>()), long(n), long(plan.ring_count()), long(plan.filled_count()),
+              long(plan.widest_ring()),
               median(ms));
 }
 
@@ -334,16 +331,16 @@ int main(int argc, char** argv) {
     time_frames(eager, a, b, 3, cuda);  // warm-up
     if (args.profile) {
       sfgs::animate::Animator graphed(avatar, camera, white);
-      time_frames(graphed, a, b, 3, cuda);  // captures
+      time_frames(graphed, a, b, 3, cuda, args.time);  // captures
       sfgs::bench::NvtxStages stages;
       const sfgs::ScopedStageRecorder recording(&stages);
       {
         const sfgs::bench::ProfiledRange range("eager frame");
-        eager.render(a);
+        eager.render(a, frame_time(args.time, 0));
       }
       {
         const sfgs::bench::ProfiledRange range("graph frame");
-        graphed.render(a);
+        graphed.render(a, frame_time(args.time, 1));
       }
       std::printf("profiled one eager and one graph frame at %ldx%ld\n", long(width), long(height));
       return 0;

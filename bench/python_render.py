@@ -1,7 +1,8 @@
 """Avatar.render from Python on a trained avatar, as a user calls it: the median and 90th-percentile milliseconds
 of a frame (pose moving, camera circling the body's centre, the image returned as a CUDA tensor), for new-motion
 frames (no time) and replayed training frames (with their time), after a warm-up that holds the graphs'
-recordings; and the fast frame's PSNR against the eager, differentiable render of the same pose.
+recordings; and the fast frame's PSNR against the eager, differentiable render of the same pose (without and with a
+time).
 
 Usage: python3 bench/python_render.py RUN [--frames 200] [--device cuda]
 """
@@ -69,14 +70,18 @@ def main():
             kind = "replayed (time)" if timed else "new motion"
             print(f"  {kind:16s} median {median:.3f} ms  p90 {p90:.3f} ms  ({image.device}, {tuple(image.shape)}; "
                   f"the body covers {100 * coverage:.1f} % of the image)")
-    # The fast frame against the eager render of the same pose (a pose that asks for a gradient takes that path).
-    fast = avatar.render(camera, {k: v for k, v in pose.items() if k != "time"})["image"]
-    body_pose = pose.get("body_pose", torch.zeros(21, 3)).clone().float().requires_grad_(True)
-    eager_pose = {k: v for k, v in pose.items() if k not in ("time", "body_pose")}
-    eager_pose["body_pose"] = body_pose
-    eager = avatar.render(camera, eager_pose)["image"].detach()
-    print(f"  fast vs eager render: PSNR {sfgs.psnr(fast.cpu(), eager.cpu()).item():.1f} dB")
-
+    # The fast frame against the eager render of the same pose (a pose that asks for a gradient takes that path, in
+    # float32; the fast frame's networks take TF32 products), without and with the frame's time.
+    for timed in (False, True):
+        fast_pose = {k: v for k, v in pose.items() if k != "time"}
+        if timed:
+            fast_pose["time"] = 0.25
+        fast = avatar.render(camera, fast_pose)["image"]
+        eager_pose = dict(fast_pose)
+        eager_pose["body_pose"] = pose.get("body_pose", torch.zeros(21, 3)).clone().float().requires_grad_(True)
+        eager = avatar.render(camera, eager_pose)["image"].detach()
+        kind = "replayed (time)" if timed else "new motion"
+        print(f"  fast vs eager render, {kind}: PSNR {sfgs.psnr(fast.cpu(), eager.cpu()).item():.1f} dB")
 
 if __name__ == "__main__":
     main()

@@ -31,9 +31,9 @@
 # fast frames; the small ones under compute-sanitizer memcheck) and bench_animate on the Anny body (800x1200 and 540x960) and the procedural one.
 # train-step: bench_train_step on the Anny scene at SFGS_DEVICE_STEP_SIZE (default 800x1200), 40 frames.
 # stage-profile: Nsight Compute over one eager and one graph frame (bench_animate --profile 1, Anny, 800x1200; the
-# trained avatar of animate-trained when that step ran) and one
-# training step (bench_train_step --profile 1, the train-step scene): every kernel's GPU time and DRAM bytes, summed
-# per stage (scripts/kernel_profile_summary.py). step-profile: the training step's part alone.
+# trained avatar of render-path or animate-trained when one of them ran; replayed frames at SFGS_DEVICE_PROFILE_TIME
+# when set): every kernel's GPU time and DRAM bytes, summed per stage (scripts/kernel_profile_summary.py).
+# step-profile: the same over one training step (bench_train_step --profile 1, the train-step scene).
 # train: synthesise the Anny scene (SFGS_DEVICE_TRAIN_SIZE, default 800x1200; SFGS_DEVICE_TRAIN_FRAMES, default
 # 100) and train, evaluate (with LPIPS) and render it on CUDA with configs/device_anny.yaml
 # (SFGS_DEVICE_TRAIN_ITERATIONS overrides its iterations).
@@ -361,15 +361,19 @@ if wants stage-profile || wants step-profile; then
     python3 "$root/scripts/kernel_profile_summary.py" "$out/$name-kernels.csv" >"$out/$name-summary.txt" 2>&1
     cat "$out/$name-summary.txt"
   }
-  # The trained avatar of animate-trained when that step ran, else the untrained Anny avatar.
+  # The trained avatar of render-path or animate-trained when one ran, else the untrained Anny avatar.
   avatar_args=(--shared "$root/.device/shared")
   [ -f "$trained/run/checkpoint.pt" ] && avatar_args=(--run "$trained/run")
+  [ -f /tmp/sfgs-render-path/run/checkpoint.pt ] && avatar_args=(--run /tmp/sfgs-render-path/run)
+  [ -n "${SFGS_DEVICE_PROFILE_TIME:-}" ] && avatar_args+=(--time "$SFGS_DEVICE_PROFILE_TIME")
   wants stage-profile && profile_stages frame-profile "$build/bench/bench_animate" --device cuda "${avatar_args[@]}" \
     --sizes 800x1200 --profile 1
-  scene=/tmp/sfgs-anny-step
-  [ -d "$scene/data" ] || anny_scene step-synth "$scene" "${SFGS_DEVICE_STEP_SIZE:-800x1200}" 40
-  profile_stages step-profile "$build/bench/bench_train_step" --data "$scene/data" --config "$scene/config.yaml" \
-    --warmup 5 --profile 1
+  if wants step-profile; then
+    scene=/tmp/sfgs-anny-step
+    [ -d "$scene/data" ] || anny_scene step-synth "$scene" "${SFGS_DEVICE_STEP_SIZE:-800x1200}" 40
+    profile_stages step-profile "$build/bench/bench_train_step" --data "$scene/data" --config "$scene/config.yaml" \
+      --warmup 5 --profile 1
+  fi
 fi
 
 if wants train; then

@@ -7,6 +7,7 @@
 #include "gathered_mlp/backend.h"
 #include "group_norm/backend.h"
 #include "linear/backend.h"
+#include "mesh_propagation/backend.h"
 #include "pixel_loss/backend.h"
 #include "plane_sampling/backend.h"
 #include "skin/backend.h"
@@ -160,3 +161,15 @@ bool available() { return false; }
 at::Tensor column_sum(const at::Tensor&) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
 
 }  // namespace sfgs::linear::cuda
+
+namespace sfgs::mesh_propagation::cuda {
+
+bool available() { return false; }
+void propagate(const PropagationArrays<float>&, const std::vector<int64_t>&, int64_t, at::Device) {
+  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
+}
+void propagate(const PropagationArrays<double>&, const std::vector<int64_t>&, int64_t, at::Device) {
+  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
+}
+
+}  // namespace sfgs::mesh_propagation::cuda

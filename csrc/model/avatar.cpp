@@ -1,6 +1,7 @@
 #include "model/avatar.h"
 
 #include <cmath>
+#include <optional>
 #include <string>
 #include <utility>
 
@@ -13,6 +14,7 @@
 #include "body/skeleton.h"
 #include "body/tensor_checks.h"
 #include "common/constants.h"
+#include "common/matmul_precision.h"
 #include "common/stage_timer.h"
 #include "model/inference_cache.h"
 #include "model/observation_prior.h"
@@ -174,6 +176,9 @@ AvatarOutput AvatarImpl::forward_trusted_pose(const body::SmplxPose& pose, const
 // One of host_time and device_time at most; device_time bypasses the cache.
 AvatarOutput AvatarImpl::posed(const body::SmplxPose& pose, FrameTime host_time, const at::Tensor& device_time) {
   const bool has_time = host_time.has_value() || device_time.defined();
+  // An inference frame on CUDA: its networks (the time path's and the colour offset's) in TF32.
+  std::optional<Tf32MatmulScope> products;
+  if (!at::GradMode::is_enabled() && body_->vertices().is_cuda()) products.emplace(true);
   plan_observation_prior();
   FramePose frame;
   at::Tensor coarse_residual;
@@ -318,7 +323,7 @@ void AvatarImpl::plan_observation_prior() {
   if (propagation_ && propagation_->trust.defined() && propagation_->trust.device() == options.device() &&
       propagation_->trust.scalar_type() == options.dtype().toScalarType())
     return;
-  if (propagation_ && !propagation_->any_known) return;  // nothing observed: no tensors to move
+  if (propagation_ && !propagation_->any_trusted) return;  // nothing observed: no tensors to move
   propagation_ = std::make_unique<PropagationPlan>(
       plan_propagation(confidence_.squeeze(1), neighbours_, options.dtype().toScalarType()));
 }

@@ -1,7 +1,5 @@
 #include "model/observation_prior.h"
 
-#include <vector>
-
 #include <ATen/ATen.h>
 #include <torch/csrc/autograd/grad_mode.h>
 
@@ -51,71 +49,11 @@ at::Tensor observation_confidence(const at::Tensor& observed_fraction) {
 
 PropagationPlan plan_propagation(const at::Tensor& confidence, const body::VertexNeighbours& neighbours,
                                  at::ScalarType dtype) {
-  const int64_t n = confidence.size(0);
-  TORCH_CHECK(confidence.dim() == 1 && neighbours.counts.dim() == 1 && neighbours.counts.size(0) == n &&
-                  neighbours.indices.dim() == 2 && neighbours.indices.size(0) == n,
-              "propagate_from_observed: confidence (N) and neighbours of N points expected, got ", describe(confidence),
-              " for ", neighbours.counts.size(0), " points");
-  at::NoGradGuard no_grad;
-  const auto options = confidence.options().dtype(dtype);
-  PropagationPlan plan;
-  plan.point_count = n;
-  const at::Tensor known = confidence >= 1.0;
-  plan.any_known = known.any().item<bool>();
-  if (!plan.any_known) return plan;
-  const int64_t k = neighbours.indices.size(1);
-  const at::Tensor rows = neighbours.indices.to(confidence.device());  // (N, K)
-  const at::Tensor indices = rows.reshape({-1});
-  const at::Tensor counts = neighbours.counts.to(confidence.device());
-  const at::Tensor slot_valid = (at::arange(k, counts.options()).unsqueeze(0) < counts.unsqueeze(1)).to(options);
-  plan.trust = confidence.to(options).unsqueeze(1);
-  plan.known = known.unsqueeze(1);
-  plan.neighbours = indices;
-  plan.slot_weight = slot_valid.unsqueeze(2);
-  plan.divisor = counts.clamp_min(1).to(options).unsqueeze(1);
-
-  // The front: each ring of unfilled points next to filled ones takes the mean of its filled neighbours.
-  at::Tensor filled = known.to(options);
-  while (true) {
-    const at::Tensor filled_neighbours = filled.index_select(0, indices).view({n, k}) * slot_valid;
-    const at::Tensor filled_count = filled_neighbours.sum(1);
-    const at::Tensor reached = (filled == 0) & (filled_count > 0);
-    const at::Tensor points = reached.nonzero().squeeze(1);
-    if (points.size(0) == 0) break;
-    PropagationPlan::Ring ring;
-    ring.points = points;
-    ring.neighbours = rows.index_select(0, points).reshape({-1});
-    ring.filled = filled_neighbours.index_select(0, points).unsqueeze(2);
-    ring.count = filled_count.index_select(0, points).clamp_min(1).unsqueeze(1);
-    plan.rings.push_back(std::move(ring));
-    filled = filled + reached.to(options);
-  }
-  plan.reached = (filled > 0).unsqueeze(1);
-  return plan;
+  return mesh_propagation::plan(confidence, neighbours, confidence.device(), dtype);
 }
 
 at::Tensor propagate_from_observed(const at::Tensor& values, const PropagationPlan& plan) {
-  TORCH_CHECK(values.dim() == 2 && values.size(0) == plan.point_count,
-              "propagate_from_observed: values (N, C) for the plan's ", plan.point_count, " points expected, got ",
-              describe(values));
-  if (!plan.any_known) return values;
-  TORCH_CHECK(values.device() == plan.trust.device() && values.scalar_type() == plan.trust.scalar_type(),
-              "propagate_from_observed: values on ", plan.trust.device(), " in ", plan.trust.scalar_type(),
-              " expected (the plan's), got ", describe(values));
-  at::NoGradGuard no_grad;
-  const int64_t n = values.size(0), c = values.size(1), k = plan.slot_weight.size(1);
-  at::Tensor x = values * plan.known;
-  for (const PropagationPlan::Ring& ring : plan.rings) {
-    const int64_t m = ring.points.size(0);
-    const at::Tensor mean = (x.index_select(0, ring.neighbours).view({m, k, c}) * ring.filled).sum(1) / ring.count;
-    x.index_copy_(0, ring.points, mean);
-  }
-  x = at::where(plan.reached, x, values);  // mesh parts without an observed point keep theirs
-  // Smoothing: the propagated values relax towards the mean of their neighbours; the observed ones stay.
-  for (int64_t pass = 0; pass < kObservationSmoothingPasses; ++pass)
-    x = at::where(plan.known, x,
-                  (x.index_select(0, plan.neighbours).view({n, k, c}) * plan.slot_weight).sum(1) / plan.divisor);
-  return plan.trust * values + (1 - plan.trust) * x;
+  return mesh_propagation::propagate(values, plan, kObservationSmoothingPasses);
 }
 
 at::Tensor propagate_from_observed(const at::Tensor& values, const at::Tensor& confidence,

@@ -3,11 +3,10 @@
 // read are whatever other, observed points trained into the shared planes (the back of the head shows the face's
 // texture). The prior replaces what was learned there by what the observed surface around it suggests, in
 // proportion to how poorly it was observed. docs/avatar.md, "Surface the video never showed".
-#include <vector>
-
 #include <ATen/core/Tensor.h>
 
 #include "body/mesh.h"
+#include "mesh_propagation/mesh_propagation.h"
 #include "splat/splat.h"
 
 namespace sfgs::model {
@@ -23,26 +22,10 @@ at::Tensor frame_observation(const at::Tensor& means, const at::Tensor& normals,
 // kWellObservedFraction on.
 at::Tensor observation_confidence(const at::Tensor& observed_fraction);
 
-// The propagation below as a fixed plan: which points the front from the well-observed surface reaches in which
-// ring depends on the confidence alone, so it is found once per observation record (with host reads) and every
-// frame applies it without one (a CUDA graph records the application).
-struct PropagationPlan {
-  struct Ring {
-    at::Tensor points;      // (M) int64: the points this ring fills
-    at::Tensor neighbours;  // (M K) int64: their neighbour slots, flattened
-    at::Tensor filled;      // (M, K, 1): 1 where the slot is a neighbour filled before this ring
-    at::Tensor count;       // (M, 1): filled neighbours (at least 1)
-  };
-  int64_t point_count = 0;
-  bool any_known = false;  // false: nothing is well observed, and values pass unchanged
-  at::Tensor trust;        // (N, 1) the confidence
-  at::Tensor known;        // (N, 1) bool: confidence 1
-  at::Tensor reached;      // (N, 1) bool: known or reached by the front
-  at::Tensor neighbours;   // (N K) int64, flattened
-  at::Tensor slot_weight;  // (N, K, 1): 1 for a valid slot
-  at::Tensor divisor;      // (N, 1): valid slots (at least 1)
-  std::vector<Ring> rings;
-};
+// The propagation below as a fixed plan (mesh_propagation/mesh_propagation.h): which points the front from the
+// well-observed surface reaches in which ring depends on the confidence alone, so it is found once per observation
+// record (on the host) and every frame applies it without a host read (a CUDA graph records the application).
+using PropagationPlan = mesh_propagation::Plan;
 
 // The plan for confidence c (N) in [0, 1] over the mesh's neighbours, its tensors on c's device in `dtype`.
 PropagationPlan plan_propagation(const at::Tensor& confidence, const body::VertexNeighbours& neighbours,
@@ -50,8 +33,8 @@ PropagationPlan plan_propagation(const at::Tensor& confidence, const body::Verte
 
 // values (N, C) per mesh point, blended towards values propagated over the mesh from well-observed points:
 // confidence c (N) in [0, 1]; a front from the points with c = 1 fills the rest ring by ring with the mean of their
-// filled neighbours, a few smoothing passes blend it, and each point returns c v + (1 - c) propagated. Unchanged
-// when no point is well observed. No host read.
+// filled neighbours, kObservationSmoothingPasses smoothing passes blend it, and each point returns
+// c v + (1 - c) propagated. Unchanged when no point is well observed. No host read, no gradient.
 at::Tensor propagate_from_observed(const at::Tensor& values, const PropagationPlan& plan);
 // The same, planned for this one call.
 at::Tensor propagate_from_observed(const at::Tensor& values, const at::Tensor& confidence,

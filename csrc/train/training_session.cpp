@@ -40,12 +40,6 @@ torch::optim::AdamOptions& adam_options(torch::optim::Adam& optimizer, size_t gr
 
 }  // namespace
 
-Tf32MatmulScope::Tf32MatmulScope(bool allow) : previous_(at::globalContext().allowTF32CuBLAS()) {
-  at::globalContext().setAllowTF32CuBLAS(allow);
-}
-
-Tf32MatmulScope::~Tf32MatmulScope() { at::globalContext().setAllowTF32CuBLAS(previous_); }
-
 TrainingSession::TrainingSession(const data::Dataset& dataset, const TrainConfig& config, const RunFolder& run,
                                  const TrainOptions& options)
     : dataset_(dataset),

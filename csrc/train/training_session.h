@@ -8,6 +8,7 @@
 
 #include <torch/optim/adam.h>
 
+#include "common/matmul_precision.h"
 #include "train/adam_step.h"
 #include "train/checkpoint.h"
 #include "train/frame_cache.h"
@@ -19,18 +20,6 @@
 #include "train/trainer.h"
 
 namespace sfgs::train {
-
-// LibTorch's choice of TF32 for CUDA float32 matrix products, set for a scope and restored after it.
-class Tf32MatmulScope {
- public:
-  explicit Tf32MatmulScope(bool allow);
-  ~Tf32MatmulScope();
-  Tf32MatmulScope(const Tf32MatmulScope&) = delete;
-  Tf32MatmulScope& operator=(const Tf32MatmulScope&) = delete;
-
- private:
-  bool previous_;
-};
 
 // Adam with the colour networks in their own parameter group (their own learning rate): the optimiser a run's
 // checkpoint holds the state of.

@@ -56,59 +56,6 @@ TEST(AvatarObservation, PropagationKeepsObservedValuesAndFillsTheRestFromThem) {
   EXPECT_THROW(model::propagate_from_observed(values, at::zeros({9}), neighbours), c10::Error);
 }
 
-// The propagation written as its definition reads: the front advances one ring per pass while any point is reached
-// (a host read a pass), then the smoothing passes. The planned propagation must give the same values.
-at::Tensor propagation_by_definition(const at::Tensor& values, const at::Tensor& confidence,
-                                     const body::VertexNeighbours& neighbours) {
-  const int64_t n = values.size(0), k = neighbours.indices.size(1), c = values.size(1);
-  const at::Tensor known = confidence >= 1.0;
-  if (!known.any().item<bool>()) return values;
-  const at::Tensor indices = neighbours.indices.reshape({-1});
-  const at::Tensor valid = (at::arange(k).unsqueeze(0) < neighbours.counts.unsqueeze(1)).to(values.scalar_type());
-  const auto around = [&](const at::Tensor& x) { return x.index_select(0, indices).view({n, k, c}); };
-  at::Tensor filled = known.to(values.scalar_type());
-  at::Tensor x = values * filled.unsqueeze(1);
-  for (;;) {
-    const at::Tensor filled_neighbours = filled.index_select(0, indices).view({n, k}) * valid;
-    const at::Tensor count = filled_neighbours.sum(1);
-    const at::Tensor reached = (filled == 0) & (count > 0);
-    if (!reached.any().item<bool>()) break;
-    const at::Tensor mean = (around(x) * filled_neighbours.unsqueeze(2)).sum(1) / count.clamp_min(1).unsqueeze(1);
-    x = at::where(reached.unsqueeze(1), mean, x);
-    filled = filled + reached.to(filled.scalar_type());
-  }
-  x = at::where((filled > 0).unsqueeze(1), x, values);
-  const at::Tensor divisor = neighbours.counts.clamp_min(1).to(values.scalar_type()).unsqueeze(1);
-  for (int64_t pass = 0; pass < kObservationSmoothingPasses; ++pass)
-    x = at::where(known.unsqueeze(1), x, (around(x) * valid.unsqueeze(2)).sum(1) / divisor);
-  const at::Tensor trust = confidence.unsqueeze(1).to(values.scalar_type());
-  return trust * values + (1 - trust) * x;
-}
-
-TEST(AvatarObservation, PlannedPropagationEqualsItsDefinitionOnABody) {
-  // The procedural body's mesh, its front observed (z > 0 at rest), some points half trusted, one part (the left
-  // hand's points, by index) cut off from every observed point by nothing but distance.
-  const body::SmplxModelData& model = procedural_avatar_body().smplx;
-  const int64_t n = model.v_template.size(0);
-  const body::VertexNeighbours neighbours = body::vertex_neighbours(model.faces.to(at::kLong), n);
-  const at::Tensor front = model.v_template.select(1, 2).to(at::kDouble) > 0;
-  at::manual_seed(5);
-  at::Tensor confidence = at::where(front, at::ones({n}, at::kDouble), at::rand({n}, at::kDouble) * 0.5);
-  const at::Tensor values = at::randn({n, 3}, at::kDouble);
-  const model::PropagationPlan plan = model::plan_propagation(confidence, neighbours, at::kDouble);
-  EXPECT_GT(plan.rings.size(), 3u) << "the front crosses several rings to the back";
-  const at::Tensor planned = model::propagate_from_observed(values, plan);
-  EXPECT_LT((planned - propagation_by_definition(values, confidence, neighbours)).abs().max().item<double>(), 1e-12);
-  // The plan serves other values (every frame's colours) as well.
-  const at::Tensor other = at::randn({n, 3}, at::kDouble);
-  EXPECT_LT((model::propagate_from_observed(other, plan) - propagation_by_definition(other, confidence, neighbours))
-                .abs()
-                .max()
-                .item<double>(),
-            1e-12);
-  EXPECT_THROW(model::propagate_from_observed(other.narrow(0, 0, n - 1), plan), c10::Error);
-}
-
 TEST(AvatarObservation, FrameObservationCountsFrontFacingUnoccludedPointsInView) {
   Camera camera = Camera::looking_forward(100.0, 100, 100);  // at the origin, looking along +z
   // Facing the camera in view; occluded (behind the rendered surface); facing away; outside the image.
