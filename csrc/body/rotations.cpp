@@ -74,11 +74,12 @@ at::Tensor axis_angle_to_matrix_reference(const at::Tensor& axis_angle) {
   return eye + a * k + b * k2;
 }
 
-at::Tensor matrix_to_axis_angle(const at::Tensor& matrix) {
-  check_last_dims(matrix, "matrix_to_axis_angle", "matrix", {3, 3});
+at::Tensor matrix_to_quaternion(const at::Tensor& matrix) {
+  check_last_dims(matrix, "matrix_to_quaternion", "matrix", {3, 3});
   const auto m = [&](int64_t r, int64_t c) { return matrix.select(-2, r).select(-1, c); };
   // Four scaled copies of the quaternion, each computed from a different diagonal combination; the one with the
-  // largest pivot (4 w^2, 4 x^2, 4 y^2 or 4 z^2) is well conditioned for every rotation (Shepperd's method).
+  // largest pivot (4 w^2, 4 x^2, 4 y^2 or 4 z^2) is well conditioned for every rotation (Shepperd's method), 180
+  // degrees included, where w and the differences of the off-diagonal pairs vanish.
   const at::Tensor tw = 1 + m(0, 0) + m(1, 1) + m(2, 2), tx = 1 + m(0, 0) - m(1, 1) - m(2, 2);
   const at::Tensor ty = 1 - m(0, 0) + m(1, 1) - m(2, 2), tz = 1 - m(0, 0) - m(1, 1) + m(2, 2);
   const at::Tensor c21 = m(2, 1) - m(1, 2), c02 = m(0, 2) - m(2, 0), c10 = m(1, 0) - m(0, 1);
@@ -88,10 +89,16 @@ at::Tensor matrix_to_axis_angle(const at::Tensor& matrix) {
                                           -2);  // (..., 4, 4)
   const at::Tensor best = at::stack({tw, tx, ty, tz}, -1).argmax(-1, /*keepdim=*/true);
   const at::Tensor pick = (at::arange(4, best.options()) == best).to(candidates.scalar_type()).unsqueeze(-1);
-  at::Tensor q = (candidates * pick).sum(-2);
-  // q and -q are the same rotation; w >= 0 puts the angle in [0, pi].
+  const at::Tensor q = (candidates * pick).sum(-2);
+  // q and -q are the same rotation; w >= 0 puts the angle in [0, pi]. The pivot is at least 1 for a rotation, so
+  // the norm is too.
   const at::Tensor sign = 1 - 2 * (q.narrow(-1, 0, 1) < 0).to(q.scalar_type());
-  q = q * (sign / q.norm(2, -1, /*keepdim=*/true));
+  return q * (sign / q.norm(2, -1, /*keepdim=*/true).clamp_min(kMinQuaternionNorm));
+}
+
+at::Tensor matrix_to_axis_angle(const at::Tensor& matrix) {
+  check_last_dims(matrix, "matrix_to_axis_angle", "matrix", {3, 3});
+  const at::Tensor q = matrix_to_quaternion(matrix);
   const at::Tensor w = q.select(-1, 0).unsqueeze(-1);
   const at::Tensor xyz = q.narrow(-1, 1, 3);
   const at::Tensor n2 = (xyz * xyz).sum(-1, /*keepdim=*/true);

@@ -16,6 +16,10 @@ at::Tensor axis_angle_to_matrix_reference(const at::Tensor& axis_angle);
 // (..., 3, 3) rotation matrices -> (..., 3) axis-angle with the angle in [0, pi].
 at::Tensor matrix_to_axis_angle(const at::Tensor& matrix);
 
+// (..., 3, 3) rotation matrices -> (..., 4) unit quaternions (w, x, y, z) with w >= 0, well conditioned for every
+// rotation (180 degrees included).
+at::Tensor matrix_to_quaternion(const at::Tensor& matrix);
+
 // (..., 3, 3) -> (..., 6): the first two rows, concatenated.
 at::Tensor matrix_to_rotation_6d(const at::Tensor& matrix);
 

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
+#include <limits>
 #include <stdexcept>
 
 #include <ATen/ATen.h>
@@ -16,7 +17,9 @@ MotionSource::MotionSource(const std::string& motion, double frames_per_second, 
                            const data::Dataset& trained_on)
     : name_(motion), frames_per_second_(frames_per_second) {
   if (data::is_motion_file(motion)) {
-    clip_ = data::resample(data::read_motion(motion), frames_per_second);
+    // Only the seconds the render shows are read (a long capture's other frames never built).
+    const double seconds = frames > 0 ? double(frames) / frames_per_second : std::numeric_limits<double>::infinity();
+    clip_ = data::resample(data::read_motion(motion, seconds), frames_per_second);
     const auto length = static_cast<int64_t>(clip_->poses.size());
     frames_ = frames > 0 ? std::min(frames, length) : length;
     return;

@@ -89,8 +89,16 @@ const std::map<Split, const char*>& split_names() {
   return names;
 }
 
-std::string resolve(const std::string& folder, const std::string& relative) {
-  return relative.empty() ? relative : (fs::path(folder) / relative).string();
+// A path of the index, relative to the dataset folder and inside it: absolute paths and '..' are refused (a
+// symlink the user placed inside the folder is followed as usual).
+std::string resolve(const std::string& folder, const std::string& relative, const std::string& what) {
+  if (relative.empty()) return relative;
+  const fs::path path(relative);
+  bool leaves = path.has_root_name() || path.has_root_directory();
+  for (const fs::path& part : path) leaves = leaves || part == "..";
+  TORCH_CHECK(!leaves, what, " '", relative, "' leaves the dataset folder: the paths of ", kIndexFile,
+              " are relative to it, without '..'");
+  return (fs::path(folder) / path).string();
 }
 
 std::string relative_to(const std::string& folder, const std::string& path) {
@@ -251,10 +259,10 @@ Dataset read_sfgs_dataset(const std::string& folder) {
       r.pose = pose_from_json(f.at("smplx"), where + ".smplx");
       r.pose_in_camera_frame = f.at("smplx").value("in_camera_frame", false);
       if (f.contains("smplx_truth")) r.true_pose = pose_from_json(f.at("smplx_truth"), where + ".smplx_truth");
-      r.image_path = resolve(folder, f.at("image").get<std::string>());
-      r.mask_path = resolve(folder, f.value("mask", ""));
-      r.mesh_path = resolve(folder, f.value("mesh", ""));
-      r.keypoints_path = resolve(folder, f.value("keypoints", ""));
+      r.image_path = resolve(folder, f.at("image").get<std::string>(), where + ".image");
+      r.mask_path = resolve(folder, f.value("mask", ""), where + ".mask");
+      r.mesh_path = resolve(folder, f.value("mesh", ""), where + ".mesh");
+      r.keypoints_path = resolve(folder, f.value("keypoints", ""), where + ".keypoints");
       d.frames.push_back(std::move(r));
     }
     for (const auto& [split, name] : split_names())

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
+#include <limits>
 #include <sstream>
 
 #include <ATen/ATen.h>
@@ -10,6 +11,7 @@
 
 #include "body/rotations.h"
 #include "body/skeleton.h"
+#include "common/constants.h"
 #include "common/tensor_description.h"
 #include "data/json_values.h"
 #include "data/neuman.h"
@@ -23,6 +25,14 @@ namespace {
 constexpr int64_t kAmassSmplxPoseSize = 165;  // root, 21 body joints, jaw, two eyes, 2 x 15 hand joints
 constexpr int64_t kAmassSmplhPoseSize = 156;  // root, 21 body joints, 2 x 15 hand joints
 constexpr double kExavatarFramesPerSecond = 30.0;  // the frame rate of ExAvatar's (NeuMan's) videos
+// What a motion may hold, checked before any per-frame work: frame rates of capture systems and videos, and frame
+// counts that a render takes in seconds (a clip's poses cost about 7 kB a frame in memory).
+constexpr double kMinMotionFrameRate = 1.0;
+constexpr double kMaxMotionFrameRate = 1000.0;
+constexpr int64_t kMaxMotionFrames = 200000;
+// Joint rotations (axis-angle, radians) and translations (metres) beyond these are not a body's pose.
+constexpr double kMaxMotionAngle = 100.0;
+constexpr double kMaxMotionTranslation = 10000.0;
 
 const char* const kExavatarParams = "smplx_optimized/smplx_params_smoothed";
 
@@ -48,7 +58,24 @@ at::Tensor frames_array(const io::NpzArchive& npz, const std::string& key, int64
   const at::Tensor values = a.to(at::kDouble);
   TORCH_CHECK(values.isfinite().all().item<bool>(), "motion file '", npz.path(), "': '", key,
               "' holds NaN or infinite values");
+  const double bound = key == "trans" ? kMaxMotionTranslation : kMaxMotionAngle;
+  const double largest = values.numel() > 0 ? values.abs().max().item<double>() : 0.0;
+  TORCH_CHECK(largest <= bound, "motion file '", npz.path(), "': '", key, "' holds ", largest,
+              key == "trans" ? " m; translations beyond " : " rad; joint rotations beyond ", bound,
+              key == "trans" ? " m" : " rad", " are not a body's motion");
   return values;
+}
+
+// The frames of a clip at `frames_per_second` that `seconds` of it need (all of them for infinity), refused beyond
+// kMaxMotionFrames before any is read.
+int64_t frames_needed(int64_t frames, double frames_per_second, double seconds, const std::string& source) {
+  TORCH_CHECK(seconds > 0, "motion '", source, "': the seconds to read must be positive, got ", seconds);
+  const double wanted = std::floor(seconds * frames_per_second) + 2;  // the interpolation's last neighbour too
+  const int64_t keep = wanted < double(frames) ? int64_t(wanted) : frames;
+  TORCH_CHECK(keep <= kMaxMotionFrames, "motion '", source, "' holds ", frames, " frames; at most ",
+              kMaxMotionFrames, " are read at once (", double(kMaxMotionFrames) / frames_per_second,
+              " s at its ", frames_per_second, " frames/s): render fewer frames (--frames)");
+  return keep;
 }
 
 double frame_rate(const io::NpzArchive& npz) {
@@ -62,8 +89,9 @@ double frame_rate(const io::NpzArchive& npz) {
   TORCH_CHECK(rate.numel() == 1 && numeric, "motion file '", npz.path(), "': '", key, "' must be one number, got ",
               describe(rate));
   const double fps = rate.to(at::kDouble).item<double>();
-  TORCH_CHECK(std::isfinite(fps) && fps > 0, "motion file '", npz.path(), "': '", key,
-              "' must be a positive frame rate, got ", fps);
+  TORCH_CHECK(std::isfinite(fps) && fps >= kMinMotionFrameRate && fps <= kMaxMotionFrameRate, "motion file '",
+              npz.path(), "': '", key, "' must be a frame rate in [", kMinMotionFrameRate, ", ", kMaxMotionFrameRate,
+              "] frames/s, got ", fps);
   return fps;
 }
 
@@ -98,11 +126,11 @@ bool is_motion_file(const std::string& path) {
   return fs::path(path).extension() == ".npz" || fs::is_directory(fs::path(path) / kExavatarParams);
 }
 
-MotionClip read_motion(const std::string& path) {
-  if (fs::path(path).extension() == ".npz") return read_amass(path);
+MotionClip read_motion(const std::string& path, double seconds) {
+  if (fs::path(path).extension() == ".npz") return read_amass(path, seconds);
   TORCH_CHECK(fs::is_directory(fs::path(path) / kExavatarParams), "motion '", path, "' is neither an AMASS .npz nor "
               "an ExAvatar motion folder (with ", kExavatarParams, "/)");
-  return read_exavatar_motion(path);
+  return read_exavatar_motion(path, seconds);
 }
 
 // The rigid transform [R | t] of an ExAvatar camera file: "R" (3, 3) and "t" (3), float64.
@@ -110,11 +138,16 @@ std::pair<at::Tensor, at::Tensor> read_camera(const std::string& path) {
   const nlohmann::json j = read_json_file(path);
   for (const char* key : {"R", "t"})
     TORCH_CHECK(j.contains(key), "camera file '", path, "' lacks '", key, "' (R: (3, 3) world to camera, t: (3))");
-  return {json_numbers(j.at("R"), {3, 3}, path + ": R").to(at::kDouble),
-          json_numbers(j.at("t"), {3}, path + ": t").to(at::kDouble)};
+  const at::Tensor r = json_numbers(j.at("R"), {3, 3}, path + ": R").to(at::kDouble);
+  const double deviation = (r.matmul(r.t()) - at::eye(3, r.options())).abs().max().item<double>();
+  const double det = at::linalg_det(r).item<double>();
+  TORCH_CHECK(deviation <= kCameraRotationTolerance && det > 0, "camera file '", path,
+              "': R must be a rotation (R R^T = I within ", kCameraRotationTolerance,
+              ", det R = 1), got max |R R^T - I| = ", deviation, " and det R = ", det);
+  return {r, json_numbers(j.at("t"), {3}, path + ": t").to(at::kDouble)};
 }
 
-MotionClip read_exavatar_motion(const std::string& folder) {
+MotionClip read_exavatar_motion(const std::string& folder, double seconds) {
   const fs::path params = fs::path(folder) / kExavatarParams;
   TORCH_CHECK(fs::is_directory(params), "motion folder '", folder, "' lacks ", kExavatarParams, "/");
   std::vector<std::pair<int64_t, fs::path>> files;
@@ -126,6 +159,11 @@ MotionClip read_exavatar_motion(const std::string& folder) {
   }
   TORCH_CHECK(!files.empty(), "motion folder '", folder, "': ", params.string(), " holds no frame file like 0.json");
   std::sort(files.begin(), files.end());
+  for (size_t k = 1; k < files.size(); ++k)
+    TORCH_CHECK(files[k].first == files[k - 1].first + 1, "motion folder '", folder, "': ", params.string(),
+                " jumps from frame ", files[k - 1].first, " to ", files[k].first, " (", files[k - 1].first + 1,
+                ".json is missing); the frames of a motion follow one another");
+  files.resize(size_t(frames_needed(int64_t(files.size()), kExavatarFramesPerSecond, seconds, folder)));
   const fs::path cameras = fs::path(folder) / "cam_params";
   const bool has_cameras = fs::is_directory(cameras);
 
@@ -161,7 +199,7 @@ MotionClip read_exavatar_motion(const std::string& folder) {
   return clip;
 }
 
-MotionClip read_amass(const std::string& path) {
+MotionClip read_amass(const std::string& path, double seconds) {
   TORCH_CHECK(fs::is_regular_file(path), "motion file '", path, "' does not exist or is not a file");
   const io::NpzArchive npz(path);
   MotionClip clip;
@@ -197,10 +235,12 @@ MotionClip read_amass(const std::string& path) {
     clip.format = "amass-smplx";
     if (!jaw.defined() || !eyes.defined()) clip.note = "no 'pose_jaw' or 'pose_eye': jaw and eyes left at rest";
   }
-  const int64_t frames = root.size(0);
-  TORCH_CHECK(frames > 0, "motion file '", path, "' holds no frame");
-  at::Tensor trans = frames_array(npz, "trans", 3, frames, false);
-  if (!trans.defined()) trans = at::zeros({frames, 3}, at::kDouble);
+  TORCH_CHECK(root.size(0) > 0, "motion file '", path, "' holds no frame");
+  at::Tensor trans = frames_array(npz, "trans", 3, root.size(0), false);
+  if (!trans.defined()) trans = at::zeros({root.size(0), 3}, at::kDouble);
+  const int64_t frames = frames_needed(root.size(0), clip.frames_per_second, seconds, path);
+  for (at::Tensor* a : {&root, &body, &jaw, &eyes, &hands, &trans})
+    if (a->defined()) *a = a->narrow(0, 0, frames);
 
   const at::Tensor up = z_up_to_y_up();
   const at::Tensor orient = body::matrix_to_axis_angle(up.matmul(body::axis_angle_to_matrix(root)));
@@ -231,7 +271,11 @@ MotionClip resample(const MotionClip& clip, double frames_per_second) {
   out.frames_per_second = frames_per_second;
   const int64_t n = static_cast<int64_t>(clip.poses.size());
   const double last = double(n - 1) / clip.frames_per_second;  // the time of the last source frame
-  const int64_t count = static_cast<int64_t>(std::floor(last * frames_per_second + 1e-9)) + 1;
+  const double frames = std::floor(last * frames_per_second + 1e-9) + 1;
+  TORCH_CHECK(frames <= double(kMaxMotionFrames), "resample: '", clip.source, "' (", last, " s) at ",
+              frames_per_second, " frames/s gives ", frames, " frames; at most ", kMaxMotionFrames,
+              " (render fewer seconds or at a lower --fps)");
+  const auto count = static_cast<int64_t>(frames);
   for (int64_t k = 0; k < count; ++k) {
     const double source = double(k) * clip.frames_per_second / frames_per_second;
     const int64_t i = std::min<int64_t>(static_cast<int64_t>(std::floor(source + 1e-9)), n - 1);

@@ -15,6 +15,7 @@
 // (a moving camera's motion is taken out); the camera's frame (y down, z forward) is then turned into the avatar's
 // (y up, the body facing the camera facing +z). 30 frames/s (ExAvatar's videos); hands relative to the mean hand.
 // docs/motions.md.
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -36,16 +37,20 @@ struct MotionClip {
 // Whether `path` names a motion this reader takes: a .npz, or a folder holding smplx_optimized/smplx_params_smoothed.
 bool is_motion_file(const std::string& path);
 
-// Reads an AMASS-format .npz. Errors name the file, the key and the shape that was expected.
-MotionClip read_amass(const std::string& path);
-// Reads an ExAvatar/SFGS motion folder. Errors name the file and what was expected.
-MotionClip read_exavatar_motion(const std::string& folder);
+// Reads an AMASS-format .npz: its first `seconds` (the frames a resampling over them needs; all by default).
+// Frame rates outside [1, 1000] frames/s, joint rotations beyond 100 rad, translations beyond 10 km and more than
+// 200,000 frames read are refused before any frame is built. Errors name the file, the key and what was expected.
+MotionClip read_amass(const std::string& path, double seconds = std::numeric_limits<double>::infinity());
+// Reads an ExAvatar/SFGS motion folder (its first `seconds`): consecutive frame files, cameras that are rotations.
+// Errors name the file and what was expected.
+MotionClip read_exavatar_motion(const std::string& folder,
+                                double seconds = std::numeric_limits<double>::infinity());
 // Either, by what `path` is (is_motion_file).
-MotionClip read_motion(const std::string& path);
+MotionClip read_motion(const std::string& path, double seconds = std::numeric_limits<double>::infinity());
 
 // The clip sampled at `frames_per_second` over its duration: rotations interpolated along the shortest arc between
 // the neighbouring source frames (per joint), translations and expressions linearly. The first output frame is the
-// first source frame.
+// first source frame. More than 200,000 output frames are refused before any is made.
 MotionClip resample(const MotionClip& clip, double frames_per_second);
 
 }  // namespace sfgs::data

@@ -6,6 +6,7 @@
 
 #include <ATen/ATen.h>
 
+#include "body/rotations.h"
 #include "common/atomic_file.h"
 #include "common/constants.h"
 #include "train/run_folder.h"
@@ -16,21 +17,6 @@ namespace {
 constexpr double kShC0 = 0.28209479177387814;  // zeroth spherical-harmonic basis value: colour = 0.5 + C0 * f_dc
 constexpr double kOpacityClamp = 1e-6;         // keeps the exported logit finite for opacity 0 or 1
 constexpr int64_t kSplatRecordBytes = 32;      // 3 + 3 float32, 4 + 4 bytes
-
-// Rotation matrices (N, 3, 3) with det +1 to unit quaternions (w, x, y, z).
-at::Tensor quaternions_from_matrices(const at::Tensor& r) {
-  const at::Tensor m00 = r.select(1, 0).select(1, 0), m11 = r.select(1, 1).select(1, 1);
-  const at::Tensor m22 = r.select(1, 2).select(1, 2);
-  const at::Tensor w = 0.5 * at::sqrt((1 + m00 + m11 + m22).clamp_min(0));
-  const at::Tensor x = 0.5 * at::sqrt((1 + m00 - m11 - m22).clamp_min(0)) *
-                       at::sign(r.select(1, 2).select(1, 1) - r.select(1, 1).select(1, 2));
-  const at::Tensor y = 0.5 * at::sqrt((1 - m00 + m11 - m22).clamp_min(0)) *
-                       at::sign(r.select(1, 0).select(1, 2) - r.select(1, 2).select(1, 0));
-  const at::Tensor z = 0.5 * at::sqrt((1 - m00 - m11 + m22).clamp_min(0)) *
-                       at::sign(r.select(1, 1).select(1, 0) - r.select(1, 0).select(1, 1));
-  const at::Tensor q = at::stack({w, x, y, z}, 1);
-  return q / q.norm(2, 1, true).clamp_min(kMinQuaternionNorm);
-}
 
 std::vector<unsigned char> bytes_of(const at::Tensor& contiguous_cpu) {
   const auto* begin = static_cast<const unsigned char*>(contiguous_cpu.data_ptr());
@@ -67,7 +53,7 @@ ExportedGaussians exported_gaussians(model::Avatar& avatar, const data::Dataset*
   ExportedGaussians g;
   g.means = means.to(at::kCPU, at::kFloat).contiguous();
   g.log_scales = at::log(eigenvalues.clamp_min(kMinExportedVariance)).mul(0.5).to(at::kFloat);
-  g.rotations = quaternions_from_matrices(axes).to(at::kFloat);
+  g.rotations = body::matrix_to_quaternion(axes).to(at::kFloat);
   g.colours = out.colours.to(at::kCPU, at::kFloat);
   g.opacities = out.opacities.to(at::kCPU, at::kFloat).clamp(0, 1);
   // The checkpoint was verified finite; this guards the conversions above (eigenvalues, logs) as well.

@@ -65,6 +65,35 @@ TEST(BodyRotations, AxisAngleRoundTripsIncludingNearZeroAndPi) {
   EXPECT_LT(max_error(matrix_to_axis_angle(axis_angle_to_matrix(f)).to(at::kDouble), aa), 2e-5);
 }
 
+// The rotation of a unit quaternion (w, x, y, z), written out.
+at::Tensor quaternion_to_matrix(const at::Tensor& q) {
+  const at::Tensor w = q.select(-1, 0), x = q.select(-1, 1), y = q.select(-1, 2), z = q.select(-1, 3);
+  return at::stack({1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+                    2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+                    2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)}, -1)
+      .view({-1, 3, 3});
+}
+
+TEST(BodyRotations, QuaternionsOfEveryRotationIncludingHalfTurns) {
+  // Half turns about the axes and a diagonal (where w = 0 and a sign test on the off-diagonal differences gives
+  // 0), the identity, a near-identity and random rotations.
+  const double s = std::sqrt(0.5);
+  at::Tensor aa = at::cat({at::tensor({M_PI, 0.0, 0.0, 0.0, M_PI, 0.0, 0.0, 0.0, M_PI, M_PI * s, M_PI * s, 0.0, 0.0,
+                                       0.0, 0.0, 1e-9, 0.0, 0.0},
+                                      at::kDouble)
+                               .view({-1, 3}),
+                           sample_axis_angles(200, 9)});
+  const at::Tensor r = axis_angle_to_matrix(aa);
+  const at::Tensor q = body::matrix_to_quaternion(r);
+  EXPECT_LT((q.norm(2, -1) - 1).abs().max().item<double>(), 1e-12);
+  EXPECT_GE(q.select(-1, 0).min().item<double>(), 0.0);
+  EXPECT_LT(max_error(quaternion_to_matrix(q), r), 1e-12);
+  // The eigenvector frames of an export: a proper rotation whose columns came out flipped in pairs.
+  const at::Tensor flipped = r * at::tensor({-1.0, -1.0, 1.0}, at::kDouble);
+  EXPECT_LT(max_error(quaternion_to_matrix(body::matrix_to_quaternion(flipped)), flipped), 1e-12);
+  expect_error([] { body::matrix_to_quaternion(at::zeros({4, 3})); }, {"matrix"});
+}
+
 TEST(BodyRotations, SixDIsTheFirstTwoRowsAndRoundTrips) {
   const at::Tensor r = axis_angle_to_matrix(sample_axis_angles(50, 3));
   const at::Tensor six = matrix_to_rotation_6d(r);

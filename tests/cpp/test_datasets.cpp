@@ -145,6 +145,29 @@ TEST(SfgsDataset, BadCamerasAndPoseValuesInTheIndexAreNamed) {
   expect_error_mentioning([&] { read_dataset(dir.str()); }, "number overflow parsing '1e400'");
 }
 
+// Paths of dataset.json stay inside the dataset folder: '..' and absolute paths are refused by frame and field.
+TEST(SfgsDataset, IndexPathsStayInsideTheDatasetFolder) {
+  TempFolder dir;
+  const Dataset d = small_dataset(dir);
+  write_sfgs_dataset(d, dir.str(), true);
+  const std::string index = dir.str() + "/dataset.json";
+  const nlohmann::json written = nlohmann::json::parse(std::ifstream(index));
+  for (const auto& [field, path] : std::vector<std::pair<std::string, std::string>>{
+           {"image", "../other/frame0.png"}, {"image", "/etc/passwd"}, {"mask", "masks/../../m.png"},
+           {"keypoints", "/tmp/k.json"}}) {
+    nlohmann::json j = written;
+    j["frames"][1][field] = path;
+    write_text(index, j.dump());
+    expect_error_mentioning([&] { read_dataset(dir.str()); },
+                            "frames[1]." + field + " '" + path + "' leaves the dataset folder");
+  }
+  // A name with dots that is not '..' stays allowed.
+  nlohmann::json j = written;
+  j["frames"][1]["mask"] = "masks/..hidden.png";
+  write_text(index, j.dump());
+  EXPECT_EQ(read_dataset(dir.str()).frames[1].mask_path, dir.str() + "/masks/..hidden.png");
+}
+
 // A two-frame NeuMan folder as ExAvatar's preprocessing leaves it.
 void write_neuman_fixture(const TempFolder& dir) {
   write_text(dir / "sparse/cameras.txt", "# Camera list\n1 PINHOLE 8 6 20.5 21.5 4.25 2.75\n");

@@ -1,5 +1,6 @@
 // Motion files (csrc/data/motion_file.h): AMASS SMPL-X .npz in both layouts and SMPL-H, the Z-up to Y-up turn,
-// resampling to another frame rate, and clear errors naming the key and the shape expected.
+// resampling to another frame rate, clear errors naming the key and the shape expected, and the bounds checked before
+// any work (frame rate, values, frame counts, ExAvatar frame sequences and cameras).
 #include <ATen/ATen.h>
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
@@ -138,7 +139,7 @@ TEST(MotionFile, BadFilesNameTheKeyAndTheShape) {
         data::read_amass(
             write("rate.npz", {{"poses", at::zeros({2, 165})}, {"mocap_frame_rate", at::scalar_tensor(0.0)}}));
       },
-      "must be a positive frame rate");
+      "must be a frame rate in [1, 1000] frames/s, got 0");
 }
 
 TEST(MotionFile, ResamplesAlongTheShortestArc) {
@@ -265,6 +266,54 @@ TEST(MotionFile, ExavatarFolderTakesAMovingCamerasMotionOut) {
   fs::create_directories(empty);
   expect_error_mentioning([&] { data::read_motion(temp_path("exavatar_empty")); }, "holds no frame file like 0.json");
   expect_error_mentioning([&] { data::read_motion(temp_path("nowhere")); }, "is neither an AMASS .npz nor");
+}
+
+TEST(MotionFile, BoundsWhatAMotionMayHoldBeforeAnyWork) {
+  const at::Tensor rate = at::scalar_tensor(100.0);
+  // A frame rate that would resample 2 frames into 10^8.
+  expect_error_mentioning(
+      [&] {
+        data::read_amass(
+            write("slow.npz", {{"poses", at::zeros({2, 165})}, {"mocap_frame_rate", at::scalar_tensor(1e-6)}}));
+      },
+      "must be a frame rate in [1, 1000] frames/s, got 1e-06");
+  // Poses and translations that are not a body's.
+  at::Tensor huge = at::zeros({2, 165});
+  huge[1][9] = 1e30;
+  expect_error_mentioning([&] { data::read_amass(write("huge.npz", {{"poses", huge}, {"mocap_frame_rate", rate}})); },
+                          "joint rotations beyond 100 rad are not a body's motion");
+  expect_error_mentioning(
+      [&] {
+        data::read_amass(write("far.npz", {{"poses", at::zeros({2, 165})},
+                                           {"trans", at::full({2, 3}, 1e30)},
+                                           {"mocap_frame_rate", rate}}));
+      },
+      "translations beyond 10000 m");
+  // A long capture: only the seconds asked for are built (and the next frame, which they interpolate towards).
+  at::Tensor poses = at::zeros({1000, 165});
+  poses.select(1, 3).copy_(at::arange(1000) * 1e-3);
+  const std::string long_file = write("long.npz", {{"poses", poses}, {"mocap_frame_rate", rate}});
+  EXPECT_EQ(data::read_amass(long_file).poses.size(), 1000u);
+  const data::MotionClip start = data::read_amass(long_file, 0.05);
+  ASSERT_EQ(start.poses.size(), 7u);
+  EXPECT_NEAR(start.poses[6].body_pose[0][0].item<double>(), 6e-3, 1e-8);  // written as float32
+  EXPECT_EQ(data::resample(start, 100.0).poses.size(), 7u);
+  // Resampling into more frames than a render takes is refused before it starts.
+  expect_error_mentioning([&] { data::resample(start, 1e9); }, "frames; at most 200000");
+}
+
+TEST(MotionFile, ExavatarFoldersMustHoldConsecutiveFramesAndRotations) {
+  const at::Tensor facing = at::tensor({3.141592653589793, 0.0, 0.0}, at::kDouble);
+  const body::SmplxPose pose = camera_pose(facing, at::tensor({0.0, 0.0, 3.0}, at::kDouble));
+  // Frames 7, 8 and 9 written, 8 removed.
+  const std::string gap = exavatar_folder("exavatar_gap", {pose, pose, pose}, {});
+  fs::remove(fs::path(gap) / "smplx_optimized" / "smplx_params_smoothed" / "8.json");
+  expect_error_mentioning([&] { data::read_motion(gap); }, "jumps from frame 7 to 9 (8.json is missing)");
+  for (const double scale : {0.0, 2.0}) {  // R = 0 and R = 2 I
+    const std::string folder = exavatar_folder(
+        "exavatar_bad_camera", {pose}, {{at::eye(3, at::kDouble) * scale, at::zeros({3}, at::kDouble)}});
+    expect_error_mentioning([&] { data::read_motion(folder); }, "R must be a rotation");
+  }
 }
 
 }  // namespace
