@@ -81,7 +81,9 @@ nlohmann::json evaluation_json(const train::AvatarEvaluation& e) {
   const auto groups = [](const std::vector<train::GroupScore>& scores, bool regions) {
     nlohmann::json list = nlohmann::json::array();
     for (const train::GroupScore& g : scores) {
-      nlohmann::json entry{{"name", g.name}, {"frames", g.frames}, {"psnr", g.psnr}, {"ssim", g.ssim}};
+      // A region no frame showed (enough of) has no score: null, not a PSNR of 0.
+      nlohmann::json entry{{"name", g.name}, {"frames", g.frames}, {"psnr", nullptr}, {"ssim", nullptr}};
+      if (g.frames > 0) entry["psnr"] = g.psnr, entry["ssim"] = g.ssim;
       if (regions) entry["pixels"] = g.pixels;
       if (g.lpips) entry["lpips"] = *g.lpips;
       list.push_back(entry);
@@ -107,8 +109,11 @@ std::string group_lines(const train::AvatarEvaluation& e) {
     text += "\n";
   }
   for (const train::GroupScore& g : e.regions) {
-    std::snprintf(line, sizeof(line), "  region %-10s frames %4lld  pixels %8.0f  PSNR %.2f  SSIM %.4f\n",
-                  g.name.c_str(), (long long)g.frames, g.pixels, g.psnr, g.ssim);
+    if (g.frames > 0)
+      std::snprintf(line, sizeof(line), "  region %-10s frames %4lld  pixels %8.0f  PSNR %.2f  SSIM %.4f\n",
+                    g.name.c_str(), (long long)g.frames, g.pixels, g.psnr, g.ssim);
+    else
+      std::snprintf(line, sizeof(line), "  region %-10s frames    0  (no frame showed it)\n", g.name.c_str());
     text += line;
   }
   if (e.regions.empty()) text += "  (no per-region metrics: the dataset has no ground-truth geometry)\n";

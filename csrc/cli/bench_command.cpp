@@ -1,7 +1,9 @@
 // `sfgs bench`: renders the built-in Gaussian scene and prints forward and backward timings.
 #include <algorithm>
+#include <cctype>
 #include <chrono>
 #include <cstdio>
+#include <filesystem>
 #include <vector>
 
 #include <ATen/ATen.h>
@@ -30,6 +32,12 @@ int run_bench(Arguments& args) {
   const std::string out = args.text("out", "");
   const bool force = args.flag("force");
   args.finish();
+  // Checked before the work, and so that a mistyped --out never writes a PNG over a checkpoint or a video.
+  std::string extension = std::filesystem::path(out).extension().string();
+  std::transform(extension.begin(), extension.end(), extension.begin(),
+                 [](unsigned char c) { return char(std::tolower(c)); });
+  if (!out.empty() && extension != ".png")
+    throw std::invalid_argument("--out names the PNG image the bench writes (FILE.png), got '" + out + "'");
   if (device != "cpu" && device != "cuda") throw std::invalid_argument("--device expects cpu or cuda, got " + device);
   if (device == "cuda" && !cuda_backend_available())
     throw std::invalid_argument("--device cuda: this build of sfgs has no CUDA backend");

@@ -14,9 +14,11 @@
 
 #include <ATen/Parallel.h>
 #include <c10/util/Exception.h>
+#include <torch/version.h>
 
 #include "common/host_memory.h"
 #include "cli/commands.h"
+#include "splat/splat.h"
 
 namespace {
 
@@ -67,10 +69,23 @@ commands:
   bench    render the built-in Gaussian scene and print forward/backward timings
            --gaussians N (60000)  --width W (640)  --height H (480)  --repeats R (5)  --device cpu|cuda
            --out PNG  --force
-  help     print this text
+  help     print this text (sfgs COMMAND --help: that command's alone)
+  version  print sfgs's version, its LibTorch's and whether it has the CUDA backend (also --version)
 
 Options take their value as the next argument or after '=' (--out=DIR); a value that starts with -- must use '='.
 )";
+
+// The usage of one command: its lines of kUsage and the note on options below them.
+std::string command_usage(const std::string& command) {
+  const std::string text = kUsage;
+  const size_t start = text.find("\n  " + command + " ");
+  if (start == std::string::npos) return text;
+  // The command's lines: its own, then those indented further (up to a line that starts another command).
+  size_t end = text.find('\n', start + 1);
+  while (end != std::string::npos && text.compare(end + 1, 3, "   ") == 0) end = text.find('\n', end + 1);
+  const size_t options = text.find("\nOptions take");
+  return "usage: sfgs " + command + " [options]\n" + text.substr(start, end - start) + "\n" + text.substr(options);
+}
 
 }  // namespace
 
@@ -97,8 +112,13 @@ int main(int argc, char** argv) {
   const auto asks_for_help = [](const char* a) {
     return std::string(a) == "help" || std::string(a) == "--help" || std::string(a) == "-h";
   };
+  if (command == "version" || command == "--version") {
+    std::cout << "sfgs " << SFGS_VERSION << " (LibTorch " << TORCH_VERSION << ", CUDA backend "
+              << (sfgs::cuda_backend_available() ? "built in" : "not built") << ")\n";
+    return 0;
+  }
   if (std::any_of(argv + 1, argv + std::max(argc, 1), asks_for_help) || argc < 2) {
-    std::cout << kUsage;
+    std::cout << (commands.count(command) ? command_usage(command) : std::string(kUsage));
     return 0;
   }
   const auto it = commands.find(command);

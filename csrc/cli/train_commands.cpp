@@ -1,4 +1,5 @@
 // `sfgs train`, `sfgs ablate` and `sfgs demo` (synthesise, train, evaluate, render).
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -106,7 +107,7 @@ int run_train(Arguments& args) {
   options.resume = args.flag("resume");
   options.overwrite = args.flag("force");
   options.progress = !args.flag("quiet");
-  options.stop_at = args.integer("stop-at", 0, 0, kMaxIterations);
+  options.stop_at = args.integer("stop-at", 0, 1, kMaxIterations);  // 0: not given
   options.start_fits = args.text("start-fits", "");
   // A run folder stands for its refined fits.
   if (fs::is_directory(options.start_fits)) {
@@ -149,6 +150,12 @@ int run_train(Arguments& args) {
     if (data_folder.empty()) throw std::invalid_argument("missing required option --data");
   }
   args.finish();
+  // A run inside its dataset would mix its files into the dataset's (and a --force could remove them).
+  const fs::path data_path = fs::weakly_canonical(data_folder), run_path = fs::weakly_canonical(run.path);
+  const bool inside = std::mismatch(data_path.begin(), data_path.end(), run_path.begin(), run_path.end()).first ==
+                      data_path.end();
+  TORCH_CHECK(!inside, "--out '", run.path, "' lies in the dataset folder '", data_folder,
+              "': give the run a folder of its own, outside the dataset");
   const data::Dataset dataset = data::read_dataset(data_folder);
   std::printf("sfgs train: %s (%lld frames, %lld for training) -> %s on %s\n", dataset.source.c_str(),
               (long long)dataset.size(), (long long)dataset.split(data::Split::kTrain).size(), run.path.c_str(),

@@ -13,6 +13,12 @@
 #include "ssim/ssim_math.h"
 
 namespace sfgs::metrics {
+namespace {
+
+constexpr int64_t kMaxImageChannels = 4;  // grey, RGB, RGBA: a wider last dimension is a channels-first batch
+
+}  // namespace
+
 namespace detail {
 
 void check_image_pair(const char* metric, const at::Tensor& prediction, const at::Tensor& target, int64_t channels) {
@@ -31,6 +37,11 @@ void check_image_pair(const char* metric, const at::Tensor& prediction, const at
               describe(target));
   TORCH_CHECK(channels <= 0 || prediction.size(-1) == channels, metric, ": images must have ", channels,
               " channels (last dimension), got ", describe(prediction));
+  // Channels last: a (B, C, H, W) batch would be read as images C rows high with W channels.
+  TORCH_CHECK(prediction.size(-1) <= kMaxImageChannels, metric,
+              ": images must be channels-last (H, W, C) or (B, H, W, C) with at most ", kMaxImageChannels,
+              " channels, got ", describe(prediction),
+              "; a (B, C, H, W) batch takes .permute(0, 2, 3, 1)");
 }
 
 at::Tensor to_batch_nchw(const at::Tensor& image) {

@@ -5,6 +5,7 @@
 
 #include <array>
 #include <cstdlib>
+#include <filesystem>
 #include <utility>
 
 #include <ATen/ATen.h>
@@ -77,6 +78,10 @@ std::string lpips_weights_file(LpipsNet net, const std::string& directory) {
 std::string default_lpips_weights_dir() {
   if (const char* dir = std::getenv("SFGS_LPIPS_DIR"); dir && *dir) return dir;
   if (const char* shared = std::getenv("SFGS_SHARED_DIR"); shared && *shared) return std::string(shared) + "/lpips";
+  // The shared folder beside the source tree this build came from, wherever the command runs; then beside the
+  // working directory (a build moved away from its sources).
+  const std::string beside_sources = std::string(SFGS_SOURCE_DIR) + "/../shared/lpips";
+  if (std::filesystem::is_directory(beside_sources)) return beside_sources;
   return "../shared/lpips";
 }
 

@@ -21,8 +21,8 @@ std::string lpips_weights_file(LpipsNet net, const std::string& directory);
 // Every tensor a weights file holds, with its shape (OIHW convolutions, features.* and lin*).
 std::map<std::string, std::vector<int64_t>> lpips_weight_shapes(LpipsNet net);
 
-// $SFGS_LPIPS_DIR if set, else $SFGS_SHARED_DIR/lpips, else ../shared/lpips (relative to the working
-// directory, i.e. the shared folder beside the repository when run from its root).
+// $SFGS_LPIPS_DIR if set, else $SFGS_SHARED_DIR/lpips, else the shared folder beside the source tree the build came
+// from (SOURCE/../shared/lpips) when it exists, else ../shared/lpips relative to the working directory.
 std::string default_lpips_weights_dir();
 
 // Unit-normalised backbone activations (one (B, C_l, H_l, W_l) tensor per tap) of a batch of images, so a

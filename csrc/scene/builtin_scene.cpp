@@ -37,6 +37,11 @@ GaussianScene finish(at::Tensor means, at::Tensor scales, at::Tensor rotations, 
 }  // namespace
 
 GaussianScene demo_scene(int64_t count, int64_t width, int64_t height, uint64_t seed, at::ScalarType dtype) {
+  TORCH_CHECK(count >= 0, "demo_scene: the Gaussian count must be >= 0, got ", count);
+  TORCH_CHECK(width >= 1 && width <= kMaxImageSide && height >= 1 && height <= kMaxImageSide,
+              "demo_scene: the image must be 1 to ", kMaxImageSide, " pixels a side, got ", width, " x ", height);
+  TORCH_CHECK(dtype == at::kFloat || dtype == at::kDouble, "demo_scene: dtype must be float32 or float64, got ",
+              dtype);
   at::Generator gen = at::make_generator<at::CPUGeneratorImpl>(seed);
   const int64_t floor_count = count / 4;
   const int64_t knot_count = count - floor_count;

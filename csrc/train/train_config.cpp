@@ -156,8 +156,15 @@ TrainConfig read_yaml_over(TrainConfig c, const std::string& text, const std::st
   TORCH_CHECK(root.IsMap(), "config '", source,
               "' must be a mapping of sections (body, run, avatar, loss, schedule, pose_refinement)");
   auto table = sections(c);
+  // YAML keeps a repeated key as a second entry, which would silently override the first: refused, by line.
+  const auto once = [&](std::set<std::string>& seen, const YAML::Node& key, const std::string& name) {
+    TORCH_CHECK(seen.insert(name).second, "config '", source, "': '", name, "' is given twice (again on line ",
+                key.Mark().line + 1, "); give each section and key once");
+  };
+  std::set<std::string> seen_sections, seen_keys;
   for (const auto& kv : root) {
     const std::string section = kv.first.as<std::string>();
+    once(seen_sections, kv.first, section);
     auto it = std::find_if(table.begin(), table.end(), [&](const auto& s) { return s.first == section; });
     TORCH_CHECK(it != table.end(), "config '", source, "': unknown section '", section,
                 "' (expected body, run, avatar, loss, schedule or pose_refinement)");
@@ -165,6 +172,7 @@ TrainConfig read_yaml_over(TrainConfig c, const std::string& text, const std::st
     for (const auto& entry : kv.second) {
       std::string key = entry.first.as<std::string>();
       const std::string full = section + "." + key;
+      once(seen_keys, entry.first, full);
       if (retired_keys().count(full)) {
         TORCH_WARN("config '", source, "': '", full, "' is retired (no loss used it) and is ignored; remove it");
         continue;

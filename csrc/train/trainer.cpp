@@ -8,6 +8,8 @@
 #include <iterator>
 #include <memory>
 #include <optional>
+#include <set>
+#include <string>
 #include <variant>
 #include <vector>
 
@@ -141,6 +143,13 @@ std::optional<StartFits> read_start_fits(const data::Dataset& dataset, const Run
                 "': give the refined fits of a run trained on this dataset and its split");
   TORCH_CHECK(!replaced.empty(), "start fits '", file, "' name none of the training frames of dataset '",
               dataset.source, "': give the refined fits of a run trained on this dataset");
+  if (replaced.size() != fits.at("frames").size()) {
+    std::set<std::string> names;
+    for (const data::FrameRecord& r : dataset.frames) names.insert(r.name);
+    for (const auto& [name, fit] : fits.at("frames").items())
+      TORCH_CHECK(names.count(name) > 0, "start fits '", file, "' give frame '", name, "' a fit, but dataset '",
+                  dataset.source, "' holds no such frame: give the refined fits of a run trained on this dataset");
+  }
   return start;
 }
 

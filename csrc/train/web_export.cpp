@@ -4,6 +4,10 @@
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <set>
+#include <string>
 #include <vector>
 
 #include <ATen/ATen.h>
@@ -160,8 +164,39 @@ class DataScripts {
 
 }  // namespace
 
-// An existing folder may be replaced only when it is empty or an earlier web export: --force must never remove a run
-// or a dataset given by mistake.
+namespace {
+
+constexpr const char* kManifestPrefix = "var sfgsExport = ";
+constexpr size_t kForeignEntriesNamed = 5;  // an error names at most this many of a folder's foreign entries
+
+// The files an earlier export wrote, from its manifest: the data files, the manifest and the viewer's files (listed
+// since they were; before, this version's). Empty when the manifest is not one sfgs wrote.
+std::set<std::string> files_of_export(const fs::path& folder) {
+  std::ifstream in(folder / kManifestFile, std::ios::binary);
+  const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const size_t end = text.find(";\nvar sfgsData");
+  if (text.rfind(kManifestPrefix, 0) != 0 || end == std::string::npos) return {};
+  const nlohmann::json manifest =
+      nlohmann::json::parse(text.substr(std::strlen(kManifestPrefix), end - std::strlen(kManifestPrefix)), nullptr,
+                            /*allow_exceptions=*/false);
+  if (!manifest.is_object() || manifest.value("format", "") != "sfgs-web-viewer") return {};
+  std::set<std::string> files{kManifestFile};
+  const auto add = [&](const nlohmann::json& list) {
+    if (!list.is_array()) return;
+    for (const nlohmann::json& name : list)
+      if (name.is_string()) files.insert(name.get<std::string>());
+  };
+  add(manifest.value("files", nlohmann::json()));
+  if (manifest.contains("written")) add(manifest.at("written"));
+  else
+    for (const WebAsset& asset : web_assets()) files.insert(asset.name);
+  return files;
+}
+
+}  // namespace
+
+// An existing folder may be replaced only when it is empty or an earlier web export holding nothing but the files
+// that export wrote: --force must never remove a run, a dataset or a file a user put beside the viewer.
 void check_web_folder(const std::string& folder, bool overwrite) {
   const fs::path path = without_trailing_separators(folder);
   TORCH_CHECK(!path.empty() && path.filename() != "." && path.filename() != "..", "--web needs a folder name, got '",
@@ -171,9 +206,29 @@ void check_web_folder(const std::string& folder, bool overwrite) {
   if (fs::is_empty(path)) return;
   TORCH_CHECK(overwrite, "folder '", folder,
               "' exists and is not empty (pass --force to replace an earlier web export)");
-  TORCH_CHECK(fs::exists(path / "index.html") && fs::exists(path / kManifestFile), "folder '", folder,
-              "' is not an earlier web export (it lacks index.html and ", kManifestFile,
-              "), so --force does not replace it; choose another folder");
+  const std::set<std::string> own = fs::exists(path / "index.html") ? files_of_export(path) : std::set<std::string>();
+  TORCH_CHECK(!own.empty(), "folder '", folder, "' is not an earlier web export (it lacks index.html and ",
+              kManifestFile, " as sfgs writes them), so --force does not replace it; choose another folder");
+  std::vector<std::string> foreign;
+  for (auto it = fs::recursive_directory_iterator(path); it != fs::recursive_directory_iterator(); ++it) {
+    const std::string name = fs::relative(it->path(), path).generic_string();
+    if (it->is_directory() && !it->is_symlink() && name == "data") continue;
+    if (it->is_directory() && !it->is_symlink()) {
+      foreign.push_back(name + "/");
+      it.disable_recursion_pending();
+    } else if (own.count(name) == 0) {
+      foreign.push_back(name);
+    }
+  }
+  std::sort(foreign.begin(), foreign.end());
+  std::string named;
+  for (size_t k = 0; k < std::min(foreign.size(), kForeignEntriesNamed); ++k)
+    named += (k ? ", '" : "'") + foreign[k] + "'";
+  if (foreign.size() > kForeignEntriesNamed)
+    named += " and " + std::to_string(foreign.size() - kForeignEntriesNamed) + " more";
+  TORCH_CHECK(foreign.empty(), "folder '", folder, "' is an earlier web export but also holds ", named,
+              ", which the export did not write; --force replaces only an export's own files: move them or choose "
+              "another folder");
 }
 
 namespace {
@@ -307,6 +362,10 @@ WebExportSummary export_web_viewer(model::Avatar& avatar, const WebMotion& motio
     }
   }
   manifest["files"] = data.files();
+  // Every file the folder gets, so that a later --force can tell them from files a user added.
+  nlohmann::json written = data.files();
+  for (const WebAsset& asset : web_assets()) written.push_back(asset.name);
+  manifest["written"] = written;
   const std::string manifest_script = "var sfgsExport = " + manifest.dump() + ";\nvar sfgsData = [];\n";
   out.add(kManifestFile, text_bytes(manifest_script));
   summary.folder_bytes = data.written_bytes() + int64_t(manifest_script.size());

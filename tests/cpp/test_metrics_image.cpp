@@ -236,6 +236,11 @@ TEST(MetricsImageValidation, BadInputsAreClearErrors) {
                {"ssim: prediction and target must share dtype"});
   expect_error([&] { metrics::psnr(x.to(at::kByte), x.to(at::kByte)); },
                {"psnr: prediction must be a floating tensor with values in [0, 1], got a Byte tensor"});
+  // A channels-first batch (B, C, H, W) is not read as images C rows high with W channels.
+  const at::Tensor nchw = x.permute({2, 0, 1}).unsqueeze(0);
+  expect_error([&] { metrics::psnr(nchw, nchw.clone()); },
+               {"psnr: images must be channels-last (H, W, C) or (B, H, W, C) with at most 4 channels",
+                "[1, 3, 12, 12]", ".permute(0, 2, 3, 1)"});
   expect_error(
       [&] { metrics::ssim(x[0], x[0], SsimBorder::zero); },
       {"ssim: prediction must be an image (H, W, C) or a batch (B, H, W, C), got a Double tensor of shape [12, 3]"});

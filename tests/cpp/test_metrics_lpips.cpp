@@ -1,6 +1,7 @@
 // LPIPS with random weights (no files needed): distance properties, finite-difference gradients in float64,
 // and the safetensors reader with LPIPS's loader on valid, missing and corrupt files.
 #include <cmath>
+#include <cstdlib>
 #include <filesystem>
 #include <string>
 
@@ -102,7 +103,9 @@ TEST(MetricsLpips, TargetWithoutGradientGivesTheBatchedValueAndGradient) {
 }
 
 // A bfloat16 trunk (the CUDA training loss's): the distance and the prediction's gradient come back in the images'
-// dtype and stay close to the float32 trunk's (bfloat16's 8-bit mantissa: about a percent).
+// dtype and stay close to the float32 trunk's (bfloat16's 8-bit mantissa: about a percent on the distance). The
+// gradient's direction depends on where the convolutions accumulate: in float32 on tensor cores and on CPUs with
+// bfloat16 arithmetic, in bfloat16 on the others (cosine 0.94 on an AMD EPYC without AVX512-BF16).
 TEST(MetricsLpips, BFloat16TrunkStaysCloseToFloat) {
   const Lpips lpips(LpipsNet::alex, random_lpips_weights(LpipsNet::alex, 6));
   const Lpips reduced = lpips.with_trunk_dtype(at::kBFloat16);
@@ -114,7 +117,7 @@ TEST(MetricsLpips, BFloat16TrunkStaysCloseToFloat) {
   const at::Tensor g = torch::autograd::grad({exact}, {p})[0], h = torch::autograd::grad({approximate}, {q})[0];
   ASSERT_EQ(h.scalar_type(), at::kFloat);
   const double cosine = ((g * h).sum() / (g.norm() * h.norm())).item<double>();
-  EXPECT_GT(cosine, 0.98) << "the bfloat16 trunk's gradient points elsewhere";
+  EXPECT_GT(cosine, 0.9) << "the bfloat16 trunk's gradient points elsewhere";
   EXPECT_EQ(reduced(a, a.clone()).item<double>(), 0.0);
   expect_error([&] { lpips.with_trunk_dtype(at::kInt); },
                {"Lpips::with_trunk_dtype: the trunk needs a floating dtype"});
@@ -202,6 +205,28 @@ TEST(MetricsLpipsWeights, LoadedFileEqualsTheTensorsItHolds) {
   const Lpips direct(LpipsNet::squeeze, weights);
   const at::Tensor a = random_image(24, 30, 8, at::kFloat), b = random_image(24, 30, 9, at::kFloat);
   EXPECT_EQ(loaded(a, b).item<double>(), direct(a, b).item<double>());
+}
+
+// Without the environment variables the weights are found beside the source tree, from any working directory (the
+// demo's metrics once said "LPIPS unavailable" when run elsewhere).
+TEST(MetricsLpipsWeights, TheDefaultFolderDoesNotDependOnTheWorkingDirectory) {
+  const std::filesystem::path repository = std::filesystem::path(__FILE__).parent_path().parent_path().parent_path();
+  const std::filesystem::path beside = repository / ".." / "shared" / "lpips";
+  if (!std::filesystem::is_directory(beside))
+    GTEST_SKIP() << "no shared folder beside the repository (" << beside << "): nothing to find";
+  std::string saved[2];
+  const char* names[2] = {"SFGS_LPIPS_DIR", "SFGS_SHARED_DIR"};
+  for (int k = 0; k < 2; ++k) {
+    if (const char* v = std::getenv(names[k])) saved[k] = v;
+    unsetenv(names[k]);
+  }
+  const std::filesystem::path before = std::filesystem::current_path();
+  std::filesystem::current_path(temporary_folder("lpips_elsewhere"));
+  const std::string found = metrics::default_lpips_weights_dir();
+  std::filesystem::current_path(before);
+  for (int k = 0; k < 2; ++k)
+    if (!saved[k].empty()) setenv(names[k], saved[k].c_str(), 1);
+  EXPECT_TRUE(std::filesystem::equivalent(found, beside)) << found;
 }
 
 TEST(MetricsLpipsWeights, MissingOrWrongWeightsMakeLpipsUnavailable) {

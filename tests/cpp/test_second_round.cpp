@@ -109,6 +109,11 @@ TEST(TrainPoseRefinement, ASecondRoundStartsFromAnEarlierRunsRefinedFits) {
   fresh.start_fits = other_file;
   expect_error([&] { train::train_avatar(dataset, plain, second, fresh); },
                {dataset.frames[size_t(test_frame)].name, "not a training frame"});
+  other["frames"].erase(dataset.frames[size_t(test_frame)].name);
+  other["frames"]["no_such_frame"] = other.at("frames").at(first_name);
+  write_json(other_file, other);
+  expect_error([&] { train::train_avatar(dataset, plain, second, fresh); },
+               {"give frame 'no_such_frame' a fit", "holds no such frame"});
 
   // A new run without start fits: the copy goes, and the dataset's own fits are read, even with a copy left beside.
   fresh.start_fits.clear();

@@ -38,6 +38,13 @@ TEST(TrainConfig, MistakesAreClearErrors) {
                                    "schedule.iterations must be an integer in [1, 100000000], got 0");
   testing::expect_error_mentioning([] { TrainConfig::from_yaml_file("/nonexistent/config.yaml"); },
                                    "/nonexistent/config.yaml");
+  // A key or a section given twice would let the last silently win.
+  testing::expect_error_mentioning(
+      [] { TrainConfig::from_yaml_text("schedule:\n  iterations: 10\n  iterations: 20\n"); },
+      "'schedule.iterations' is given twice (again on line 3)");
+  testing::expect_error_mentioning(
+      [] { TrainConfig::from_yaml_text("schedule:\n  iterations: 10\nloss: {}\nschedule:\n  iterations: 20\n"); },
+      "'schedule' is given twice (again on line 4)");
 }
 
 // The adversarial values that used to train to "final loss -nan" with exit 0: each is refused naming the key.

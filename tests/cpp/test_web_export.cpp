@@ -253,6 +253,25 @@ TEST(WebExport, ReplacesOnlyEmptyFoldersAndEarlierExports) {
                           "exists and is not empty (pass --force");
   train::export_web_viewer(fx.avatar, fx.motion, fx.camera, folder, true);  // an earlier export: replaced
   EXPECT_TRUE(fs::exists(folder + "/index.html"));
+  // Files a user put beside the viewer: --force refuses, names them, and leaves everything in place.
+  write_text(fs::path(folder) / "thesis.tex", "precious");
+  fs::create_directories(fs::path(folder) / "mydata");
+  write_text(fs::path(folder) / "mydata/notes.txt", "precious");
+  expect_error_mentioning([&] { train::export_web_viewer(fx.avatar, fx.motion, fx.camera, folder, true); },
+                          "also holds 'mydata/', 'thesis.tex', which the export did not write");
+  EXPECT_EQ(file_text(folder + "/thesis.tex"), "precious");
+  EXPECT_TRUE(fs::exists(folder + "/index.html"));
+  fs::remove(fs::path(folder) / "thesis.tex");
+  fs::remove_all(fs::path(folder) / "mydata");
+  train::export_web_viewer(fx.avatar, fx.motion, fx.camera, folder, true);
+  // An index.html and a manifest that sfgs did not write (empty ones) do not make a folder an export.
+  const std::string lookalike = tmp / "lookalike";
+  fs::create_directories(fs::path(lookalike) / "data");
+  write_text(fs::path(lookalike) / "index.html", "");
+  write_text(fs::path(lookalike) / "data/manifest.js", "");
+  expect_error_mentioning([&] { train::export_web_viewer(fx.avatar, fx.motion, fx.camera, lookalike, true); },
+                          "is not an earlier web export");
+  EXPECT_TRUE(fs::exists(lookalike + "/index.html"));
 
   const std::string run = tmp / "run";
   write_text(tmp / "run/checkpoint.pt", "precious");

@@ -127,6 +127,17 @@ def test_a_render_that_runs_out_of_space_fails_and_leaves_nothing(tmp_path, trai
     assert sorted(os.listdir(out)) == [".sfgs-render.lock"]
 
 
+def test_version_and_per_command_help():
+    result = sfgs_run("--version")
+    assert result.returncode == 0 and result.stdout.startswith("sfgs 0.") and "LibTorch" in result.stdout
+    assert sfgs_run("version").stdout == result.stdout
+    result = sfgs_run("train", "--help")
+    assert result.returncode == 0 and result.stdout.startswith("usage: sfgs train [options]")
+    assert "--stop-at" in result.stdout and "Options take their value" in result.stdout
+    assert "ablate" not in result.stdout and "synth " not in result.stdout, "only train's section"
+    assert "  ablate " in sfgs_run("help").stdout, "sfgs help lists every command"
+
+
 def test_options_never_swallow_options(tmp_path, data):
     result = sfgs_run("train", "--data", data, "--out", "--force")
     assert result.returncode == 1
@@ -136,6 +147,20 @@ def test_options_never_swallow_options(tmp_path, data):
     assert result.returncode == 1 and "option --data needs a value" in result.stderr
     result = sfgs_run("eval", "--run", str(tmp_path), "--run", str(tmp_path))
     assert result.returncode == 1 and "option --run is given twice" in result.stderr
+    # A run inside its dataset folder would mix its files into the dataset's.
+    result = sfgs_run("train", "--data", data, "--out", os.path.join(data, "run"))
+    assert result.returncode == 1 and "lies in the dataset folder" in result.stderr
+    assert not os.path.exists(os.path.join(data, "run"))
+    # An output of the wrong kind is refused before any work: a PNG never lands on a checkpoint.
+    checkpoint = tmp_path / "checkpoint.pt"
+    checkpoint.write_text("precious")
+    result = sfgs_run("bench", "--out", str(checkpoint), "--force")
+    assert result.returncode == 1 and "names the PNG image the bench writes (FILE.png)" in result.stderr
+    assert checkpoint.read_text() == "precious"
+    # --stop-at 0 is no iteration to pause at (it was once taken as "not given").
+    result = sfgs_run("train", "--data", data, "--out", str(tmp_path / "paused"), "--stop-at", "0")
+    assert result.returncode == 1 and "--stop-at expects an integer in [1, " in result.stderr
+    assert not os.path.exists(tmp_path / "paused")
 
 
 def test_a_run_is_used_from_any_directory_and_a_moved_dataset_is_named(tmp_path, data, trained):
@@ -193,6 +218,10 @@ def test_python_arguments_of_the_wrong_type_or_value_are_our_errors(data, traine
     with pytest.raises(RuntimeError, match="rotation part of world_to_camera must be orthonormal"):
         avatar.render(singular, frame["pose"])
     s = sfgs.demo_scene(count=10, width=16, height=12)
+    with pytest.raises(RuntimeError, match=r"demo_scene: the Gaussian count must be >= 0, got -5"):
+        sfgs.demo_scene(count=-5, width=16, height=12)
+    with pytest.raises(RuntimeError, match=r"demo_scene: the image must be 1 to 16384 pixels a side, got 0 x 12"):
+        sfgs.demo_scene(count=10, width=0, height=12)
     with pytest.raises(TypeError, match=r"render\(width\): expected an int, got float 16.0"):
         sfgs.render(s["means"], s["opacities"], s["features"], s["background"], s["world_to_camera"], s["fx"],
                     s["fy"], s["cx"], s["cy"], 16.0, 12, scales=s["scales"], rotations=s["rotations"])
