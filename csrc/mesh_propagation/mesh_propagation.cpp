@@ -115,7 +115,7 @@ Plan plan(const at::Tensor& trust, const body::VertexNeighbours& neighbours, at:
   plan.neighbours = indices.to(device);
   plan.counts = counts.to(device);
   plan.ring_points = on_device(ring_points);
-  plan.ring_sources = on_device(ring_sources).view({-1, k});
+  plan.ring_sources = on_device(ring_sources).view({int64_t(ring_source_counts.size()), k});
   plan.ring_source_counts = on_device(ring_source_counts);
   plan.free_points = on_device(free_points);
   plan.trust = host_trust.clamp(0.0, 1.0).to(device, dtype);

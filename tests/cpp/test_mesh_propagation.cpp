@@ -67,6 +67,23 @@ TEST(MeshPropagation, NothingTrustedLeavesValuesUnchanged) {
   EXPECT_TRUE(mesh_propagation::propagate(values, plan, kObservationSmoothingPasses).equal(values));
 }
 
+// Points without neighbours: no ring reaches them; a smoothing pass gives them the mean of nothing (0), as the
+// definition does.
+TEST(MeshPropagation, APointCloudWithoutNeighboursIsPlannedToo) {
+  body::VertexNeighbours none;
+  none.indices = at::zeros({4, 0}, at::kLong);
+  none.counts = at::zeros({4}, at::kLong);
+  const at::Tensor trust = at::tensor({1.0, 0.0, 0.0, 0.5}, at::kDouble);
+  const mesh_propagation::Plan plan = mesh_propagation::plan(trust, none, at::kCPU, at::kDouble);
+  EXPECT_EQ(plan.ring_count(), 0);
+  const at::Tensor values = at::randn({4, 2}, at::kDouble);
+  for (int64_t passes : {0, 2})
+    EXPECT_LT(max_difference(mesh_propagation::propagate(values, plan, passes),
+                             propagation_by_definition(values, trust, none, passes)),
+              1e-15)
+        << passes << " passes";
+}
+
 TEST(MeshPropagation, RefusesWhatDoesNotFitThePlan) {
   const PropagationCase c = body_with_detached_strip();
   const int64_t n = c.trust.size(0);
