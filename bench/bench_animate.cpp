@@ -283,9 +283,8 @@ void print_observation_prior(sfgs::model::Avatar& avatar, bool cuda) {
   }
   std::printf("  observation prior: %ld of %ld points well observed; %ld rings fill %ld points (the widest %ld); "
               "propagation %.3f ms (eager, median of 20)\n",
-              long((confidence >= 1).sum().item<int64_t>()), long(n), long(plan.ring_count()), long(plan.filled_count()),
-              long(plan.widest_ring()),
-              median(ms));
+              long((confidence >= 1).sum().item<int64_t>()), long(n), long(plan.ring_count()),
+              long(plan.filled_count()), long(plan.widest_ring()), median(ms));
 }
 
 int main(int argc, char** argv) {

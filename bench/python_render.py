@@ -83,5 +83,6 @@ def main():
         kind = "replayed (time)" if timed else "new motion"
         print(f"  fast vs eager render, {kind}: PSNR {sfgs.psnr(fast.cpu(), eager.cpu()).item():.1f} dB")
 
+
 if __name__ == "__main__":
     main()

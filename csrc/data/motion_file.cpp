@@ -1,6 +1,7 @@
 #include "data/motion_file.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <filesystem>
 #include <limits>
@@ -11,11 +12,11 @@
 
 #include "body/rotations.h"
 #include "body/skeleton.h"
-#include "common/constants.h"
 #include "common/tensor_description.h"
 #include "data/json_values.h"
 #include "data/neuman.h"
 #include "io/npz.h"
+#include "splat/splat.h"
 
 namespace sfgs::data {
 namespace fs = std::filesystem;
@@ -138,13 +139,17 @@ std::pair<at::Tensor, at::Tensor> read_camera(const std::string& path) {
   const nlohmann::json j = read_json_file(path);
   for (const char* key : {"R", "t"})
     TORCH_CHECK(j.contains(key), "camera file '", path, "' lacks '", key, "' (R: (3, 3) world to camera, t: (3))");
-  const at::Tensor r = json_numbers(j.at("R"), {3, 3}, path + ": R").to(at::kDouble);
-  const double deviation = (r.matmul(r.t()) - at::eye(3, r.options())).abs().max().item<double>();
-  const double det = at::linalg_det(r).item<double>();
-  TORCH_CHECK(deviation <= kCameraRotationTolerance && det > 0, "camera file '", path,
-              "': R must be a rotation (R R^T = I within ", kCameraRotationTolerance,
-              ", det R = 1), got max |R R^T - I| = ", deviation, " and det R = ", det);
-  return {r, json_numbers(j.at("t"), {3}, path + ": t").to(at::kDouble)};
+  const at::Tensor r = json_numbers(j.at("R"), {3, 3}, path + ": R").to(at::kDouble).contiguous();
+  const at::Tensor t = json_numbers(j.at("t"), {3}, path + ": t").to(at::kDouble).contiguous();
+  std::array<double, 16> world_to_camera{0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 1};
+  for (int row = 0; row < 3; ++row) {
+    for (int column = 0; column < 3; ++column)
+      world_to_camera[size_t(4 * row + column)] = r[row][column].item<double>();
+    world_to_camera[size_t(4 * row + 3)] = t[row].item<double>();
+  }
+  const std::string problem = world_to_camera_problem(world_to_camera);
+  TORCH_CHECK(problem.empty(), "camera file '", path, "': ", problem);
+  return {r, t};
 }
 
 MotionClip read_exavatar_motion(const std::string& folder, double seconds) {

@@ -29,8 +29,8 @@ template <typename T> struct PropagationArrays {
 };
 
 // Channels summed at once, and rows read at once: a thread issues the loads of kRowsAtOnce neighbours' values before
-// it adds them, so a point waits on a few rounds of memory latency, not one per neighbour (a ring's kernel took 11 us
-// on an H200 however few its points when each neighbour waited on the one before).
+// it adds them, so a point waits on a few rounds of memory latency, not one per neighbour. A ring holds few points,
+// so that latency is its kernel's whole length.
 inline constexpr int kChannelsAtOnce = 4;
 inline constexpr int kRowsAtOnce = 8;
 

@@ -67,9 +67,8 @@ bool camera_at_origin(const Camera& camera) {
   return camera.world_to_camera == std::array<double, 16>{1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
 }
 
-std::string camera_problem(const Camera& c) {
+std::string world_to_camera_problem(const std::array<double, 16>& m) {
   std::ostringstream why;
-  const auto& m = c.world_to_camera;
   for (double v : m)
     if (!std::isfinite(v)) {
       why << "world_to_camera must be finite, got an entry " << v;
@@ -96,6 +95,12 @@ std::string camera_problem(const Camera& c) {
         << kCameraRotationTolerance << "), got max |R R^T - I| = " << deviation << " and det R = " << det;
     return why.str();
   }
+  return "";
+}
+
+std::string camera_problem(const Camera& c) {
+  if (std::string problem = world_to_camera_problem(c.world_to_camera); !problem.empty()) return problem;
+  std::ostringstream why;
   if (!std::isfinite(c.fx) || !std::isfinite(c.fy) || !(c.fx > 0) || !(c.fy > 0)) {
     why << "focal lengths must be finite and positive, got fx = " << c.fx << ", fy = " << c.fy;
     return why.str();

@@ -31,6 +31,9 @@ struct Camera {
 // non-finite entry, a rotation block that is not orthonormal with det +1, a non-positive focal length, ...).
 // render() refuses such a camera with this text; dataset readers use it to name the frame.
 std::string camera_problem(const Camera& camera);
+// The part of it about the placement alone: world_to_camera finite, its last row (0, 0, 0, 1), its rotation block a
+// proper rotation (within kCameraRotationTolerance). For readers of camera files that hold no intrinsics.
+std::string world_to_camera_problem(const std::array<double, 16>& world_to_camera);
 
 // The camera's centre in world coordinates: -R^T t of world_to_camera = [R | t].
 std::array<double, 3> camera_centre(const Camera& camera);

@@ -312,7 +312,8 @@ TEST(MotionFile, ExavatarFoldersMustHoldConsecutiveFramesAndRotations) {
   for (const double scale : {0.0, 2.0}) {  // R = 0 and R = 2 I
     const std::string folder = exavatar_folder(
         "exavatar_bad_camera", {pose}, {{at::eye(3, at::kDouble) * scale, at::zeros({3}, at::kDouble)}});
-    expect_error_mentioning([&] { data::read_motion(folder); }, "R must be a rotation");
+    expect_error_mentioning([&] { data::read_motion(folder); },
+                            "the rotation part of world_to_camera must be orthonormal with determinant +1");
   }
 }
 
