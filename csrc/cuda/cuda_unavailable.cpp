@@ -8,6 +8,7 @@
 #include "group_norm/backend.h"
 #include "linear/backend.h"
 #include "mesh_propagation/backend.h"
+#include "mlp_inference/backend.h"
 #include "pixel_loss/backend.h"
 #include "plane_sampling/backend.h"
 #include "skin/backend.h"
@@ -62,6 +63,14 @@ void first_layer_backward(const FirstLayerGradientArrays<double>&, at::Device) {
 }
 
 }  // namespace sfgs::gathered_mlp::cuda
+
+namespace sfgs::mlp_inference::cuda {
+
+bool available() { return false; }
+bool fits(int, int, at::Device) { return false; }
+void forward(const MlpInferenceArrays&, at::Device) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
+
+}  // namespace sfgs::mlp_inference::cuda
 
 namespace sfgs::body::cuda {
 

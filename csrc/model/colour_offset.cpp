@@ -25,7 +25,7 @@ at::Tensor ColourOffsetImpl::project_features(const at::Tensor& features) const 
 
 at::Tensor ColourOffsetImpl::forward(const at::Tensor& feature_projection, const at::Tensor& pose_embedding,
                                      const at::Tensor& normals) const {
-  return mlp_->finish(mlp_->project_add(1, at::cat({pose_embedding, normals}, 1), feature_projection));
+  return mlp_->finish_from(feature_projection, 1, {pose_embedding, normals});
 }
 
 }  // namespace sfgs::model

@@ -6,6 +6,7 @@
 
 #include <ATen/Functions.h>
 #include <ATen/TensorOperators.h>
+#include <torch/csrc/autograd/grad_mode.h>
 
 #include "body/tensor_checks.h"
 #include "common/constants.h"
@@ -128,9 +129,31 @@ at::Tensor MlpImpl::finish_activated(const at::Tensor& first_activation) const {
   return linear::linear(x, output_weight_, output_bias_);
 }
 
+bool MlpImpl::infers() const { return bias_in_activation() && !at::GradMode::is_enabled(); }
+
+at::Tensor MlpImpl::finish_from(const at::Tensor& base, size_t group, const std::vector<at::Tensor>& parts) const {
+  TORCH_CHECK(group < input_weights_.size() && !parts.empty(), "Mlp::finish_from: group ", group, " of ",
+              input_weights_.size(), " with ", parts.size(), " parts");
+  std::vector<int64_t> widths;
+  for (const at::Tensor& part : parts) {
+    TORCH_CHECK(part.defined() && part.dim() == 2, "Mlp::finish_from: parts must be (N, width) tensors, got ",
+                describe(part));
+    widths.push_back(part.size(1));
+  }
+  if (infers()) {
+    const mlp_inference::Network network = inference_network(group, widths);
+    if (mlp_inference::fuses(parts, network)) return mlp_inference::run(parts, base, network);
+  }
+  return finish(project_add(group, parts.size() == 1 ? parts[0] : at::cat(parts, 1), base));
+}
+
 at::Tensor MlpImpl::forward(const std::vector<at::Tensor>& inputs) const {
   TORCH_CHECK(inputs.size() == input_weights_.size(), "Mlp: expected ", input_weights_.size(), " input groups, got ",
               inputs.size());
+  if (infers()) {
+    const mlp_inference::Network network = inference_network(0, {});
+    if (mlp_inference::fuses(inputs, network)) return mlp_inference::run(inputs, at::Tensor(), network);
+  }
   at::Tensor first = project(0, inputs[0]);
   for (size_t g = 1; g < inputs.size(); ++g) first = first + project(g, inputs[g]);
   return finish(first);
@@ -140,6 +163,32 @@ gathered_mlp::GatheredMlpWeights MlpImpl::gathered_weights() const {
   TORCH_CHECK(shape_.hidden_widths.size() == 2 && !shape_.group_norm,
               "Mlp::gathered_weights: the gathered MLP has exactly two hidden layers and no GroupNorm");
   return {hidden_weights_[0], hidden_biases_[0], output_weight_, output_bias_};
+}
+
+mlp_inference::Network MlpImpl::inference_network(size_t group, const std::vector<int64_t>& widths) const {
+  TORCH_CHECK(bias_in_activation(), "Mlp::inference_network: for GroupNorm networks with hidden layers");
+  mlp_inference::Network n;
+  if (widths.empty()) {
+    n.input_weights = input_weights_;
+  } else {
+    int64_t column = 0;
+    for (int64_t width : widths) {
+      n.input_weights.push_back(input_weights_[group].narrow(1, column, width));
+      column += width;
+    }
+    TORCH_CHECK(column == shape_.input_widths[group], "Mlp::inference_network: the blocks' widths sum to ", column,
+                ", group ", group, " has ", shape_.input_widths[group], " columns");
+  }
+  n.first_bias = input_bias_;
+  n.hidden_weights = hidden_weights_;
+  n.hidden_biases = hidden_biases_;
+  n.norm_weights = norm_weights_;
+  n.norm_biases = norm_biases_;
+  n.output_weight = output_weight_;
+  n.output_bias = output_bias_;
+  n.groups = kMlpGroupNormGroups;
+  n.epsilon = kMlpGroupNormEpsilon;
+  return n;
 }
 
 int64_t MlpImpl::parameter_count(const MlpShape& shape) {

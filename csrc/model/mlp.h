@@ -10,6 +10,7 @@
 #include <torch/nn/pimpl.h>
 
 #include "gathered_mlp/gathered_mlp.h"
+#include "mlp_inference/mlp_inference.h"
 
 namespace sfgs::model {
 
@@ -43,17 +44,25 @@ class MlpImpl : public torch::nn::Module {
   // that computes that activation itself (the structure offset's fused first layer, gathered_mlp.h); finish(x) is
   // finish_activated of x's first activation. Networks without hidden layers have no such activation: an error.
   at::Tensor finish_activated(const at::Tensor& first_activation) const;
-  // All groups at once.
+  // finish(project_add(group, cat(parts, 1), base)): the group's input given as column blocks, so that inference
+  // on CUDA runs the whole network as one kernel (mlp_inference.h) without concatenating them.
+  at::Tensor finish_from(const at::Tensor& base, size_t group, const std::vector<at::Tensor>& parts) const;
+  // All groups at once; at inference on CUDA one kernel (mlp_inference.h) where the shape allows.
   at::Tensor forward(const std::vector<at::Tensor>& inputs) const;
 
   const MlpShape& shape() const { return shape_; }
   // The layers after the first as the gathered MLP takes them (gathered_mlp.h): for a network of two hidden layers
   // without GroupNorm, whose first layer is the gathered sum.
   gathered_mlp::GatheredMlpWeights gathered_weights() const;
+  // The network as the fused inference takes it, its first layer's input as `widths`' column blocks of group
+  // `group` (all groups in order when `widths` is empty): for a GroupNorm network with hidden layers.
+  mlp_inference::Network inference_network(size_t group, const std::vector<int64_t>& widths) const;
   // Parameters of a network of this shape (the formula docs/avatar.md gives).
   static int64_t parameter_count(const MlpShape& shape);
 
  private:
+  // Whether this call may take the fused inference: no gradient, a GroupNorm network with hidden layers.
+  bool infers() const;
   // Hidden layer `layer`'s activation of its linear part `pre` (bias included, but for the first layer where
   // bias_in_activation(): then it is added here).
   at::Tensor activate(size_t layer, const at::Tensor& pre) const;
