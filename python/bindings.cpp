@@ -108,13 +108,14 @@ sfgs::data::MotionClip read_clip(const std::string& path, double fps) {
 
 class TrainedAvatar {
  public:
-  TrainedAvatar(const std::string& run, const std::string& device, const std::string& data)
-      : device_(device == "cuda" ? at::kCUDA : at::kCPU), data_(data) {
+  TrainedAvatar(const std::string& run, const std::string& device, const std::string& data, bool other_dataset)
+      : device_(device == "cuda" ? at::kCUDA : at::kCPU), data_(data), other_dataset_(other_dataset) {
     TORCH_CHECK(device == "cpu" || device == "cuda", "load_avatar: device must be 'cpu' or 'cuda', got '", device, "'");
     TORCH_CHECK(device_.is_cpu() || sfgs::cuda_backend_available(),
                 "load_avatar: device 'cuda' but this build of sfgs has no CUDA backend");
     t_ = sfgs::train::load_trained_avatar(sfgs::train::RunFolder{run}, device_);
     t_.avatar->eval();
+    if (!data_.empty()) dataset();  // a dataset given by the caller is checked now, not at its first frame
   }
 
   // Posed Gaussians and the canonical quantities, as a dict of tensors.
@@ -237,12 +238,19 @@ class TrainedAvatar {
   }
 
   const sfgs::data::Dataset& dataset() {
-    if (!dataset_) dataset_ = sfgs::train::read_run_dataset(t_, data_);
+    if (dataset_) return *dataset_;
+    bool own = true;
+    sfgs::data::Dataset read = sfgs::train::read_run_dataset(t_, data_, &own);
+    TORCH_CHECK(own || other_dataset_, "load_avatar: data '", data_, "' is not the dataset the run was trained on ",
+                "(fingerprint ", read.fingerprint(), ", the run's ", t_.dataset_fingerprint,
+                "); pass other_dataset=True to use its frames anyway");
+    dataset_ = std::move(read);
     return *dataset_;
   }
 
   at::Device device_;
   std::string data_;  // the dataset folder given to load_avatar; empty: the one the run was trained on
+  bool other_dataset_ = false;  // data_ may be another dataset than the run's own
   sfgs::train::TrainedAvatar t_;
   std::optional<sfgs::data::Dataset> dataset_;
   std::unique_ptr<sfgs::animate::Animator> animator_;  // CUDA renders without a gradient, made at the first
@@ -285,8 +293,8 @@ Differentiable w.r.t. means, scales, rotations, covariances, opacities, features
       py::arg("count") = 20000, py::arg("width") = 320, py::arg("height") = 240, py::arg("seed") = 7,
       py::arg("double_precision") = false, "The built-in demo scene as a dict of tensors and camera values");
   py::class_<TrainedAvatar>(m, "Avatar", "A trained SFGS avatar: pose it, render it, read its training frames")
-      .def(py::init<const std::string&, const std::string&, const std::string&>(), py::arg("run"),
-           py::arg("device") = "cpu", py::arg("data") = "")
+      .def(py::init<const std::string&, const std::string&, const std::string&, bool>(), py::arg("run"),
+           py::arg("device") = "cpu", py::arg("data") = "", py::arg("other_dataset") = false)
       .def("gaussians", &TrainedAvatar::gaussians, py::arg("pose") = py::dict(),
            R"(Posed Gaussians for a pose dict (SMPL-X names: global_orient (3), body_pose (21,3), jaw_pose, leye_pose,
 reye_pose (3), left_hand_pose, right_hand_pose (15,3) axis-angle, expression (E), transl (3), time in [-1, 1] or None
@@ -313,11 +321,12 @@ when given (> 0). Pass a frame to gaussians() or render().)")
       .def_property_readonly("dataset_path", [](const TrainedAvatar& a) { return a.trained().dataset; });
   m.def(
       "load_avatar",
-      [](const std::string& run, const std::string& device, const std::string& data) {
-        return TrainedAvatar(run, device, data);
+      [](const std::string& run, const std::string& device, const std::string& data, bool other_dataset) {
+        return TrainedAvatar(run, device, data, other_dataset);
       },
-      py::arg("run"), py::arg("device") = "cpu", py::arg("data") = "",
-      "Load a trained avatar from a run folder (sfgs train --out RUN); `data` points at its dataset if it moved");
+      py::arg("run"), py::arg("device") = "cpu", py::arg("data") = "", py::arg("other_dataset") = false,
+      "Load a trained avatar from a run folder (sfgs train --out RUN); `data` points at its dataset if it moved "
+      "(another dataset than the one it trained on only with other_dataset=True)");
   m.def(
       "read_motion",
       [](const std::string& path, double fps) {

@@ -393,10 +393,10 @@ if wants train; then
   cp "$scene/run/curve.png" "$out/" 2>/dev/null
   run train-eval 200 "$build/sfgs" eval --run "$scene/run" --data "$scene/data" --device cuda --save-images --force
   tail -n 4 "$out/train-eval.log"
-  cp "$scene/run/metrics.json" "$out/" 2>/dev/null
+  cp "$scene/run/metrics_test.json" "$out/" 2>/dev/null
   run train-render 120 "$build/sfgs" render --run "$scene/run" --out "$scene/render" --frames 96 --device cuda --force
   tail -n 2 "$out/train-render.log"
-  mkdir -p "$out/renders" && cp "$scene"/run/eval_images/*.png "$out/renders/" 2>/dev/null
+  mkdir -p "$out/renders" && cp "$scene"/run/eval_images_test/*.png "$out/renders/" 2>/dev/null
   cp "$scene/render/frame_0000.png" "$scene/render/frame_0048.png" "$scene/render/render.mp4" "$out/renders/" 2>/dev/null
 fi
 
@@ -531,17 +531,22 @@ if wants novel; then
         for split in test val; do
           run "eval-$name-$scene-$split" 200 "$binary" eval --run "$novel/runs/$name-$scene" --split "$split" \
             --device cuda --save-images --force &&
-            cp "$novel/runs/$name-$scene/metrics.json" "$out/metrics-$name-$scene-$split.json"
+            # An earlier version (the baseline) wrote metrics.json for every split.
+            { cp "$novel/runs/$name-$scene/metrics_$split.json" "$out/metrics-$name-$scene-$split.json" 2>/dev/null ||
+              cp "$novel/runs/$name-$scene/metrics.json" "$out/metrics-$name-$scene-$split.json"; }
         done
         mkdir -p "$out/renders-$name-$scene"
         for frame in 000009 000079 000130 000190 000220 000270; do
-          cp "$novel/runs/$name-$scene/eval_images/$frame.png" "$out/renders-$name-$scene/" 2>/dev/null
+          for images in eval_images_test eval_images_val eval_images; do
+            cp "$novel/runs/$name-$scene/$images/$frame.png" "$out/renders-$name-$scene/" 2>/dev/null
+          done
         done
         if [ "$name" != baseline ]; then
           for ablation in ${SFGS_DEVICE_NOVEL_ABLATIONS-no-observation-prior}; do
             run "eval-$name-$scene-test-$ablation" 200 "$binary" eval --run "$novel/runs/$name-$scene" \
               --device cuda "--$ablation" --force &&
-              cp "$novel/runs/$name-$scene/metrics.json" "$out/metrics-$name-$scene-test-$ablation.json"
+              cp "$novel/runs/$name-$scene/metrics_test_${ablation//-/_}.json" \
+                "$out/metrics-$name-$scene-test-$ablation.json"
           done
         fi
         cp "$novel/runs/$name-$scene/log.jsonl" "$out/log-$name-$scene.jsonl")

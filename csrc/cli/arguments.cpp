@@ -8,6 +8,7 @@
 namespace sfgs::cli {
 
 Arguments::Arguments(const std::vector<std::string>& args, const std::set<std::string>& flags) {
+  for (const std::string& a : args) line_ += (line_.empty() ? "" : " ") + a;
   for (size_t i = 0; i < args.size(); ++i) {
     const std::string& a = args[i];
     if (a.rfind("--", 0) != 0 || a.size() == 2)

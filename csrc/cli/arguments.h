@@ -25,11 +25,14 @@ class Arguments {
   bool has(const std::string& name) const { return values_.count(name) > 0 || flags_.count(name) > 0; }
   // Throws naming every option that was given but never read.
   void finish() const;
+  // The options as given, joined by spaces (what a result records of the command that wrote it).
+  const std::string& line() const { return line_; }
 
  private:
   std::map<std::string, std::string> values_;
   std::set<std::string> flags_;
   std::set<std::string> read_;
+  std::string line_;
 };
 
 }  // namespace sfgs::cli

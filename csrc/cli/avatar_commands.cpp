@@ -26,6 +26,7 @@
 #include "train/evaluate.h"
 #include "train/pose_fit.h"
 #include "train/pose_refinement.h"
+#include "train/results.h"
 #include "train/run_folder.h"
 
 namespace sfgs::cli {
@@ -56,10 +57,6 @@ data::Split parse_split(const std::string& s) {
   if (s == "val") return data::Split::kVal;
   if (s == "test") return data::Split::kTest;
   throw std::invalid_argument("--split expects train, val or test, got '" + s + "'");
-}
-
-void write_text_atomically(const std::string& path, const std::string& text) {
-  write_file_atomically(path, std::vector<unsigned char>(text.begin(), text.end()), true);
 }
 
 }  // namespace
@@ -130,6 +127,7 @@ int run_eval(Arguments& args) {
   const bool force = args.flag("force");
   const bool without_prior = args.flag("no-observation-prior");
   const bool fit_poses = args.flag("fit-test-poses");
+  const bool other_dataset = args.flag("other-dataset");
   train::PoseFitOptions fit;
   fit.iterations = args.integer("fit-iterations", fit.iterations, 1, kMaxIterations);
   fit.keypoint_weight = args.real("fit-keypoint-weight", fit.keypoint_weight, 0, kMaxLossWeight);
@@ -137,19 +135,38 @@ int run_eval(Arguments& args) {
   args.finish();
   const FolderLock lock(run.path, "eval");
   remove_stale_temporaries(run.path);
+  // Taken before the checkpoint is read, and again before the result is written: a training that replaces the
+  // checkpoint meanwhile cannot leave the old model's metrics beside the new checkpoint.
+  train::ResultOrigin origin;
+  if (fs::exists(run.checkpoint_file())) origin.checkpoint_crc32 = train::checkpoint_digest(run.checkpoint_file());
   train::TrainedAvatar t = train::load_trained_avatar(run, device);
   if (without_prior) t.avatar->set_observation(at::Tensor());  // every Gaussian trusted (the ablation)
-  const data::Dataset dataset = train::read_run_dataset(t, data_folder);
+  const data::Dataset dataset = train::read_run_dataset(t, data_folder, &origin.own_dataset);
+  origin.split = split;
+  origin.variant = without_prior ? "no_observation_prior" : "";
+  origin.dataset = train::absolute_dataset_path(dataset);
+  origin.dataset_fingerprint = dataset.fingerprint();
+  origin.checkpoint_iteration = t.iteration;
+  origin.command = "sfgs eval " + args.line();
+  TORCH_CHECK(origin.own_dataset || other_dataset, "--data '", data_folder, "' is not the dataset run '", run.path,
+              "' was trained on (fingerprint ", origin.dataset_fingerprint, ", the run's ", t.dataset_fingerprint,
+              "): pass --other-dataset to evaluate it there anyway (written to ", train::metrics_file_name(origin),
+              ", apart from the run's own results)");
   t.avatar->eval();
   t.avatar->cache_static_features();
-  const train::AvatarEvaluation e = train::evaluate_avatar(
-      dataset, split, t.avatar, options, save ? (fs::path(run.path) / "eval_images").string() : "", force);
-  write_text_atomically((fs::path(run.path) / "metrics.json").string(), evaluation_json(e).dump(1) + "\n");
+  const auto images = [&](const train::ResultOrigin& o) {
+    return save ? (fs::path(run.path) / train::images_folder_name(o)).string() : std::string();
+  };
+  const train::AvatarEvaluation e = train::evaluate_avatar(dataset, split, t.avatar, options, images(origin), force);
+  const std::string written = train::write_result(run, origin, evaluation_json(e));
   std::printf("sfgs eval: %s\n  %s\n  render %.2f ms a frame (median; avatar + rasterisation; the first frame "
-              "%.1f ms%s); metrics.json in %s\n%s",
+              "%.1f ms%s); %s\n%s",
               dataset.source.c_str(), metrics::to_string(e.summary).c_str(), e.render_milliseconds,
               e.first_render_milliseconds, t.avatar->part_labels().is_cuda() ? ", recording the CUDA graph" : "",
-              run.path.c_str(), group_lines(e).c_str());
+              written.c_str(), group_lines(e).c_str());
+  for (const std::string& stale : train::stale_results(run))
+    std::printf("  note: %s in the run measured another checkpoint than its current one (stale); evaluate again to "
+                "replace it\n", stale.c_str());
   if (!fit_poses) return 0;
   // The NeuMan protocol's test-time pose fitting, reported beside the plain protocol, never instead of it.
   std::printf("sfgs eval: fitting each frame's pose to its image (%lld loss evaluations, the avatar frozen)\n",
@@ -167,15 +184,17 @@ int run_eval(Arguments& args) {
       anchored ? std::optional(train::body_keypoint_map(t.config.body.smplx)) : std::nullopt;
   const data::Dataset fitted =
       train::fit_poses(dataset, split, t.avatar, fit, keypoint_map ? &*keypoint_map : nullptr, true);
-  const train::AvatarEvaluation f = train::evaluate_avatar(
-      fitted, split, t.avatar, options, save ? (fs::path(run.path) / "eval_images_fitted_poses").string() : "", force);
+  train::ResultOrigin fitted_origin = origin;
+  fitted_origin.variant += (fitted_origin.variant.empty() ? "" : "_") + std::string("fitted_poses");
+  const train::AvatarEvaluation f =
+      train::evaluate_avatar(fitted, split, t.avatar, options, images(fitted_origin), force);
   nlohmann::json fitted_json = evaluation_json(f);
   fitted_json["pose_fitting"] = {{"iterations", fit.iterations},
                                  {"keypoint_weight", anchored ? fit.keypoint_weight : 0.0},
                                  {"frames_with_keypoints", anchored ? with_keypoints : 0}};
-  write_text_atomically((fs::path(run.path) / "metrics_fitted_poses.json").string(), fitted_json.dump(1) + "\n");
-  std::printf("sfgs eval with fitted poses: %s\n  %s\n  metrics_fitted_poses.json in %s\n%s", dataset.source.c_str(),
-              metrics::to_string(f.summary).c_str(), run.path.c_str(), group_lines(f).c_str());
+  const std::string fitted_written = train::write_result(run, fitted_origin, fitted_json);
+  std::printf("sfgs eval with fitted poses: %s\n  %s\n  %s\n%s", dataset.source.c_str(),
+              metrics::to_string(f.summary).c_str(), fitted_written.c_str(), group_lines(f).c_str());
   return 0;
 }
 

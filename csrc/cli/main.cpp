@@ -47,12 +47,17 @@ commands:
            on imperfect fits; docs/training.md)
            --resume: continue RUN with its own config and dataset (--data, --config optional; only schedule and
            logging keys may change)
-  eval     evaluate a run on a split (ExAvatar/SFGS protocol): --run RUN  --data DATASET (the training one)
-           --split test|val|train (test)  --device cpu|cuda (the run's)  --eight-bit  --save-images  --force
-           --no-observation-prior (trust every Gaussian's learned colour and offsets: the ablation)
+  eval     evaluate a run on a split (ExAvatar/SFGS protocol), written to RUN/metrics_SPLIT.json with its
+           provenance (split, dataset fingerprint, checkpoint iteration and CRC-32, command, time); training on
+           removes results of the checkpoint it replaces: --run RUN  --data DATASET (the training one; moved)
+           --other-dataset: evaluate on another dataset than the run's (RUN/metrics_SPLIT_FINGERPRINT.json)
+           --split test|val|train (test)  --device cpu|cuda (the run's)  --eight-bit  --force
+           --save-images (RUN/eval_images_SPLIT/)
+           --no-observation-prior (trust every Gaussian's learned colour and offsets: the ablation;
+           metrics_SPLIT_no_observation_prior.json)
            --fit-test-poses: also fit each frame's pose to its image with the avatar frozen (NeuMan protocol;
            coarse to fine, never ending worse than the given fit on its loss), reported separately
-           (metrics_fitted_poses.json)  --fit-iterations N (300 loss evaluations)
+           (metrics_SPLIT_fitted_poses.json)  --fit-iterations N (300 loss evaluations)
            --fit-keypoint-weight W (1; 0: the image alone) of the frames' keypoints_whole_body/ detections
   render   novel poses to PNG frames and an MP4: --run RUN --out DIR  --frames N (48; a file: all of it)
            --motion MOTION|DATASET|FILE.npz|FOLDER (overhead; motions: sway walk wave overhead bend guard turn
@@ -103,7 +108,7 @@ int main(int argc, char** argv) {
       {"synth", {sfgs::cli::run_synth, {"force"}}},
       {"fit", {sfgs::cli::run_fit, {"betas-from-data", "start-from-data", "no-masks", "force", "quiet"}}},
       {"train", {sfgs::cli::run_train, {"resume", "force", "quiet"}}},
-      {"eval", {sfgs::cli::run_eval, {"eight-bit", "save-images", "no-observation-prior", "fit-test-poses", "force"}}},
+      {"eval", {sfgs::cli::run_eval, {"eight-bit", "save-images", "no-observation-prior", "fit-test-poses", "other-dataset", "force"}}},
       {"render", {sfgs::cli::run_render, {"force"}}},
       {"export", {sfgs::cli::run_export, {"force"}}},
       {"ablate", {sfgs::cli::run_ablate, {"force"}}},

@@ -19,6 +19,7 @@
 #include "data/synthetic.h"
 #include "train/checkpoint.h"
 #include "train/evaluate.h"
+#include "train/results.h"
 #include "train/trainer.h"
 
 namespace sfgs::cli {
@@ -71,26 +72,35 @@ void finish_training(const train::TrainSummary& s, int64_t scheduled) {
   std::printf("  run-time versus error: %s%s%s\n", csv.c_str(), plotted ? ", " : "", plotted ? png.c_str() : "");
 }
 
-// Evaluates the run on the test split (metrics.json) and, when the dataset has one, on the validation split:
-// with a novel-motion test split, validation is the interleaved (replay) number beside the novel-pose one.
+// Evaluates the run on the test split (metrics_test.json) and, when the dataset has one, on the validation split
+// (metrics_val.json): with a novel-motion test split, validation is the interleaved (replay) number beside the
+// novel-pose one.
 struct RunEvaluation {
   train::AvatarEvaluation test;
   std::optional<train::AvatarEvaluation> val;
 };
 
 RunEvaluation evaluate_run(const train::RunFolder& run, const data::Dataset& dataset, const std::string& device,
-                           const std::string& images, bool overwrite) {
+                           const std::string& images, bool overwrite, const std::string& command) {
   const FolderLock lock(run.path, "eval");
+  train::ResultOrigin origin;
+  origin.checkpoint_crc32 = train::checkpoint_digest(run.checkpoint_file());
   train::TrainedAvatar t = train::load_trained_avatar(run, device == "cuda" ? at::kCUDA : at::kCPU);
+  origin.dataset = train::absolute_dataset_path(dataset);
+  origin.dataset_fingerprint = dataset.fingerprint();
+  origin.checkpoint_iteration = t.iteration;
+  origin.command = command;
   t.avatar->eval();
   t.avatar->cache_static_features();
   RunEvaluation e;
   e.test = train::evaluate_avatar(dataset, data::Split::kTest, t.avatar, metrics::EvaluationOptions{}, images,
                                   overwrite);
-  if (!dataset.split(data::Split::kVal).empty())
+  train::write_result(run, origin, evaluation_json(e.test));
+  if (!dataset.split(data::Split::kVal).empty()) {
     e.val = train::evaluate_avatar(dataset, data::Split::kVal, t.avatar, metrics::EvaluationOptions{}, "", overwrite);
-  const std::string text = evaluation_json(e.test).dump(1) + "\n";
-  write_file_atomically((fs::path(run.path) / "metrics.json").string(), std::vector<unsigned char>(text.begin(), text.end()), true);
+    origin.split = data::Split::kVal;
+    train::write_result(run, origin, evaluation_json(*e.val));
+  }
   return e;
 }
 
@@ -191,7 +201,7 @@ int run_ablate(Arguments& args) {
     std::printf("sfgs ablate: %s\n", name.c_str());
     const train::TrainSummary s = train::train_avatar(dataset, config, run, options);
     finish_training(s, config.schedule.iterations);
-    const RunEvaluation both = evaluate_run(run, dataset, config.device, "", force);
+    const RunEvaluation both = evaluate_run(run, dataset, config.device, "", force, "sfgs ablate " + args.line());
     const train::AvatarEvaluation& e = both.test;
     char row[256];
     std::snprintf(row, sizeof(row), "| %s | %.2f | %.4f | %s | %s | %.0f |\n", name.c_str(), e.summary.psnr,
@@ -245,7 +255,8 @@ int run_demo(Arguments& args) {
   finish_training(train::train_avatar(dataset, config, run, options), config.schedule.iterations);
   std::printf("sfgs demo 3/4: evaluating the new motions (test) and the held-out frames of the training motions "
               "(val), ExAvatar/SFGS protocol\n");
-  const RunEvaluation e = evaluate_run(run, dataset, config.device, (fs::path(out) / "test_renders").string(), true);
+  const RunEvaluation e =
+      evaluate_run(run, dataset, config.device, (fs::path(out) / "test_renders").string(), true, "sfgs demo " + args.line());
   std::printf("  new motions:      %s\n%s", metrics::to_string(e.test.summary).c_str(), group_lines(e.test).c_str());
   std::printf("  held-out frames:  %s\n", metrics::to_string(e.val->summary).c_str());
   std::printf("sfgs demo 4/4: rendering a novel-view, novel-pose video\n");

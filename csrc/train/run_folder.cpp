@@ -78,7 +78,7 @@ TrainedAvatar load_trained_avatar(const RunFolder& run, at::Device device) {
   return t;
 }
 
-data::Dataset read_run_dataset(const TrainedAvatar& trained, const std::string& folder) {
+data::Dataset read_run_dataset(const TrainedAvatar& trained, const std::string& folder, bool* trained_on) {
   TORCH_CHECK(!folder.empty() || fs::is_directory(trained.dataset), "the run was trained on dataset '", trained.dataset,
               "', which is not there (moved, deleted, or a relative path from another working directory); give ",
               "the dataset's folder (--data; in Python, load_avatar(run, data=...))");
@@ -90,8 +90,9 @@ data::Dataset read_run_dataset(const TrainedAvatar& trained, const std::string& 
     apply_refined_fits(started, trained.start_fits);
     if (started.fingerprint() == trained.dataset_fingerprint) dataset = std::move(started);
   }
-  if (!trained.refined_fits.empty() && dataset.fingerprint() == trained.dataset_fingerprint)
-    apply_refined_fits(dataset, trained.refined_fits);
+  const bool own = trained.dataset_fingerprint.empty() || dataset.fingerprint() == trained.dataset_fingerprint;
+  if (trained_on) *trained_on = own;
+  if (!trained.refined_fits.empty() && own) apply_refined_fits(dataset, trained.refined_fits);
   return dataset;
 }
 

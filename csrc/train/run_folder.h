@@ -58,7 +58,9 @@ TrainedAvatar load_trained_avatar(const RunFolder& run, at::Device device);
 // trained on; when that has moved, the error says so and how to point at it. The training frames of the dataset it
 // was trained on (wherever it lies: the same fingerprint as read, or with the run's start fits applied) take the fits
 // the run trained them with: its refined fits when it refined its poses, else its start fits when it had them.
-data::Dataset read_run_dataset(const TrainedAvatar& trained, const std::string& folder);
+// `trained_on`, when given, is set to whether the dataset is that one (a run of the first format records no
+// fingerprint: its dataset counts as its own).
+data::Dataset read_run_dataset(const TrainedAvatar& trained, const std::string& folder, bool* trained_on = nullptr);
 
 // The folder a dataset was read from, absolute and normalised: what a run stores so that it can be used from any
 // working directory.

@@ -19,6 +19,7 @@
 #include "common/atomic_file.h"
 #include "common/folder_lock.h"
 #include "train/pose_refinement.h"
+#include "train/results.h"
 #include "train/training_session.h"
 
 namespace sfgs::train {
@@ -322,6 +323,8 @@ TrainSummary train_avatar(const data::Dataset& dataset, const TrainConfig& confi
               "run folder '", run.path, "' already holds a checkpoint",
               fs::exists(run.checkpoint_file()) ? "" : " (of its round 1)",
               ": pass --resume to continue it or --force to start afresh");
+  // A new run replaces what commands derived from the older one's checkpoint (its evaluations).
+  if (!options.resume) remove_derived_outputs(run);
   // A resume of several rounds, or of one round where a run of several paused before its last.
   if (options.resume && (rounds > 1 || (fs::is_directory(first_round.path) && !fs::exists(run.checkpoint_file()))))
     check_resumed_rounds(config, run, options);
@@ -355,6 +358,8 @@ TrainSummary train_avatar(const data::Dataset& dataset, const TrainConfig& confi
   const ClaimedRounds older_rounds = !options.resume && rounds == 1 ? claim_rounds_from(run, 1) : ClaimedRounds();
   TrainSummary summary = train_round(dataset, config, run, last_round, (rounds - 1) * config.schedule.iterations);
   older_rounds.remove();
+  // Evaluations of the checkpoint this call replaced no longer describe the run.
+  remove_stale_results(run);
   return in_round(std::move(summary), rounds, rounds, run);
 }
 

@@ -46,7 +46,7 @@ def test_loads_the_run_and_its_dataset(run):
 
 def test_eval_scores_only_the_regions_its_frames_showed(run):
     # At 40 x 32 pixels some regions (the hands) are too small in every frame: they get no score, not a PSNR of 0.
-    with open(os.path.join(run, "metrics.json")) as f:
+    with open(os.path.join(run, "metrics_test.json")) as f:
         regions = json.load(f)["regions"]
     assert regions, "the synthetic dataset has ground-truth geometry"
     assert any(r["frames"] == 0 for r in regions), "a region no frame shows"
@@ -79,7 +79,7 @@ def test_render_matches_the_evaluation_renders(run):
     """A test frame rendered through Python equals `sfgs eval --save-images`'s PNG up to 8-bit rounding."""
     avatar = sfgs.load_avatar(run)
     avatar.set_cached(True)
-    folder = os.path.join(run, "eval_images")
+    folder = os.path.join(run, "eval_images_test")
     images = sorted(f for f in os.listdir(folder) if f.endswith(".png"))
     assert len(images) == 1, "sfgs eval --save-images should write the one test frame"
     frame = avatar.frame(9)

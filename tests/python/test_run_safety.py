@@ -228,3 +228,46 @@ def test_python_arguments_of_the_wrong_type_or_value_are_our_errors(data, traine
     with pytest.raises(TypeError, match=r"render\(means\): expected a torch.Tensor, got list"):
         sfgs.render([0.0] * 3, s["opacities"], s["features"], s["background"], s["world_to_camera"], s["fx"],
                     s["fy"], s["cx"], s["cy"], 16, 12, scales=s["scales"], rotations=s["rotations"])
+
+
+def test_results_carry_their_provenance_and_never_outlive_their_checkpoint(tmp_path, data):
+    run = str(tmp_path / "run")
+    tiny = config(tmp_path, 2)
+    assert sfgs_run("train", "--data", data, "--out", run, "--config", tiny, "--quiet").returncode == 0
+    for split in ("test", "val"):
+        result = sfgs_run("eval", "--run", run, "--split", split, "--save-images")
+        assert result.returncode == 0, result.stderr
+    metrics = {split: json.load(open(os.path.join(run, f"metrics_{split}.json"))) for split in ("test", "val")}
+    for split, m in metrics.items():
+        p = m["provenance"]
+        assert p["split"] == split and p["own_dataset"] and p["checkpoint_iteration"] == 2, p
+        assert len(p["checkpoint_crc32"]) == 8 and p["dataset_fingerprint"] and p["written_at"].endswith("Z"), p
+        assert p["command"].startswith("sfgs eval --run") and f"--split {split}" in p["command"], p
+    assert os.path.isdir(os.path.join(run, "eval_images_test"))
+
+    # Another dataset: refused unless asked for, and then kept apart from the run's own results.
+    other = str(tmp_path / "other")
+    subprocess.run([SFGS, "synth", "--out", other, "--frames", "10", "--width", "40", "--height", "32", "--seed", "9"],
+                   check=True, capture_output=True)
+    result = sfgs_run("eval", "--run", run, "--data", other)
+    assert result.returncode == 1 and "--other-dataset" in result.stderr and "is not the dataset" in result.stderr
+    assert sfgs_run("eval", "--run", run, "--data", other, "--other-dataset").returncode == 0
+    foreign = [f for f in os.listdir(run) if f.startswith("metrics_test_")]
+    assert len(foreign) == 1 and json.load(open(os.path.join(run, foreign[0])))["provenance"]["own_dataset"] is False
+    with pytest.raises(RuntimeError, match="other_dataset=True"):
+        sfgs.load_avatar(run, data=other)
+    assert sfgs.load_avatar(run, data=other, other_dataset=True).frame_count == 10
+
+    # A file the user keeps in an images folder survives every removal.
+    keep = os.path.join(run, "eval_images_test", "notes.txt")
+    open(keep, "w").write("mine")
+    # Training on replaces the checkpoint: the results it described go, with their images.
+    result = sfgs_run("train", "--out", run, "--resume", "--iterations", "3", "--quiet")
+    assert result.returncode == 0, result.stderr
+    assert not [f for f in os.listdir(run) if f.startswith("metrics")]
+    assert os.listdir(os.path.join(run, "eval_images_test")) == ["notes.txt"]
+    # A fresh run on the folder clears the derived outputs (and only them).
+    assert sfgs_run("eval", "--run", run, "--split", "val").returncode == 0
+    result = sfgs_run("train", "--data", data, "--out", run, "--config", tiny, "--quiet", "--force")
+    assert result.returncode == 0, result.stderr
+    assert not [f for f in os.listdir(run) if f.startswith("metrics")] and os.path.isfile(keep)
