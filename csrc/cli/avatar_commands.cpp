@@ -5,7 +5,10 @@
 #include <cstdio>
 #include <algorithm>
 #include <filesystem>
+#include <fstream>
 #include <optional>
+#include <regex>
+#include <set>
 #include <stdexcept>
 #include <thread>
 #include <vector>
@@ -205,6 +208,7 @@ class WrittenFiles {
  public:
   void add(const std::string& path) { paths_.push_back(path); }
   size_t size() const { return paths_.size(); }
+  const std::vector<std::string>& paths() const { return paths_; }
   void remove_all() {
     for (const std::string& p : paths_) std::remove(p.c_str());
     paths_.clear();
@@ -213,6 +217,49 @@ class WrittenFiles {
  private:
   std::vector<std::string> paths_;
 };
+
+// What a render keeps beside its frames: the list of files it wrote, so that a later --force replaces exactly those.
+constexpr const char* kRenderManifest = "render.json";
+constexpr const char* kRenderManifestFormat = "sfgs-render";
+
+// The files an earlier render left in `folder` (from its manifest; before renders kept one, the frames and video by
+// their names), checked before anything is written: a folder holding an earlier render needs --force, and any other
+// file (one the user put there) is an error naming it, --force or not. Lock files and temporaries do not count.
+std::vector<std::string> earlier_render_files(const std::string& folder, bool force) {
+  std::vector<std::string> earlier;
+  if (!fs::is_directory(folder)) return earlier;
+  std::set<std::string> listed;
+  const fs::path manifest = fs::path(folder) / kRenderManifest;
+  if (fs::exists(manifest)) {
+    nlohmann::json j;
+    try {
+      std::ifstream in(manifest);
+      j = nlohmann::json::parse(in);
+    } catch (const std::exception&) {
+    }
+    TORCH_CHECK(j.is_object() && j.value("format", "") == kRenderManifestFormat && j.contains("written"),
+                "render: '", manifest.string(), "' is not a manifest sfgs wrote: render into another folder");
+    for (const auto& name : j.at("written")) listed.insert(name.get<std::string>());
+  }
+  static const std::regex own_name(R"(frame_[0-9]{4,}\.png|render\.mp4)");
+  static const std::regex not_counted(R"(\.sfgs-.*\.lock|.+\.tmp-[0-9]+.*)");
+  std::vector<std::string> foreign;
+  for (const fs::directory_entry& e : fs::directory_iterator(folder)) {
+    const std::string name = e.path().filename().string();
+    if (std::regex_match(name, not_counted)) continue;
+    if (name == kRenderManifest || listed.count(name) || (listed.empty() && std::regex_match(name, own_name)))
+      earlier.push_back(name);
+    else
+      foreign.push_back(name);
+  }
+  std::sort(foreign.begin(), foreign.end());
+  TORCH_CHECK(foreign.empty(), "render: '", folder, "' holds '", foreign.front(), "'",
+              foreign.size() > 1 ? " and " + std::to_string(foreign.size() - 1) + " more file(s)" : std::string(),
+              " that no sfgs render wrote: render into another folder (nothing there was changed)");
+  TORCH_CHECK(earlier.empty() || force, "render: '", folder, "' holds an earlier render (", earlier.size(),
+              " files): pass --force to replace it");
+  return earlier;
+}
 
 struct RenderRequest {
   std::string out, motion, data;
@@ -332,6 +379,7 @@ int run_render(Arguments& args) {
   train::TrainedAvatar t = train::load_trained_avatar(run, device);
   const FolderLock lock(request.out, "render");
   remove_stale_temporaries(request.out);
+  const std::vector<std::string> earlier = earlier_render_files(request.out, request.force);
   WrittenFiles written;
   bool wrote_video = false;
   RenderPace pace;
@@ -349,6 +397,21 @@ int run_render(Arguments& args) {
   } catch (const std::exception& e) {
     throw stopped(e.what());
   }
+  // The manifest lists what this render wrote; what the earlier one wrote beyond that goes (its extra frames).
+  std::set<std::string> names;
+  for (const std::string& path : written.paths()) names.insert(fs::path(path).filename().string());
+  if (wrote_video) names.insert("render.mp4");
+  const nlohmann::json manifest = {{"format", kRenderManifestFormat},
+                                   {"run", run.path},
+                                   {"motion", request.motion},
+                                   {"frames", request.frames},
+                                   {"command", "sfgs render " + args.line()},
+                                   {"written", names}};
+  const std::string text = manifest.dump(1) + "\n";
+  write_file_atomically((fs::path(request.out) / kRenderManifest).string(),
+                        std::vector<unsigned char>(text.begin(), text.end()), true);
+  for (const std::string& name : earlier)
+    if (name != kRenderManifest && !names.count(name)) fs::remove(fs::path(request.out) / name);
   std::printf("sfgs render: %lld frames to %s (%s) in %.2f s\n"
               "  render %.1f frames/s (median frame %.2f ms: avatar + rasterisation%s; the first frame %.1f ms)\n"
               "  encode %.1f frames/s (%d PNG threads%s, beside the render)\n",

@@ -64,7 +64,9 @@ commands:
            sit; FILE.npz: AMASS SMPL-X or SMPL-H; FOLDER: ExAvatar smplx_params_smoothed; docs/motions.md)  --fps F (24)
            --camera orbit|fixed|follow (the dataset's camera orbiting; a motion file: follow)
            --distance M (2.8)  --height M (0)  --size WxH (the dataset's)
-           --data DATASET (the training one)  --device cpu|cuda (the run's)  --force
+           --data DATASET (the training one)  --device cpu|cuda (the run's)
+           --force: replace the earlier render in DIR (the files its render.json lists; a file no render
+           wrote is an error naming it, --force or not)
   export   the avatar's Gaussians: --run RUN --out FILE.ply (3DGS) | FILE.splat (web viewers)  --frame K (canonical)
            --data DATASET (the training one, for --frame)  --force
            or the animated avatar for web browsers (DIR/index.html, WebGL2; docs/web_viewer.md): --run RUN --web DIR

@@ -127,6 +127,25 @@ def test_a_render_that_runs_out_of_space_fails_and_leaves_nothing(tmp_path, trai
     assert sorted(os.listdir(out)) == [".sfgs-render.lock"]
 
 
+def test_render_force_replaces_exactly_the_earlier_render(tmp_path, trained):
+    out = str(tmp_path / "video")
+    assert sfgs_run("render", "--run", trained, "--out", out, "--frames", "6").returncode == 0
+    frames = lambda: sorted(f for f in os.listdir(out) if f.startswith("frame_"))
+    assert len(frames()) == 6
+    manifest = json.load(open(os.path.join(out, "render.json")))
+    assert manifest["format"] == "sfgs-render" and manifest["frames"] == 6 and set(frames()) <= set(manifest["written"])
+    result = sfgs_run("render", "--run", trained, "--out", out, "--frames", "2")
+    assert result.returncode == 1 and "pass --force to replace it" in result.stderr
+    assert sfgs_run("render", "--run", trained, "--out", out, "--frames", "2", "--force").returncode == 0
+    assert frames() == ["frame_0000.png", "frame_0001.png"], "the earlier render's extra frames go with it"
+    # A file the user put in the folder: refused by name, --force or not, and nothing changes.
+    open(os.path.join(out, "thesis.tex"), "w").write("mine")
+    before = sorted(os.listdir(out))
+    result = sfgs_run("render", "--run", trained, "--out", out, "--frames", "3", "--force")
+    assert result.returncode == 1 and "'thesis.tex'" in result.stderr and "no sfgs render wrote" in result.stderr
+    assert sorted(os.listdir(out)) == before
+
+
 def test_version_and_per_command_help():
     result = sfgs_run("--version")
     assert result.returncode == 0 and result.stdout.startswith("sfgs 0.") and "LibTorch" in result.stdout
