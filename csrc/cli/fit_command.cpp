@@ -65,6 +65,8 @@ int run_fit(Arguments& args) {
   for (size_t i = 0; i < r.stages.size(); ++i)
     std::printf("%s%s %.1f s", i ? ", " : "", r.stages[i].name.c_str(), r.stages[i].seconds);
   std::printf("); wrote %s/smplx_optimized\n", out.c_str());
+  if (r.trainable_dataset)
+    std::printf("sfgs fit: train on these fits with: sfgs train --data %s --out RUN\n", out.c_str());
   if (r.accuracy)
     std::printf(
         "sfgs fit: against %s (%lld frames): MPJPE %.1f mm (absolute %.1f, PA %.1f), hands %.1f mm, "

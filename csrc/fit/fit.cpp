@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <optional>
 #include <nlohmann/json.hpp>
 
 #include "body/procedural_body.h"
@@ -63,6 +64,23 @@ nlohmann::json report_json(const FitReport& r, const FitOptions& o) {
   return j;
 }
 
+// Makes `out` a NeuMan-layout dataset of the fits: every entry of the video folder but its own fits (and the fit's
+// log and report) appears in `out` as a link to it, so `sfgs train --data OUT` reads the video with these fits.
+// Entries `out` already holds stay as they are. Returns whether `out` is such a dataset now.
+bool link_video_beside_fits(const std::string& data, const std::string& out) {
+  const fs::path video = fs::absolute(data).lexically_normal();
+  if (!fs::exists(video / "sparse" / "images.txt")) return false;  // not a NeuMan folder: nothing train could read
+  for (const fs::directory_entry& e : fs::directory_iterator(video)) {
+    const std::string name = e.path().filename().string();
+    if (name == kFitsFolder || name == kLogFile || name == kReportFile) continue;
+    const fs::path link = fs::path(out) / name;
+    if (fs::exists(fs::symlink_status(link))) continue;
+    if (e.is_directory()) fs::create_directory_symlink(e.path(), link);
+    else fs::create_symlink(e.path(), link);
+  }
+  return true;
+}
+
 // Sets LibTorch's intra-op threads for the scope and restores them after.
 class IntraOpThreads {
  public:
@@ -87,6 +105,16 @@ FitReport run_fit(const FitOptions& options) {
   TORCH_CHECK(options.overwrite || !fs::exists(fits), "sfgs fit: '", fits.string(),
               "' exists; pass --force to replace it, or --out another folder");
   const FitInput input = read_fit_input(options.data, options.focal);
+  // The exact fits are read, and checked against the frames, before any work: a bad --truth fails in seconds, and
+  // before the fits are written (a rerun then needs no --force).
+  const std::optional<ReferenceFits> reference = find_reference_fits(options.data, options.truth);
+  if (reference) {
+    int64_t shared = 0;
+    for (const FitFrame& f : input.frames) shared += int64_t(reference->poses.count(f.number));
+    TORCH_CHECK(shared > 0, options.truth.empty() ? "the exact fits '" : "--truth: the exact fits '",
+                reference->source, "' share no frame with the ", input.frames.size(), " frames of '", options.data,
+                "'");
+  }
   const body::SmplxModelData model = body::smplx_model_or_procedural(options.body_model);
   const body::WholeBodyKeypointMap keypoint_map = body::wholebody_keypoint_map(model, options.body_model);
   fs::create_directories(out);
@@ -125,14 +153,15 @@ FitReport run_fit(const FitOptions& options) {
   std::map<int64_t, body::SmplxPose> poses;
   for (size_t i = 0; i < input.frames.size(); ++i) poses[input.frames[i].number] = result.poses.frame(int64_t(i));
   data::write_smplx_parameter_folder(fits.string(), result.betas, poses, {}, options.overwrite);
+  const bool separate = fs::absolute(out).lexically_normal() != fs::absolute(options.data).lexically_normal();
 
   FitReport report;
   report.frames = int64_t(input.frames.size());
   report.camera_source = input.camera_source;
   report.silhouette = result.silhouette;
   report.stages = result.stages;
-  if (const auto reference = find_reference_fits(options.data, options.truth))
-    report.accuracy = measure_accuracy(model, poses, result.betas, *reference);
+  report.trainable_dataset = !separate || link_video_beside_fits(options.data, out);
+  if (reference) report.accuracy = measure_accuracy(model, poses, result.betas, *reference);
   report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   const nlohmann::json j = report_json(report, options);
   log << nlohmann::json{{"report", j}}.dump() << "\n";

@@ -25,7 +25,9 @@ struct FitStageLengths {
 
 struct FitOptions {
   std::string data;            // the video folder
-  std::string out;             // where smplx_optimized/, fit_log.jsonl and fit_report.json go; empty: `data`
+  std::string out;             // where smplx_optimized/, fit_log.jsonl and fit_report.json go; empty: `data`.
+                               // Another folder than a NeuMan-layout `data` becomes a dataset of the fits: the
+                               // video's other entries are linked into it, so `sfgs train --data OUT` reads it
   std::string body_model;      // SMPL-X-layout .npz; empty: the built-in procedural body
   std::string device = "cpu";  // cpu or cuda
   // LibTorch's intra-op threads for a CPU fit. Its tensors are small (a few hundred points per frame): more threads
@@ -70,6 +72,7 @@ struct FitReport {
   std::vector<FitStageSummary> stages;
   double seconds = 0;  // the whole fit, reading and writing included
   std::optional<FitAccuracy> accuracy;
+  bool trainable_dataset = false;  // the output folder is a dataset `sfgs train --data` reads with these fits
 };
 
 // Reads, fits, writes; errors name the file and what was expected. Progress goes to stdout unless quiet.

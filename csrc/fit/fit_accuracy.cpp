@@ -98,7 +98,12 @@ std::optional<ReferenceFits> find_reference_fits(const std::string& data, const 
     TORCH_CHECK(fs::is_directory(truth), "--truth '", truth,
                 "' is not a folder (expected shape_param.json and "
                 "smplx_params/<frame>.json in camera coordinates)");
-    return read_parameter_folder(truth);
+    try {
+      return read_parameter_folder(truth);
+    } catch (const c10::Error& e) {
+      TORCH_CHECK(false, "--truth '", truth, "': ", e.what_without_backtrace(),
+                  " (expected shape_param.json and smplx_params/<frame>.json in camera coordinates)");
+    }
   }
   const fs::path ground_truth = fs::path(data) / "ground_truth";
   if (fs::is_directory(ground_truth)) return read_parameter_folder(ground_truth.string());

@@ -11,12 +11,19 @@
 #include "data/dataset.h"
 #include "data/image_io.h"
 #include "data/json_values.h"
+#include "body/wholebody_keypoints.h"
 #include "data/keypoint_file.h"
 
 namespace sfgs::fit {
 namespace fs = std::filesystem;
 
 namespace {
+
+// A frame needs this many detected body keypoints (score > 0) for the fit to place the body at all: with fewer, the
+// depth and rotation are free and the fit lands metres off.
+constexpr int64_t kMinPlacingKeypoints = 4;
+constexpr int64_t kFramesNamedInErrors = 8;
+
 
 std::string padded(int64_t number, int digits) {
   char name[32];
@@ -153,11 +160,24 @@ FitInput read_fit_input(const std::string& folder, double focal) {
     TORCH_CHECK(frames.count(number), "sfgs fit: keypoint file '", path, "' names frame ", number, ", which ",
                 in.camera_source, " does not list");
   std::vector<at::Tensor> keypoints;
+  const body::KeypointRange body_keypoints = body::keypoint_range(body::KeypointGroup::kBody);
+  std::string unplaceable;  // frames with too few detected body keypoints, as "frame N (K)"
+  int64_t unplaceable_count = 0;
   for (auto& [number, f] : frames) {
     if (focal > 0) f.fx = f.fy = focal;
     keypoints.push_back(data::read_wholebody_keypoints(keypoint_files.at(number)));
+    const int64_t detected =
+        (keypoints.back().narrow(0, body_keypoints.begin, body_keypoints.size()).select(1, 2) > 0).sum().item<int64_t>();
+    if (detected < kMinPlacingKeypoints && unplaceable_count++ < kFramesNamedInErrors)
+      unplaceable += (unplaceable.empty() ? "" : ", ") + ("frame " + std::to_string(number)) + " (" +
+                     std::to_string(detected) + ")";
     in.frames.push_back(f);
   }
+  TORCH_CHECK(unplaceable_count == 0, "sfgs fit: ", unplaceable_count, " of ", frames.size(), " frames of '", folder,
+              "' have fewer than ", kMinPlacingKeypoints, " of the ", body_keypoints.size(),
+              " body keypoints with a positive score, too few to place the body (", unplaceable,
+              unplaceable_count > kFramesNamedInErrors ? ", ..." : "",
+              "): run the detector on them again, or remove those frames (image, keypoint file and mask)");
   if (focal > 0) in.camera_source += " with the focal length given (" + std::to_string(focal) + " px)";
   in.keypoints = at::stack(keypoints);
   return in;

@@ -289,6 +289,13 @@ TEST(FitInput, MissingFramesAndCamerasAreClearErrors) {
   EXPECT_DOUBLE_EQ(estimated.frames[0].cx, 20);
   EXPECT_DOUBLE_EQ(estimated.frames[0].cy, 15);
   EXPECT_DOUBLE_EQ(read_fit_input(raw.str(), 123).frames[0].fy, 123);
+
+  // A frame whose detector found (almost) nothing cannot be placed: an error naming it, not a fit metres off.
+  testing::write_text(dir / "keypoints_whole_body/1.json", triples(body::kWholeBodyKeypointCount, "[10, 20, 0]"));
+  testing::expect_error_mentioning([&] { read_fit_input(dir.str(), 0); }, "frame 1 (0)");
+  testing::expect_error_mentioning([&] { read_fit_input(dir.str(), 0); }, "too few to place the body");
+  testing::write_text(dir / "keypoints_whole_body/1.json", triples(body::kWholeBodyKeypointCount, "[10, 20, -1]"));
+  testing::expect_error_mentioning([&] { read_fit_input(dir.str(), 0); }, "1 of 2 frames");
 }
 
 TEST(FitCommand, FitsASynthVideoIntoFilesTheNeumanReaderReads) {
@@ -326,6 +333,22 @@ TEST(FitCommand, FitsASynthVideoIntoFilesTheNeumanReaderReads) {
   EXPECT_GT(lines, 8);
   EXPECT_TRUE(nlohmann::json::parse(std::ifstream(dir / "fit/fit_report.json")).contains("accuracy"));
   testing::expect_error_mentioning([&] { run_fit(f); }, "exists; pass --force");
+  // A bad --truth fails before any fitting and before anything is written, naming the option.
+  FitOptions bad_truth = f;
+  bad_truth.out = dir / "fit_truth";
+  bad_truth.truth = dir / "no_such_folder";
+  testing::expect_error_mentioning([&] { run_fit(bad_truth); }, "--truth");
+  testing::write_text(dir / "empty_truth/readme.txt", "not fits");
+  bad_truth.truth = dir / "empty_truth";
+  testing::expect_error_mentioning([&] { run_fit(bad_truth); }, "--truth '");
+  EXPECT_FALSE(std::filesystem::exists(dir / "fit_truth/smplx_optimized"));
+  // The output folder is a NeuMan dataset of the fits (the video's other entries linked), as `sfgs train` reads it.
+  EXPECT_TRUE(report.trainable_dataset);
+  const data::Dataset fitted = data::read_dataset(dir / "fit");
+  EXPECT_EQ(fitted.format, "neuman");
+  ASSERT_EQ(fitted.size(), 4);
+  const body::SmplxPose written = data::read_exavatar_pose(dir / "fit/smplx_optimized/smplx_params/2.json");
+  EXPECT_TRUE(fitted.frames[2].pose.transl.equal(written.transl)) << "the fit's poses, not the video's own";
   // The fits in place of the video's own make a NeuMan folder `sfgs train` reads.
   testing::remove_folder_tree(dir / "video/smplx_optimized");
   std::filesystem::rename(dir / "fit/smplx_optimized", dir / "video/smplx_optimized");

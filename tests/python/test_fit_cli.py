@@ -100,7 +100,7 @@ def test_refinement_and_test_time_fitting_anchor_on_the_keypoints(video, tmp_pat
     fit = ["--split", "train", "--fit-test-poses", "--fit-iterations", "3"]
     result = sfgs_run("eval", "--run", run, *fit)
     assert result.returncode == 0, result.stderr
-    fitted = json.load(open(os.path.join(run, "metrics_test_fitted_poses.json")))
+    fitted = json.load(open(os.path.join(run, "metrics_train_fitted_poses.json")))
     frames = fitted["frames"]
     assert frames > 0 and f"anchored on whole-body keypoints: {frames} of {frames} frames" in result.stdout
     assert fitted["pose_fitting"] == {"iterations": 3, "keypoint_weight": 1.0, "frames_with_keypoints": frames}
