@@ -34,6 +34,10 @@ std::unique_ptr<torch::optim::Adam> make_optimizer(const model::Avatar& avatar, 
 
 namespace {
 
+// A CPU run whose first step says it will take longer than this gets a warning with the estimate and the ways to a
+// shorter one (the default config is sized for a GPU: on two cores it would run for days).
+constexpr double kLongCpuRunSeconds = 3600;
+
 torch::optim::AdamOptions& adam_options(torch::optim::Adam& optimizer, size_t group) {
   return static_cast<torch::optim::AdamOptions&>(optimizer.param_groups()[group].options());
 }
@@ -201,7 +205,10 @@ TrainSummary TrainingSession::run(int64_t start, int64_t end) {
       const StageScope stage("train: step");
       step(it);
     }
-    training_seconds_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - step_started).count();
+    const double step_seconds =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - step_started).count();
+    training_seconds_ += step_seconds;
+    if (it == start) warn_if_long(step_seconds, config_.schedule.iterations - start);
     finish_step(it + 1, end);
   }
   bar_->finish();
@@ -227,6 +234,22 @@ TrainSummary TrainingSession::run(int64_t start, int64_t end) {
   if (!std::isnan(summary_.validation_psnr)) entry["val_psnr"] = summary_.validation_psnr;
   log_->write(entry);
   return summary_;
+}
+
+void TrainingSession::warn_if_long(double first_step_seconds, int64_t remaining) {
+  const double estimate = first_step_seconds * double(remaining);
+  if (device_.is_cuda() || estimate < kLongCpuRunSeconds) return;
+  log_->write({{"event", "estimate"},
+               {"first_step_seconds", first_step_seconds},
+               {"remaining_iterations", remaining},
+               {"estimated_seconds", estimate}});
+  if (!options_.progress) return;
+  std::fprintf(stderr,
+               "sfgs train: the first step took %.1f s on the CPU: the run's %lld remaining iterations would take "
+               "about %s.\n  For a run of minutes: --config configs/demo.yaml (the demo's small avatar), fewer "
+               "iterations (--iterations N, or --stop-at N and --resume later), or --device cuda on a machine with a "
+               "GPU.\n",
+               first_step_seconds, (long long)remaining, format_duration(estimate).c_str());
 }
 
 void TrainingSession::finish_step(int64_t done, int64_t end) {

@@ -42,6 +42,9 @@ class TrainingSession {
 
  private:
   void step(int64_t iteration);
+  // After the first step of a call: a CPU run whose remaining iterations are estimated longer than kLongCpuRunSeconds
+  // is logged and, with progress on, told how long and how to shorten it.
+  void warn_if_long(double first_step_seconds, int64_t remaining);
   void finish_step(int64_t done, int64_t end);
   double split_psnr(data::Split split);
   void validate(int64_t done);

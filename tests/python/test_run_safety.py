@@ -290,3 +290,14 @@ def test_results_carry_their_provenance_and_never_outlive_their_checkpoint(tmp_p
     result = sfgs_run("train", "--data", data, "--out", run, "--config", tiny, "--quiet", "--force")
     assert result.returncode == 0, result.stderr
     assert not [f for f in os.listdir(run) if f.startswith("metrics")] and os.path.isfile(keep)
+
+
+def test_a_cpu_run_of_days_says_so_after_its_first_step(tmp_path, data):
+    run = str(tmp_path / "run")
+    long_run = config(tmp_path, 100000000)
+    result = sfgs_run("train", "--data", data, "--out", run, "--config", long_run, "--stop-at", "1")
+    assert result.returncode == 0, result.stderr
+    assert "the run's 100000000 remaining iterations would take about" in result.stderr, result.stderr
+    assert "configs/demo.yaml" in result.stderr and "--iterations N" in result.stderr
+    estimate = [e for e in log_events(run) if e["event"] == "estimate"]
+    assert len(estimate) == 1 and estimate[0]["estimated_seconds"] > 3600, estimate
