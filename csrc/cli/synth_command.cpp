@@ -1,4 +1,5 @@
 // `sfgs synth`: a synthetic monocular video with exact ground truth (data/synthetic.h).
+#include <chrono>
 #include <cstdio>
 
 #include "cli/commands.h"
@@ -36,6 +37,17 @@ int run_synth(Arguments& args) {
               keypoint_noise, "'");
   o.keypoint_noise.exact = keypoint_noise == "none";
   args.finish();
+  // A line at every tenth of the frames (the rendering is most of the time).
+  const auto started = std::chrono::steady_clock::now();
+  int64_t last_tenth = 0;
+  o.progress = [&](int64_t done, int64_t total) {
+    const int64_t tenth = 10 * done / total;
+    if (tenth == last_tenth || done == total) return;
+    last_tenth = tenth;
+    std::printf("sfgs synth: %lld of %lld frames rendered (%.0f s)\n", (long long)done, (long long)total,
+                std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count());
+    std::fflush(stdout);
+  };
   const data::Dataset d = data::write_synthetic_video(out, o);
   std::printf("sfgs synth: wrote %lld frames (%lld train, %lld val, %lld test%s) of %lld x %lld to %s\n",
               (long long)d.size(), (long long)d.split(data::Split::kTrain).size(),

@@ -86,6 +86,7 @@ Dataset read_neuman(const std::string& folder) {
   }
   const std::set<std::string> train = split_names((root / "train_split.txt").string());
   const std::set<std::string> test = split_names((root / "test_split.txt").string());
+  const std::set<std::string> val = split_names((root / "val_split.txt").string());  // optional
   TORCH_CHECK(!train.empty() || !test.empty(), "NeuMan folder '", folder,
               "' has no train_split.txt or test_split.txt (lines like 00012.png)");
 
@@ -129,6 +130,7 @@ Dataset read_neuman(const std::string& folder) {
     const int64_t index = d.size();
     if (train.count(image.name)) d.splits[Split::kTrain].push_back(index);
     if (test.count(image.name)) d.splits[Split::kTest].push_back(index);
+    if (val.count(image.name)) d.splits[Split::kVal].push_back(index);
     d.frames.push_back(std::move(r));
   }
   d.validate();

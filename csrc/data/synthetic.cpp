@@ -320,6 +320,7 @@ Dataset write_synthetic_video(const std::string& folder, const SyntheticVideoOpt
       ++training_frames;
     }
     video.splits[split].push_back(i);
+    if (options.progress) options.progress(i + 1, total);
   }
   if (!sfgs_layout) {
     write_neuman_layout_index(folder, video, options.overwrite);

@@ -9,6 +9,7 @@
 // (keypoints_whole_body/<frame>.json, synthetic_detections.h), and the written fits may be corrupted the way pose
 // estimators err (pose_noise.h) while the images stay exact.
 #include <cstdint>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -43,6 +44,8 @@ struct SyntheticVideoOptions {
   DatasetLayout layout = DatasetLayout::kSfgs;
   PoseNoiseLevel pose_noise;   // corruption of the written fits (and betas); none by default
   DetectorNoise keypoint_noise;  // of the keypoint files
+  // Called after each frame is written with (frames written, frames in all): a long synthesis reports as it goes.
+  std::function<void(int64_t, int64_t)> progress;
 };
 
 // Writes the video into `folder` (created if needed) in the chosen layout and returns the dataset as read back.

@@ -84,7 +84,8 @@ void write_neuman_layout_index(const std::string& folder, const SyntheticVideo& 
     cameras.push_back({numbered("%05lld", int64_t(i)) + ".png", video.frames[i].camera});
   write_colmap_model(folder, cameras, overwrite);
   for (const auto& [split, file] :
-       {std::make_pair(Split::kTrain, "train_split.txt"), std::make_pair(Split::kTest, "test_split.txt")}) {
+       {std::make_pair(Split::kTrain, "train_split.txt"), std::make_pair(Split::kVal, "val_split.txt"),
+        std::make_pair(Split::kTest, "test_split.txt")}) {
     std::vector<std::string> names;
     const auto it = video.splits.find(split);
     if (it != video.splits.end())

@@ -120,7 +120,7 @@ TEST(SyntheticVideo, NeumanLayoutKeepsTheExactFitsBesideNoisyOnes) {
 TEST(SyntheticVideo, NeumanLayoutPlacesTheSameBodiesInEachCamera) {
   testing::TempFolder sfgs_dir, neuman_dir;
   SyntheticVideoOptions o;
-  o.frames = 3;
+  o.frames = 5;
   o.width = 48;
   o.height = 64;
   o.test_motions = {"wave"};
@@ -128,9 +128,11 @@ TEST(SyntheticVideo, NeumanLayoutPlacesTheSameBodiesInEachCamera) {
   o.layout = DatasetLayout::kNeuman;
   const Dataset d = write_synthetic_video(neuman_dir.str(), o);
   EXPECT_EQ(d.format, "neuman");
-  EXPECT_EQ(d.size(), 6);
-  EXPECT_EQ(d.split(Split::kTest), (std::vector<int64_t>{3, 4, 5}));
-  EXPECT_EQ(d.split(Split::kTrain), (std::vector<int64_t>{0, 1, 2}));
+  EXPECT_EQ(d.size(), 10);
+  // Every frame in one split: the held-out frame of the training motion in val_split.txt.
+  EXPECT_EQ(d.split(Split::kTest), (std::vector<int64_t>{5, 6, 7, 8, 9}));
+  EXPECT_EQ(d.split(Split::kTrain), (std::vector<int64_t>{0, 1, 2, 3}));
+  EXPECT_EQ(d.split(Split::kVal), (std::vector<int64_t>{4}));
   for (const char* f : {"keypoints_whole_body/5.json", "ground_truth/shape_param.json", "ground_truth/smplx_params/5.json",
                         "masks/5.png", "images/00005.png"})
     EXPECT_TRUE(std::filesystem::exists(neuman_dir / f)) << f;

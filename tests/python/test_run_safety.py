@@ -301,3 +301,10 @@ def test_a_cpu_run_of_days_says_so_after_its_first_step(tmp_path, data):
     assert "configs/demo.yaml" in result.stderr and "--iterations N" in result.stderr
     estimate = [e for e in log_events(run) if e["event"] == "estimate"]
     assert len(estimate) == 1 and estimate[0]["estimated_seconds"] > 3600, estimate
+
+
+def test_synth_reports_its_progress(tmp_path):
+    result = sfgs_run("synth", "--out", str(tmp_path / "video"), "--frames", "10", "--width", "32", "--height", "32")
+    assert result.returncode == 0, result.stderr
+    lines = [line for line in result.stdout.splitlines() if "frames rendered" in line]
+    assert len(lines) >= 5 and lines[0].startswith("sfgs synth: 1 of 10 frames rendered"), result.stdout
