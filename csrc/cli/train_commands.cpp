@@ -157,6 +157,9 @@ int run_train(Arguments& args) {
     }
   } else {
     config = load_config(args, default_config("default.yaml"));
+    if (data_folder.empty() && options.resume)
+      throw std::invalid_argument("--resume: '" + run.path + "' holds no run to resume (no checkpoint.pt or " +
+                                  "config.yaml); start one with --data DATASET");
     if (data_folder.empty()) throw std::invalid_argument("missing required option --data");
   }
   args.finish();

@@ -5,6 +5,7 @@
 #include <numeric>
 #include <cstdio>
 #include <filesystem>
+#include <map>
 #include <sstream>
 
 #include <ATen/ATen.h>
@@ -197,6 +198,14 @@ void Dataset::validate() const {
     const std::string non_finite = pose.non_finite();
     TORCH_CHECK(non_finite.empty(), "dataset '", source, "': frame '", r.name, "' ", which, " parameter ", non_finite);
   };
+  // A frame is named within its sequence: two of one name there could not be told apart (their renders and
+  // per-frame scores would overwrite each other).
+  std::map<std::pair<int64_t, std::string>, size_t> named;
+  for (size_t i = 0; i < frames.size(); ++i) {
+    const auto [it, added] = named.emplace(std::make_pair(frames[i].sequence, frames[i].name), i);
+    TORCH_CHECK(added, "dataset '", source, "': frames ", it->second, " and ", i, " share the name '", frames[i].name,
+                "'", sequences.size() > 1 ? " in one sequence" : "", ": give every frame a name of its own");
+  }
   for (const FrameRecord& r : frames) {
     TORCH_CHECK(r.sequence >= 0 && r.sequence < int64_t(sequences.size()), "dataset '", source, "': frame '", r.name,
                 "' names sequence ", r.sequence);

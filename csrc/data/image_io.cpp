@@ -1,6 +1,8 @@
 #include "data/image_io.h"
 #include "common/constants.h"
 
+#include <filesystem>
+#include <set>
 #include <stdexcept>
 #include <vector>
 
@@ -21,10 +23,24 @@ at::Tensor read_depth_tiff(const std::string& path);  // depth_tiff.cpp (OpenCV)
 
 namespace {
 
+// stb_image's terse failure reasons ("outofdata") in words, with the reason kept for a search.
+std::string why_unreadable(const std::string& path) {
+  const std::string reason = stbi_failure_reason() ? stbi_failure_reason() : "unknown";
+  static const std::set<std::string> damaged = {"outofdata", "bad zlib header", "bad huffman code", "no IDAT",
+                                                "bad codelengths", "corrupt"};
+  static const std::set<std::string> not_an_image = {"unknown image type", "bad png sig", "not PNG"};
+  std::string words;
+  if (!std::filesystem::exists(path)) words = "no such file";
+  else if (damaged.count(reason)) words = "the file is cut short or damaged (truncated during a copy or a download?)";
+  else if (not_an_image.count(reason)) words = "not a PNG or JPEG image";
+  else if (reason == "can't fopen") words = "cannot open the file (permissions?)";
+  return words.empty() ? reason : words + " [" + reason + "]";
+}
+
 at::Tensor read_8bit(const std::string& path, int channels) {
   int w = 0, h = 0, found = 0;
   stbi_uc* pixels = stbi_load(path.c_str(), &w, &h, &found, channels);
-  TORCH_CHECK(pixels != nullptr, "cannot read image '", path, "': ", stbi_failure_reason());
+  TORCH_CHECK(pixels != nullptr, "cannot read image '", path, "': ", why_unreadable(path));
   at::Tensor t = at::from_blob(pixels, {h, w, channels}, at::kByte).clone();
   stbi_image_free(pixels);
   return t;
@@ -34,7 +50,8 @@ at::Tensor read_8bit(const std::string& path, int channels) {
 
 std::pair<int64_t, int64_t> image_size(const std::string& path) {
   int w = 0, h = 0, channels = 0;
-  TORCH_CHECK(stbi_info(path.c_str(), &w, &h, &channels) != 0, "cannot read image '", path, "': ", stbi_failure_reason());
+  TORCH_CHECK(stbi_info(path.c_str(), &w, &h, &channels) != 0, "cannot read image '", path, "': ",
+              why_unreadable(path));
   return {w, h};
 }
 

@@ -3,6 +3,8 @@
 
 #include <algorithm>
 #include <chrono>
+#include <map>
+#include <set>
 #include <cmath>
 #include <filesystem>
 #include <map>
@@ -22,8 +24,17 @@ AvatarEvaluation evaluate_avatar(const data::Dataset& dataset, data::Split split
                                  const metrics::EvaluationOptions& options, const std::string& save_folder,
                                  bool overwrite) {
   const std::vector<int64_t>& frames = dataset.split(split);
-  TORCH_CHECK(!frames.empty(), "dataset '", dataset.source, "' has no frames in the requested split");
+  static const std::map<data::Split, const char*> split_names = {
+      {data::Split::kTrain, "train"}, {data::Split::kVal, "val"}, {data::Split::kTest, "test"}};
+  TORCH_CHECK(!frames.empty(), "dataset '", dataset.source, "' has no frames in its ", split_names.at(split),
+              " split (train ", dataset.split(data::Split::kTrain).size(), ", val ",
+              dataset.split(data::Split::kVal).size(), ", test ", dataset.split(data::Split::kTest).size(),
+              " frames): choose another with --split");
   if (!save_folder.empty()) fs::create_directories(save_folder);
+  std::set<std::string> seen_names, repeated_names;
+  for (int64_t f : frames)
+    if (!seen_names.insert(dataset.frames[size_t(f)].name).second)
+      repeated_names.insert(dataset.frames[size_t(f)].name);
   at::NoGradGuard no_grad;
   metrics::ImageEvaluator evaluator(options);
   AvatarEvaluation result;
@@ -58,7 +69,11 @@ AvatarEvaluation evaluate_avatar(const data::Dataset& dataset, data::Split split
                   region_masks(*truth, io::read_npy(record.mesh_path), camera, frame.eval_mask));
     }
     if (!save_folder.empty()) {
-      std::string name = record.name;
+      // Names are unique within a sequence (Dataset::validate); one that several sequences use carries its
+      // sequence's.
+      std::string name = repeated_names.count(record.name)
+                             ? dataset.sequences[size_t(record.sequence)] + "_" + record.name
+                             : record.name;
       std::replace(name.begin(), name.end(), '/', '_');
       data::write_png((fs::path(save_folder) / (name + ".png")).string(), image, overwrite);
     }

@@ -124,6 +124,8 @@ std::optional<StartFits> read_start_fits(const data::Dataset& dataset, const Run
     TORCH_CHECK(!options.resume || !fs::exists(run.checkpoint_file()), "cannot resume run '", run.path,
                 "' from start fits '", file, "': it started from the dataset's own fits; start a new run (--force or ",
                 "another --out) to start from other fits");
+    TORCH_CHECK(fs::is_regular_file(file), "--start-fits '", file,
+                "' is neither a trained run's folder nor a refined-fits file (refined_fits.json)");
     bytes = file_bytes(file);
   } else {
     return std::nullopt;

@@ -116,6 +116,15 @@ TEST(SfgsDataset, CorruptAndInconsistentFilesAreClearErrors) {
   write_sfgs_dataset(d, dir.str(), true);
   write_text(d.frames[1].image_path, "garbage");
   expect_error_mentioning([&] { read_dataset(dir.str()).load(1); }, "frame1.png");
+  expect_error_mentioning([&] { read_dataset(dir.str()).load(1); }, "not a PNG or JPEG image");
+  // A PNG cut short (a copy or download that stopped): said in words, not stb's "outofdata".
+  write_png(d.frames[1].image_path, at::rand({32, 32, 3}), true);
+  std::filesystem::resize_file(d.frames[1].image_path, std::filesystem::file_size(d.frames[1].image_path) / 2);
+  expect_error_mentioning([&] { read_dataset(dir.str()).load(1); }, "cut short or damaged");
+  Dataset twins = d;
+  twins.frames[1].name = twins.frames[0].name;
+  expect_error_mentioning([&] { write_sfgs_dataset(twins, dir.str(), true); },
+                          "frames 0 and 1 share the name '" + d.frames[0].name + "'");
   Dataset bad = d;
   bad.splits[Split::kVal] = {7};
   expect_error_mentioning([&] { write_sfgs_dataset(bad, dir.str(), true); }, "split 'val' names frame 7");

@@ -308,3 +308,20 @@ def test_synth_reports_its_progress(tmp_path):
     assert result.returncode == 0, result.stderr
     lines = [line for line in result.stdout.splitlines() if "frames rendered" in line]
     assert len(lines) >= 5 and lines[0].startswith("sfgs synth: 1 of 10 frames rendered"), result.stdout
+
+
+def test_vague_errors_say_what_and_where(tmp_path, data, trained):
+    # An empty split is named, with what the dataset has.
+    neuman = str(tmp_path / "neuman")
+    subprocess.run([SFGS, "synth", "--out", neuman, "--frames", "3", "--width", "32", "--height", "32", "--layout",
+                    "neuman"], check=True, capture_output=True)
+    run = str(tmp_path / "run")
+    assert sfgs_run("train", "--data", neuman, "--out", run, "--config", config(tmp_path, 1), "--quiet").returncode == 0
+    result = sfgs_run("eval", "--run", run, "--split", "test")
+    assert result.returncode == 1 and "has no frames in its test split (train 3, val 0, test 0" in result.stderr, \
+        result.stderr
+    # --start-fits naming nothing, and --resume of a folder holding no run, name the option.
+    result = sfgs_run("train", "--data", data, "--out", str(tmp_path / "r2"), "--start-fits", str(tmp_path / "none"))
+    assert result.returncode == 1 and "--start-fits '" in result.stderr and "neither a trained run" in result.stderr
+    result = sfgs_run("train", "--out", str(tmp_path / "empty"), "--resume")
+    assert result.returncode == 1 and "--resume:" in result.stderr and "holds no run to resume" in result.stderr
