@@ -145,7 +145,19 @@ class TrainedAvatar {
 
   // Frame `index` of the training dataset: its pose (with time), camera and split.
   py::dict frame(const py::object& index_object) {
-    return frame_record_dict(dataset(), to_int(index_object, "Avatar.frame(index)"));
+    py::dict record = frame_record_dict(dataset(), to_int(index_object, "Avatar.frame(index)"));
+    py::dict pose = record["pose"];
+    if (pose.contains("expression")) pose["expression"] = as_avatar_expression(pose["expression"].cast<at::Tensor>());
+    return record;
+  }
+
+  // The avatar's expression coefficients from a dataset's or a motion file's, whose space may be larger or smaller:
+  // cut, or padded with zeros.
+  at::Tensor as_avatar_expression(const at::Tensor& given) const {
+    const int64_t count = t_.avatar->expression_count();
+    const at::Tensor flat = given.reshape({-1});
+    const int64_t used = std::min(flat.size(0), count);
+    return at::constant_pad_nd(flat.narrow(0, 0, used), {0, count - used});
   }
 
   int64_t frame_count() { return dataset().size(); }
@@ -154,8 +166,11 @@ class TrainedAvatar {
   py::dict motion(const std::string& path, double fps) {
     const sfgs::data::MotionClip clip = read_clip(path, fps);
     std::vector<SmplxPose> poses;
-    for (int64_t k = 0; k < static_cast<int64_t>(clip.poses.size()); ++k)
-      poses.push_back(sfgs::train::clip_pose(t_.avatar, clip, k));
+    for (int64_t k = 0; k < static_cast<int64_t>(clip.poses.size()); ++k) {
+      SmplxPose pose = sfgs::train::clip_pose(t_.avatar, clip, k);
+      if (pose.expression.defined()) pose.expression = as_avatar_expression(pose.expression);
+      poses.push_back(pose);
+    }
     return motion_dict(clip, poses);
   }
 
@@ -233,6 +248,15 @@ class TrainedAvatar {
         TORCH_CHECK(false, "pose: unknown key '", key, "'; expected one of ", expected);
       }
       p.pose.*(known->member) = to_tensor(item.second, "pose['" + key + "']");
+      if (known->member == &SmplxPose::expression) {
+        // Exactly the avatar's coefficients: a longer or shorter vector would be cut or padded without a word.
+        const at::Tensor& e = p.pose.expression;
+        const int64_t count = t_.avatar->expression_count();
+        TORCH_CHECK(e.numel() == count && (e.dim() == 1 || (e.dim() == 2 && e.size(0) == 1)),
+                    "pose['expression']: this avatar takes ", count,
+                    " expression coefficients (avatar.num_expression_coeffs), got shape ", e.sizes(),
+                    "; frame() and motion() give them in that size");
+      }
     }
     return p;
   }
@@ -315,6 +339,8 @@ when given (> 0). Pass a frame to gaussians() or render().)")
       .def("set_cached", &TrainedAvatar::set_cached, py::arg("cached"),
            "Cache the pose-independent features for fast inference (True) or drop the cache (False)")
       .def_property_readonly("iteration", [](const TrainedAvatar& a) { return a.trained().iteration; })
+      .def_property_readonly("expression_count",
+                             [](const TrainedAvatar& a) { return a.trained().avatar->expression_count(); })
       .def_property_readonly("gaussian_count",
                              [](const TrainedAvatar& a) { return a.trained().avatar->gaussian_count(); })
       .def_property_readonly("config_yaml", [](const TrainedAvatar& a) { return a.trained().config.to_yaml(); })

@@ -86,11 +86,33 @@ py::dict frame_record_dict(const data::Dataset& d, int64_t index) {
   return out;
 }
 
+namespace {
+
+// How far past [0, 1] an image's values may lie (a blend's rounding) before they are taken for another scale.
+constexpr double kImageRangeSlack = 1e-4;
+
+// The metrics score images in [0, 1]: 8-bit values, [-1, 1] images or NaN would give a number that means nothing.
+// A host read, here at the module's boundary only (the training step's metrics run on the device unchecked).
+at::Tensor image_in_unit_range(const py::object& object, const std::string& what) {
+  const at::Tensor t = to_tensor(object, what);
+  if (!t.defined() || !at::isFloatingType(t.scalar_type()) || t.numel() == 0) return t;  // the metric names these
+  const at::Tensor values = t.detach();
+  TORCH_CHECK(!values.isnan().any().item<bool>(), what, ": the image holds NaN");
+  const double low = values.min().item<double>(), high = values.max().item<double>();
+  TORCH_CHECK(low >= -kImageRangeSlack && high <= 1 + kImageRangeSlack, what,
+              ": values must lie in [0, 1] (float images), got [", low, ", ", high, "]",
+              high > 2 ? "; 8-bit images take / 255" : low < 0 ? "; [-1, 1] images take (x + 1) / 2" : "");
+  return t;
+}
+
+}  // namespace
+
 void bind_metrics_and_data(py::module_& m) {
   m.def(
       "psnr",
       [](const py::object& prediction, const py::object& target) {
-        return metrics::psnr(to_tensor(prediction, "psnr(prediction)"), to_tensor(target, "psnr(target)"));
+        return metrics::psnr(image_in_unit_range(prediction, "psnr(prediction)"),
+                             image_in_unit_range(target, "psnr(target)"));
       },
       py::arg("prediction"), py::arg("target"),
       "PSNR (dB) of images in [0, 1], (H, W, C) -> 0-dim or (B, H, W, C) -> (B); identical images give inf. "
@@ -98,8 +120,8 @@ void bind_metrics_and_data(py::module_& m) {
   m.def(
       "ssim",
       [](const py::object& prediction, const py::object& target, const std::string& border) {
-        return metrics::ssim(to_tensor(prediction, "ssim(prediction)"), to_tensor(target, "ssim(target)"),
-                             ssim_border(border));
+        return metrics::ssim(image_in_unit_range(prediction, "ssim(prediction)"),
+                             image_in_unit_range(target, "ssim(target)"), ssim_border(border));
       },
       py::arg("prediction"), py::arg("target"), py::arg("border") = "reflect",
       "Mean SSIM (11 x 11 Gaussian window, sigma 1.5) of images in [0, 1], channels last; border 'reflect' "
@@ -107,7 +129,8 @@ void bind_metrics_and_data(py::module_& m) {
   m.def(
       "lpips",
       [](const py::object& prediction, const py::object& target, const std::string& net, const std::string& dir) {
-        const at::Tensor p = to_tensor(prediction, "lpips(prediction)"), t = to_tensor(target, "lpips(target)");
+        const at::Tensor p = image_in_unit_range(prediction, "lpips(prediction)");
+        const at::Tensor t = image_in_unit_range(target, "lpips(target)");
         return lpips_network(net, dir)(p, t);
       },
       py::arg("prediction"), py::arg("target"), py::arg("net") = "alex", py::arg("weights_dir") = "",

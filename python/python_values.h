@@ -17,7 +17,14 @@ namespace py = pybind11;
 inline std::string python_type(const py::handle& value) { return py::str(py::type::handle_of(value).attr("__name__")); }
 
 inline at::Tensor to_tensor(const py::handle& value, const std::string& what) {
-  if (THPVariable_Check(value.ptr())) return THPVariable_Unpack(value.ptr());
+  if (THPVariable_Check(value.ptr())) {
+    const at::Tensor t = THPVariable_Unpack(value.ptr());
+    // A meta tensor has no values to read: refused here rather than by the first operation that reads one.
+    if (t.defined() && !(t.is_cpu() || t.is_cuda()))
+      throw py::value_error(what + ": expected a tensor on the CPU or a CUDA device, got one on " +
+                            t.device().str());
+    return t;
+  }
   throw py::type_error(what + ": expected a torch.Tensor, got " + python_type(value) +
                        (py::isinstance<py::list>(value) || py::isinstance<py::tuple>(value)
                             ? " (wrap it: torch.tensor(...))"

@@ -414,6 +414,7 @@ Gaussians to_gaussians(const AvatarOutput& out) {
 }
 
 int64_t AvatarImpl::gaussian_count() const { return body_->point_count(); }
+int64_t AvatarImpl::expression_count() const { return body_->expression_count(); }
 const at::Tensor& AvatarImpl::part_labels() const { return body_->part_labels(); }
 const at::Tensor& AvatarImpl::faces() const { return body_->faces(); }
 int64_t AvatarImpl::model_vertex_count() const { return body_->coarse_vertex_count(); }

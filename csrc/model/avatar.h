@@ -155,6 +155,9 @@ class AvatarImpl : public torch::nn::Module {
   int64_t cache_generation() const { return cache_generation_; }
 
   int64_t gaussian_count() const;
+  // The expression coefficients a pose drives (num_expression_coeffs, at most the model's expression space); a pose's
+  // expression of another length is cut or padded with zeros to it.
+  int64_t expression_count() const;
   const at::Tensor& part_labels() const;  // (N) uint8 body::BodyPart, on the module's device
   const at::Tensor& faces() const;        // (F, 3) int64 of the subdivided mesh (Laplacian, export), likewise
   // The body model's vertex count V: the first V points of the subdivided mesh (of AvatarOutput::posed_vertices)

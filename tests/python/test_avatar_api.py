@@ -57,6 +57,17 @@ def test_eval_scores_only_the_regions_its_frames_showed(run):
             assert r["psnr"] > 0 and 0 < r["ssim"] <= 1, r
 
 
+def test_expressions_are_the_avatars_size(run):
+    avatar = sfgs.load_avatar(run)
+    count = avatar.expression_count
+    frame = avatar.frame(2)
+    assert frame["pose"]["expression"].shape == (count,), "frame() gives the avatar's coefficients"
+    for wrong in (count + 40, max(count - 1, 0) if count > 1 else count + 1):
+        with pytest.raises(RuntimeError, match=f"this avatar takes {count} expression coefficients"):
+            avatar.gaussians({"expression": torch.zeros(wrong)})
+    avatar.gaussians({"expression": torch.zeros(1, count)})
+
+
 def test_gaussians_have_their_shapes_and_follow_the_pose(run):
     avatar = sfgs.load_avatar(run)
     rest = avatar.gaussians()

@@ -70,3 +70,22 @@ def test_a_dataset_reads_frame_by_frame(tmp_path):
         d.frame(10)
     with pytest.raises(RuntimeError):
         sfgs.read_dataset(str(tmp_path / "nowhere"))
+
+
+def test_metrics_refuse_images_of_another_scale_or_layout():
+    a = torch.rand(8, 8, 3, dtype=torch.float64)
+    with pytest.raises(RuntimeError, match=r"psnr\(prediction\): values must lie in \[0, 1\].*/ 255"):
+        sfgs.psnr(a * 255, a)
+    with pytest.raises(RuntimeError, match=r"ssim\(prediction\): .*\(x \+ 1\) / 2"):
+        sfgs.ssim(a * 2 - 1, a)
+    with pytest.raises(RuntimeError, match=r"psnr\(target\): the image holds NaN"):
+        sfgs.psnr(a, torch.full_like(a, float("nan")))
+    with pytest.raises(RuntimeError, match="channels-last"):
+        sfgs.psnr(torch.rand(2, 3, 8, 8), torch.rand(2, 3, 8, 8))
+
+
+def test_tensors_without_values_are_refused_by_name():
+    meta = torch.zeros(4, 4, 3, device="meta")
+    with pytest.raises(ValueError, match=r"psnr\(target\): expected a tensor on the CPU or a CUDA device, got one on "
+                                         r"meta"):
+        sfgs.psnr(torch.rand(4, 4, 3), meta)
