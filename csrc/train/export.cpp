@@ -1,5 +1,7 @@
 #include "train/export.h"
 
+#include <algorithm>
+#include <cctype>
 #include <cstring>
 #include <filesystem>
 #include <vector>
@@ -100,7 +102,10 @@ void write_splat(const ExportedGaussians& g, const std::string& path, bool overw
 
 void export_gaussians(model::Avatar& avatar, const data::Dataset* dataset, int64_t frame, const std::string& path,
                       bool overwrite) {
-  const std::string extension = std::filesystem::path(path).extension().string();
+  // Case-insensitive, as bench --out's .png: FILE.PLY is a PLY file.
+  std::string extension = std::filesystem::path(path).extension().string();
+  std::transform(extension.begin(), extension.end(), extension.begin(),
+                 [](unsigned char c) { return char(std::tolower(c)); });
   TORCH_CHECK(extension == ".ply" || extension == ".splat", "export: the file must end in .ply (3DGS) or .splat "
               "(web viewers), got '", path, "'");
   const ExportedGaussians g = exported_gaussians(avatar, dataset, frame);

@@ -99,6 +99,9 @@ TEST(Export, PlyAndSplatHoldTheSameGaussians) {
         train::export_gaussians(const_cast<model::Avatar&>(e.avatar), nullptr, -1, (dir / "a.obj").string(), true);
       },
       "must end in .ply (3DGS) or .splat");
+  // The extension's case does not matter (as bench --out's .png).
+  train::export_gaussians(const_cast<model::Avatar&>(e.avatar), nullptr, -1, (dir / "upper.PLY").string(), true);
+  EXPECT_TRUE(std::filesystem::exists(dir / "upper.PLY"));
 }
 
 }  // namespace
