@@ -258,8 +258,8 @@ int run_demo(Arguments& args) {
   finish_training(train::train_avatar(dataset, config, run, options), config.schedule.iterations);
   std::printf("sfgs demo 3/4: evaluating the new motions (test) and the held-out frames of the training motions "
               "(val), ExAvatar/SFGS protocol\n");
-  const RunEvaluation e =
-      evaluate_run(run, dataset, config.device, (fs::path(out) / "test_renders").string(), true, "sfgs demo " + args.line());
+  const RunEvaluation e = evaluate_run(run, dataset, config.device, (fs::path(out) / "test_renders").string(), true,
+                                       "sfgs demo " + args.line());
   std::printf("  new motions:      %s\n%s", metrics::to_string(e.test.summary).c_str(), group_lines(e.test).c_str());
   std::printf("  held-out frames:  %s\n", metrics::to_string(e.val->summary).c_str());
   std::printf("sfgs demo 4/4: rendering a novel-view, novel-pose video\n");

@@ -178,7 +178,8 @@ __global__ void __launch_bounds__(kThreads, 2) mlp_inference_kernel(const MlpInf
   float* parameters = reinterpret_cast<float*>(hidden_weights + (a.hidden_layers - 1) * kHiddenLayerWords);
   for (int i = threadIdx.x; i < kWidth * 8 * input_tiles; i += kThreads) {
     const int row = i / (8 * input_tiles), word = i % (8 * input_tiles);
-    first_weights[row * stride0 + word] = pack(first_weight_at(a, row, 2 * word), first_weight_at(a, row, 2 * word + 1));
+    first_weights[row * stride0 + word] =
+        pack(first_weight_at(a, row, 2 * word), first_weight_at(a, row, 2 * word + 1));
   }
   for (int layer = 1; layer < a.hidden_layers; ++layer) {
     const float2* w = reinterpret_cast<const float2*>(a.hidden_weights[layer - 1]);

@@ -166,8 +166,8 @@ FitInput read_fit_input(const std::string& folder, double focal) {
   for (auto& [number, f] : frames) {
     if (focal > 0) f.fx = f.fy = focal;
     keypoints.push_back(data::read_wholebody_keypoints(keypoint_files.at(number)));
-    const int64_t detected =
-        (keypoints.back().narrow(0, body_keypoints.begin, body_keypoints.size()).select(1, 2) > 0).sum().item<int64_t>();
+    const at::Tensor scores = keypoints.back().narrow(0, body_keypoints.begin, body_keypoints.size()).select(1, 2);
+    const int64_t detected = (scores > 0).sum().item<int64_t>();
     if (detected < kMinPlacingKeypoints && unplaceable_count++ < kFramesNamedInErrors)
       unplaceable += (unplaceable.empty() ? "" : ", ") + ("frame " + std::to_string(number)) + " (" +
                      std::to_string(detected) + ")";

@@ -90,7 +90,8 @@ at::Tensor reference(const std::vector<at::Tensor>& inputs, const at::Tensor& ba
 bool fuses(const std::vector<at::Tensor>& inputs, const Network& n) {
   if (!cuda::available() || n.input_weights.empty() || !n.input_weights[0].defined()) return false;
   const at::Tensor& w = n.input_weights[0];
-  if (!w.is_cuda() || w.scalar_type() != at::kFloat || w.size(0) != kFusedWidth || n.groups != kFusedGroups) return false;
+  if (!w.is_cuda() || w.scalar_type() != at::kFloat || w.size(0) != kFusedWidth || n.groups != kFusedGroups)
+    return false;
   if (inputs.size() > kFusedMaxInputs || n.norm_weights.empty() || n.norm_weights.size() > kFusedMaxHiddenLayers)
     return false;
   int64_t width = 0;
