@@ -76,44 +76,38 @@ __device__ __forceinline__ float quad_sum(float v) {
   return v + __shfl_xor_sync(0xffffffffu, v, 2);
 }
 
-// Column `column` of the first layer's (logically concatenated) input for `row`; 0 past the last column.
-__device__ __forceinline__ float input_at(const MlpInferenceArrays& a, int64_t row, int column) {
+// `read(block, column in it)` for column `column` of the first layer's (logically concatenated) input blocks; a zero
+// value past the last column. The loop over the blocks is unrolled, so every block is reached by a constant index
+// (the parameter space is never indexed at run time).
+template <typename Read>
+__device__ __forceinline__ auto at_column(const MlpInferenceArrays& a, int column, Read read)
+    -> decltype(read(a.inputs[0], 0)) {
 #pragma unroll
   for (int b = 0; b < kFusedMaxInputs; ++b) {
     if (b >= a.input_count) break;
-    if (column < a.inputs[b].width) return a.inputs[b].values[row * a.inputs[b].values_stride + column];
+    if (column < a.inputs[b].width) return read(a.inputs[b], column);
     column -= a.inputs[b].width;
   }
-  return 0.f;
+  return {};
 }
 
 // Columns `column` and `column` + 1 (even) of the first layer's input for `row` as the half pair of an mma operand;
 // 0 past the last row or column. Blocks of even widths and strides read the pair at once.
 __device__ __forceinline__ uint32_t input_pair(const MlpInferenceArrays& a, int64_t row, int column) {
   if (row >= a.rows) return 0u;
-  if (!a.paired_inputs)
-    return pack(in_half_range(input_at(a, row, column)), in_half_range(input_at(a, row, column + 1)));
-#pragma unroll
-  for (int b = 0; b < kFusedMaxInputs; ++b) {
-    if (b >= a.input_count) break;
-    if (column < a.inputs[b].width) {
-      const float2 p = *reinterpret_cast<const float2*>(a.inputs[b].values + row * a.inputs[b].values_stride + column);
+  if (a.paired_inputs)
+    return at_column(a, column, [row](const InputBlock& block, int c) {
+      const float2 p = *reinterpret_cast<const float2*>(block.values + row * block.values_stride + c);
       return pack(in_half_range(p.x), in_half_range(p.y));
-    }
-    column -= a.inputs[b].width;
-  }
-  return 0u;
+    });
+  const auto value = [row](const InputBlock& block, int c) { return block.values[row * block.values_stride + c]; };
+  return pack(in_half_range(at_column(a, column, value)), in_half_range(at_column(a, column + 1, value)));
 }
 
 // Column `column` of the first layer's weight row `row`; 0 past the inputs' columns.
 __device__ __forceinline__ float first_weight_at(const MlpInferenceArrays& a, int row, int column) {
-#pragma unroll
-  for (int b = 0; b < kFusedMaxInputs; ++b) {
-    if (b >= a.input_count) break;
-    if (column < a.inputs[b].width) return a.inputs[b].weight[row * a.inputs[b].weight_stride + column];
-    column -= a.inputs[b].width;
-  }
-  return 0.f;
+  return at_column(a, column,
+                   [row](const InputBlock& block, int c) { return block.weight[row * block.weight_stride + c]; });
 }
 
 // The B operands of two neighbouring 8-column output tiles for one 16-column input tile: four 8x8 half matrices,
