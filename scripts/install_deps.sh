@@ -2,7 +2,7 @@
 # Installs sfgs's build and test dependencies from Debian 12's packages (run as root or with sudo available).
 set -euo pipefail
 packages=(
-  build-essential cmake ninja-build
+  build-essential cmake ninja-build clang-format
   libtorch-dev python3-torch
   pybind11-dev python3-pybind11 python3-pytest
   libopencv-dev libglm-dev libgtest-dev

@@ -17,6 +17,8 @@ inline constexpr int64_t kSmplxV10ShapeSpace = 10;
 inline constexpr int64_t kSmplxV10ExpressionSpace = 10;
 inline constexpr int64_t kManoShapeSpace = 10;
 
+// The joint tables keep their lines: names and indices in the layouts' order, several a line.
+// clang-format off
 namespace smplx_joint {
 enum : int64_t {
   kPelvis = 0, kLeftHip, kRightHip, kSpine1, kLeftKnee, kRightKnee, kSpine2, kLeftAnkle, kRightAnkle, kSpine3,
@@ -57,6 +59,7 @@ inline constexpr std::array<const char*, kManoJointCount> kManoJointNames = {
 inline constexpr std::array<int64_t, kManoJointCount> kManoParents = {-1, 0, 1, 2, 0, 4, 5, 0, 7, 8,
                                                                      0, 10, 11, 0, 13, 14};
 
+// clang-format on
 enum class Side { kLeft, kRight };
 
 // MANO joint k of a hand is SMPL-X joint smplx_hand_joint(side, k): the wrist, then the 15 finger joints.
