@@ -69,9 +69,10 @@ struct Arguments {
 };
 
 [[noreturn]] void usage() {
-  std::fprintf(stderr, "usage: bench_animate [--device cpu|cuda] [--shared DIR] [--run DIR] [--levels L] "
-                       "[--sizes WxH,...] [--frames N] [--cull-cosines C,...] [--blend-segments L,...] "
-                       "[--blend-cut-shares S,...] [--profile 1]\n");
+  std::fprintf(stderr,
+               "usage: bench_animate [--device cpu|cuda] [--shared DIR] [--run DIR] [--levels L] "
+               "[--sizes WxH,...] [--frames N] [--cull-cosines C,...] [--blend-segments L,...] "
+               "[--blend-cut-shares S,...] [--profile 1]\n");
   std::exit(2);
 }
 
@@ -81,13 +82,20 @@ Arguments parse(int argc, char** argv) {
     const std::string flag = argv[i];
     if (i + 1 >= argc) usage();
     const std::string value = argv[++i];
-    if (flag == "--device") a.device = value;
-    else if (flag == "--shared") a.shared = value;
-    else if (flag == "--run") a.run = value;
-    else if (flag == "--levels") a.levels = std::max(0, std::atoi(value.c_str()));
-    else if (flag == "--frames") a.frames = std::max(1, std::atoi(value.c_str()));
-    else if (flag == "--profile") a.profile = value == "1";
-    else if (flag == "--time") a.time = std::clamp(std::atof(value.c_str()), -1.0, 1.0);
+    if (flag == "--device")
+      a.device = value;
+    else if (flag == "--shared")
+      a.shared = value;
+    else if (flag == "--run")
+      a.run = value;
+    else if (flag == "--levels")
+      a.levels = std::max(0, std::atoi(value.c_str()));
+    else if (flag == "--frames")
+      a.frames = std::max(1, std::atoi(value.c_str()));
+    else if (flag == "--profile")
+      a.profile = value == "1";
+    else if (flag == "--time")
+      a.time = std::clamp(std::atof(value.c_str()), -1.0, 1.0);
     else if (flag == "--cull-cosines") {
       a.cull_cosines.clear();
       std::stringstream list(value);
@@ -103,8 +111,7 @@ Arguments parse(int argc, char** argv) {
       std::stringstream list(value);
       for (std::string item; std::getline(list, item, ',');) a.blend_cut_shares.push_back(std::atof(item.c_str()));
       if (a.blend_cut_shares.empty()) usage();
-    }
-    else if (flag == "--sizes") {
+    } else if (flag == "--sizes") {
       a.sizes.clear();
       std::stringstream list(value);
       for (std::string item; std::getline(list, item, ',');) {
@@ -112,7 +119,8 @@ Arguments parse(int argc, char** argv) {
         if (std::sscanf(item.c_str(), "%ldx%ld", &w, &h) != 2 || w <= 0 || h <= 0) usage();
         a.sizes.push_back({w, h});
       }
-    } else usage();
+    } else
+      usage();
   }
   return a;
 }
@@ -154,8 +162,8 @@ sfgs::Camera framing_camera(sfgs::model::Avatar& avatar, const SmplxPose& pose, 
                           (hi[2] - lo[2]).item<double>();
   sfgs::Camera c = sfgs::Camera::looking_forward(focal, width, height);
   // x stays, y and z flip (a rotation): the camera looks along -z of the body's frame from `distance` in front.
-  c.world_to_camera = {1, 0, 0, -centre[0].item<double>(), 0, -1, 0, centre[1].item<double>(),
-                       0, 0, -1, centre[2].item<double>() + distance, 0, 0, 0, 1};
+  c.world_to_camera = {1, 0, 0,  -centre[0].item<double>(),           0, -1, 0, centre[1].item<double>(),
+                       0, 0, -1, centre[2].item<double>() + distance, 0, 0,  0, 1};
   return c;
 }
 
@@ -219,8 +227,10 @@ void print_culling_table(sfgs::model::Avatar& avatar, const sfgs::Camera& camera
     }
     avatar->cache_static_features();
   }
-  std::printf("  back-facing cull: cosine | graph frame ms | intersections | PSNR vs exact render (lowest of %d "
-              "poses; cosine >= 1: nothing culled, the fused MLP alone)\n", checks);
+  std::printf(
+      "  back-facing cull: cosine | graph frame ms | intersections | PSNR vs exact render (lowest of %d "
+      "poses; cosine >= 1: nothing culled, the fused MLP alone)\n",
+      checks);
   for (size_t c = 0; c < lowest.size(); ++c)
     std::printf("    %.2f | %.3f | %ld | %.1f dB\n", args.cull_cosines[c], frame_ms[c], long(intersections[c]),
                 lowest[c]);
@@ -231,8 +241,10 @@ void print_blend_segment_table(sfgs::model::Avatar& avatar, const sfgs::Camera& 
                                const SmplxPose& a, const SmplxPose& b, const Arguments& args) {
 #ifdef SFGS_BENCH_CUDA_KERNELS
   at::Tensor reference;
-  std::printf("  forward blend segments (cut share %.1f): length (0: uncut) | graph frame ms | largest difference "
-              "to the first\n", sfgs::kBlendCutShare);
+  std::printf(
+      "  forward blend segments (cut share %.1f): length (0: uncut) | graph frame ms | largest difference "
+      "to the first\n",
+      sfgs::kBlendCutShare);
   for (int64_t length : args.blend_segments) {
     sfgs::splat::cuda_kernels::set_blend_segment_length(length);
     sfgs::animate::Animator animator(avatar, camera, background);
@@ -243,8 +255,10 @@ void print_blend_segment_table(sfgs::model::Avatar& avatar, const sfgs::Camera& 
     std::printf("    %ld | %.3f | %.2e\n", long(length), ms, (image - reference).abs().max().item<double>());
   }
   sfgs::splat::cuda_kernels::set_blend_segment_length(sfgs::kBlendSegmentLength);
-  std::printf("  forward blend cut share (segments of %ld; 0: every longer run cut) | graph frame ms | largest "
-              "difference to the first length's image\n", long(sfgs::kBlendSegmentLength));
+  std::printf(
+      "  forward blend cut share (segments of %ld; 0: every longer run cut) | graph frame ms | largest "
+      "difference to the first length's image\n",
+      long(sfgs::kBlendSegmentLength));
   for (double share : args.blend_cut_shares) {
     sfgs::splat::cuda_kernels::set_blend_cut_share(share);
     sfgs::animate::Animator animator(avatar, camera, background);
@@ -281,10 +295,11 @@ void print_observation_prior(sfgs::model::Avatar& avatar, bool cuda) {
     const double elapsed = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
     if (k >= 3) ms.push_back(elapsed);
   }
-  std::printf("  observation prior: %ld of %ld points well observed; %ld rings fill %ld points (the widest %ld); "
-              "propagation %.3f ms (eager, median of 20)\n",
-              long((confidence >= 1).sum().item<int64_t>()), long(n), long(plan.ring_count()),
-              long(plan.filled_count()), long(plan.widest_ring()), median(ms));
+  std::printf(
+      "  observation prior: %ld of %ld points well observed; %ld rings fill %ld points (the widest %ld); "
+      "propagation %.3f ms (eager, median of 20)\n",
+      long((confidence >= 1).sum().item<int64_t>()), long(n), long(plan.ring_count()), long(plan.filled_count()),
+      long(plan.widest_ring()), median(ms));
 }
 
 int main(int argc, char** argv) {
@@ -363,10 +378,11 @@ int main(int argc, char** argv) {
       const at::Tensor from_graph = graphed.render(a).clone(), from_eager = eager.render(a);
       const double difference = (from_graph - from_eager).abs().max().item<double>();
       const sfgs::animate::AnimatorStats& s = graphed.stats();
-      std::printf("  graph frame: %.3f ms (%.0f frames/s); %ld captures, %ld budget overflows, %ld intersections "
-                  "(budget %ld); largest difference to the eager frame %.2e\n",
-                  graph_ms, 1000 / graph_ms, long(s.captures), long(s.budget_overflows), long(s.intersections),
-                  long(s.budget), difference);
+      std::printf(
+          "  graph frame: %.3f ms (%.0f frames/s); %ld captures, %ld budget overflows, %ld intersections "
+          "(budget %ld); largest difference to the eager frame %.2e\n",
+          graph_ms, 1000 / graph_ms, long(s.captures), long(s.budget_overflows), long(s.intersections), long(s.budget),
+          difference);
       print_culling_table(avatar, camera, white, a, b, args);
       print_blend_segment_table(avatar, camera, white, a, b, args);
     }

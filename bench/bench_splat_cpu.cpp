@@ -56,7 +56,9 @@ int main(int argc, char** argv) {
         torch::autograd::backward({out.image.sum() + out.alpha.sum()});
         const double b = elapsed_ms(start);
         if (r == 0) {
-          coverage = (out.radii.to(at::kDouble).select(1, 0) * out.radii.to(at::kDouble).select(1, 1) * 4).sum().item<double>() /
+          coverage = (out.radii.to(at::kDouble).select(1, 0) * out.radii.to(at::kDouble).select(1, 1) * 4)
+                         .sum()
+                         .item<double>() /
                      double(width * height);
           continue;
         }

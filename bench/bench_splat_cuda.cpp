@@ -59,11 +59,11 @@ Scene avatar_scene(const Workload& w) {
   const auto options = at::TensorOptions().device(at::kCUDA).dtype(at::kFloat);
   const int64_t n = w.count;
   Scene s;
-  s.gaussians.means = at::rand({n, 3}, options) * at::tensor({0.5f, 1.8f, 0.3f}, options) +
-                      at::tensor({-0.25f, -0.9f, 2.85f}, options);
+  s.gaussians.means =
+      at::rand({n, 3}, options) * at::tensor({0.5f, 1.8f, 0.3f}, options) + at::tensor({-0.25f, -0.9f, 2.85f}, options);
   const double density = std::sqrt(double(kReferenceCount) / double(n));
-  s.gaussians.scales = log_uniform({n, 1}, 3e-3 * density, 15e-3 * density, options) *
-                       log_uniform({n, 3}, 0.8, 1.25, options);
+  s.gaussians.scales =
+      log_uniform({n, 1}, 3e-3 * density, 15e-3 * density, options) * log_uniform({n, 3}, 0.8, 1.25, options);
   const at::Tensor q = at::randn({n, 4}, options);
   s.gaussians.rotations = q / q.norm(2, 1, true);
   s.gaussians.opacities = at::rand({n}, options) * 0.5f + 0.5f;
@@ -182,8 +182,8 @@ struct Result {
 };
 
 std::vector<at::Tensor> leaves(const Scene& s) {
-  return {s.gaussians.means, s.gaussians.scales, s.gaussians.rotations, s.gaussians.opacities, s.gaussians.features,
-          s.background};
+  return {s.gaussians.means,     s.gaussians.scales,   s.gaussians.rotations,
+          s.gaussians.opacities, s.gaussians.features, s.background};
 }
 
 void train_step(const Scene& s) {
@@ -224,13 +224,12 @@ Result measure(const Workload& w) {
   const auto train = [&] { train_step(s); };
 
   // The backend alone: what the autograd node calls, without validation, autograd or the depth division.
-  const backend::SplatInputs inputs{s.gaussians.means.detach(),     s.gaussians.scales.detach(),
-                                    s.gaussians.rotations.detach(), at::Tensor(),
-                                    s.gaussians.opacities.detach(), s.gaussians.features.detach(),
-                                    s.background.detach()};
+  const backend::SplatInputs inputs{
+      s.gaussians.means.detach(),     s.gaussians.scales.detach(),   s.gaussians.rotations.detach(), at::Tensor(),
+      s.gaussians.opacities.detach(), s.gaussians.features.detach(), s.background.detach()};
   const auto& c = s.camera;
-  const backend::CameraSpec camera{c.world_to_camera, c.fx, c.fy, c.cx, c.cy, int(c.width), int(c.height),
-                                   c.near_plane, c.far_plane};
+  const backend::CameraSpec camera{c.world_to_camera, c.fx,          c.fy,         c.cx,       c.cy,
+                                   int(c.width),      int(c.height), c.near_plane, c.far_plane};
   const backend::BackendSettings settings{backend::ProjectionSettings{sfgs::kLowPassVariancePx2, false}, false};
   const backend::OutputGradients grads{s.grad_image, s.grad_alpha, at::Tensor()};
   const auto backend_forward = [&] { return backend::cuda::forward(inputs, camera, settings); };
@@ -291,8 +290,8 @@ int main(int argc, char** argv) {
     const Scene s = avatar_scene(w);
     for (int i = 0; i < kProfiledSteps; ++i) train_step(s);
     C10_CUDA_CHECK(cudaDeviceSynchronize());
-    std::printf("profiled %d forward + backward steps of N = %lld at %lld x %lld\n", kProfiledSteps,
-                (long long)w.count, (long long)w.width, (long long)w.height);
+    std::printf("profiled %d forward + backward steps of N = %lld at %lld x %lld\n", kProfiledSteps, (long long)w.count,
+                (long long)w.width, (long long)w.height);
     return 0;
   }
   if (argc != 1) {
@@ -307,10 +306,11 @@ int main(int argc, char** argv) {
     for (const auto& [width, height] : {std::pair<int64_t, int64_t>{800, 1200}, {1080, 1920}})
       results.push_back(measure(Workload{n, width, height}));
 
-  std::printf("\nms, median. fwd, fwd+bwd: sfgs::render (+ autograd), CUDA events around the call. GPU: summed stage\n"
-              "times. be: backend entry points alone (radix: forward on the radix binning path; rows: fwd+bwd with\n"
-              "the tiles blended in row-major order). peak: caching-allocator peak of one fwd+bwd (MiB), -inputs:\n"
-              "less what was allocated before it (scene, gradients)\n");
+  std::printf(
+      "\nms, median. fwd, fwd+bwd: sfgs::render (+ autograd), CUDA events around the call. GPU: summed stage\n"
+      "times. be: backend entry points alone (radix: forward on the radix binning path; rows: fwd+bwd with\n"
+      "the tiles blended in row-major order). peak: caching-allocator peak of one fwd+bwd (MiB), -inputs:\n"
+      "less what was allocated before it (scene, gradients)\n");
   std::printf("%8s %10s %9s | %8s %8s | %9s %9s | %8s %8s %8s %8s | %8s %8s\n", "N", "image", "isects", "fwd",
               "fwd GPU", "fwd+bwd", "f+b GPU", "be fwd", "be f+b", "radix", "rows", "peak", "-inputs");
   for (const Result& r : results) {
@@ -318,8 +318,8 @@ int main(int argc, char** argv) {
     const double training_gpu = forward_gpu + sum_of(r.stages, kBackwardStages);
     std::printf("%8lld %4lldx%-5lld %9lld | %8.3f %8.3f | %9.3f %9.3f | %8.3f %8.3f %8.3f %8.3f | %7.1fM %7.1fM\n",
                 (long long)r.workload.count, (long long)r.workload.width, (long long)r.workload.height,
-                (long long)r.intersections, r.op_forward, forward_gpu, r.op_training, training_gpu,
-                r.backend_forward, r.backend_training, r.backend_forward_radix, r.backend_training_rows, r.peak_mib,
+                (long long)r.intersections, r.op_forward, forward_gpu, r.op_training, training_gpu, r.backend_forward,
+                r.backend_training, r.backend_forward_radix, r.backend_training_rows, r.peak_mib,
                 r.peak_above_inputs_mib);
   }
   std::printf("\nGPU time per stage (ms, median)\n%8s %10s", "N", "image");
@@ -333,12 +333,13 @@ int main(int argc, char** argv) {
     for (const std::string& name : all) std::printf(" %16.4f", r.stages.count(name) ? r.stages.at(name) : 0.0);
     std::printf("\n");
   }
-  std::printf("\nforward blend per cut rule (ms, median): be fwd and its blend stage; default: runs longer than %.1f\n"
-              "times the intersections per resident block cut (* when any was, so the segmented kernel ran), uncut:\n"
-              "never cut, cut-all: every run longer than %ld cut\n",
-              sfgs::kBlendCutShare, long(sfgs::kBlendSegmentLength));
-  std::printf("%8s %10s | %9s %9s | %9s %9s | %9s %9s\n", "N", "image", "default", "blend", "uncut", "blend",
-              "cut-all", "blend");
+  std::printf(
+      "\nforward blend per cut rule (ms, median): be fwd and its blend stage; default: runs longer than %.1f\n"
+      "times the intersections per resident block cut (* when any was, so the segmented kernel ran), uncut:\n"
+      "never cut, cut-all: every run longer than %ld cut\n",
+      sfgs::kBlendCutShare, long(sfgs::kBlendSegmentLength));
+  std::printf("%8s %10s | %9s %9s | %9s %9s | %9s %9s\n", "N", "image", "default", "blend", "uncut", "blend", "cut-all",
+              "blend");
   for (const Result& r : results) {
     std::printf("%8lld %4lldx%-5lld | %8.3f%s %9.3f | %9.3f %9.3f | %9.3f %9.3f\n", (long long)r.workload.count,
                 (long long)r.workload.width, (long long)r.workload.height, r.cut_default.forward,

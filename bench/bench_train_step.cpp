@@ -32,7 +32,8 @@ struct Arguments {
 };
 
 [[noreturn]] void usage() {
-  std::fprintf(stderr, "usage: bench_train_step --data DIR --config FILE [--warmup N] [--steps N] [--out DIR] [--profile 1]\n");
+  std::fprintf(stderr,
+               "usage: bench_train_step --data DIR --config FILE [--warmup N] [--steps N] [--out DIR] [--profile 1]\n");
   std::exit(2);
 }
 
@@ -42,13 +43,20 @@ Arguments parse(int argc, char** argv) {
     const std::string flag = argv[i];
     if (i + 1 >= argc) usage();
     const std::string value = argv[++i];
-    if (flag == "--data") a.data = value;
-    else if (flag == "--config") a.config = value;
-    else if (flag == "--out") a.out = value;
-    else if (flag == "--warmup") a.warmup = std::max(1, std::atoi(value.c_str()));
-    else if (flag == "--steps") a.steps = std::max(1, std::atoi(value.c_str()));
-    else if (flag == "--profile") a.profile = value == "1";
-    else usage();
+    if (flag == "--data")
+      a.data = value;
+    else if (flag == "--config")
+      a.config = value;
+    else if (flag == "--out")
+      a.out = value;
+    else if (flag == "--warmup")
+      a.warmup = std::max(1, std::atoi(value.c_str()));
+    else if (flag == "--steps")
+      a.steps = std::max(1, std::atoi(value.c_str()));
+    else if (flag == "--profile")
+      a.profile = value == "1";
+    else
+      usage();
   }
   if (a.data.empty() || a.config.empty()) usage();
   return a;
@@ -134,7 +142,8 @@ int main(int argc, char** argv) {
     const auto stats = c10::cuda::CUDACachingAllocator::getDeviceStats(0);
     const size_t aggregate = 0;  // StatType::AGGREGATE, whose namespace differs between LibTorch versions
     std::printf("  peak GPU memory: %.2f GB allocated, %.2f GB reserved\n",
-                double(stats.allocated_bytes[aggregate].peak) / 1e9, double(stats.reserved_bytes[aggregate].peak) / 1e9);
+                double(stats.allocated_bytes[aggregate].peak) / 1e9,
+                double(stats.reserved_bytes[aggregate].peak) / 1e9);
   }
 #endif
   sfgs::bench::StageClock clock(cuda);

@@ -34,8 +34,8 @@ py::dict render(const py::object& means, const py::object& opacities, const py::
                 const py::object& background, const py::object& world_to_camera, const py::object& fx,
                 const py::object& fy, const py::object& cx, const py::object& cy, const py::object& width,
                 const py::object& height, const py::object& scales, const py::object& rotations,
-                const py::object& covariances, const py::object& near_plane, const py::object& far_plane,
-                bool low_pass, bool antialiased, bool deterministic) {
+                const py::object& covariances, const py::object& near_plane, const py::object& far_plane, bool low_pass,
+                bool antialiased, bool deterministic) {
   sfgs::Gaussians g;
   g.means = to_tensor(means, "render(means)");
   g.opacities = to_tensor(opacities, "render(opacities)");
@@ -43,11 +43,11 @@ py::dict render(const py::object& means, const py::object& opacities, const py::
   if (auto t = to_optional_tensor(scales, "render(scales)")) g.scales = *t;
   if (auto t = to_optional_tensor(rotations, "render(rotations)")) g.rotations = *t;
   if (auto t = to_optional_tensor(covariances, "render(covariances)")) g.covariances = *t;
-  const sfgs::Camera camera = sfgs::Camera::from_tensor(
-      to_tensor(world_to_camera, "render(world_to_camera)"), to_double(fx, "render(fx)"), to_double(fy, "render(fy)"),
-      to_double(cx, "render(cx)"), to_double(cy, "render(cy)"), to_int(width, "render(width)"),
-      to_int(height, "render(height)"), to_double(near_plane, "render(near_plane)"),
-      to_double(far_plane, "render(far_plane)"));
+  const sfgs::Camera camera =
+      sfgs::Camera::from_tensor(to_tensor(world_to_camera, "render(world_to_camera)"), to_double(fx, "render(fx)"),
+                                to_double(fy, "render(fy)"), to_double(cx, "render(cx)"), to_double(cy, "render(cy)"),
+                                to_int(width, "render(width)"), to_int(height, "render(height)"),
+                                to_double(near_plane, "render(near_plane)"), to_double(far_plane, "render(far_plane)"));
   sfgs::RenderOptions options;
   options.low_pass = low_pass;
   options.antialiased = antialiased;
@@ -273,7 +273,7 @@ class TrainedAvatar {
   }
 
   at::Device device_;
-  std::string data_;  // the dataset folder given to load_avatar; empty: the one the run was trained on
+  std::string data_;            // the dataset folder given to load_avatar; empty: the one the run was trained on
   bool other_dataset_ = false;  // data_ may be another dataset than the run's own
   sfgs::train::TrainedAvatar t_;
   std::optional<sfgs::data::Dataset> dataset_;

@@ -105,8 +105,9 @@ class PyMano {
 void bind_body_layers(py::module_& m) {
   py::class_<PySmplx>(m, "Smplx", "The SMPL-X layer from an official SMPLX_*.npz (docs/body_models.md)")
       .def(py::init<const std::string&, int64_t, int64_t, bool, bool, const std::string&, const std::string&>(),
-           py::arg("path"), py::arg("num_betas") = 10, py::arg("num_expression_coeffs") = 10, py::arg("use_pca") = false,
-           py::arg("flat_hand_mean") = false, py::arg("device") = "cpu", py::arg("dtype") = "float32")
+           py::arg("path"), py::arg("num_betas") = 10, py::arg("num_expression_coeffs") = 10,
+           py::arg("use_pca") = false, py::arg("flat_hand_mean") = false, py::arg("device") = "cpu",
+           py::arg("dtype") = "float32")
       .def("forward", &PySmplx::forward, py::arg("inputs"),
            R"(Pose a batch: a dict of (B, ...) tensors with any of betas (B, num_betas), global_orient (B, 3), body_pose
 (B, 21, 3), jaw_pose, leye_pose, reye_pose (B, 3), left_hand_pose, right_hand_pose (B, 15, 3), expression (B, E),

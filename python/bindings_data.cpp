@@ -20,8 +20,10 @@ metrics::SsimBorder ssim_border(const std::string& name) {
   if (name == "reflect") return metrics::SsimBorder::reflect;
   if (name == "zero") return metrics::SsimBorder::zero;
   if (name == "valid") return metrics::SsimBorder::valid;
-  throw py::value_error("ssim(border): expected 'reflect' (torchmetrics >= 1.4.2, the reported number), 'zero' "
-                        "(the 3DGS training loss) or 'valid' (scikit-image), got '" + name + "'");
+  throw py::value_error(
+      "ssim(border): expected 'reflect' (torchmetrics >= 1.4.2, the reported number), 'zero' "
+      "(the 3DGS training loss) or 'valid' (scikit-image), got '" +
+      name + "'");
 }
 
 // LPIPS networks are loaded once per weights file and kept.
@@ -101,7 +103,9 @@ at::Tensor image_in_unit_range(const py::object& object, const std::string& what
   const double low = values.min().item<double>(), high = values.max().item<double>();
   TORCH_CHECK(low >= -kImageRangeSlack && high <= 1 + kImageRangeSlack, what,
               ": values must lie in [0, 1] (float images), got [", low, ", ", high, "]",
-              high > 2 ? "; 8-bit images take / 255" : low < 0 ? "; [-1, 1] images take (x + 1) / 2" : "");
+              high > 2  ? "; 8-bit images take / 255"
+              : low < 0 ? "; [-1, 1] images take (x + 1) / 2"
+                        : "");
   return t;
 }
 

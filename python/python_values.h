@@ -21,14 +21,12 @@ inline at::Tensor to_tensor(const py::handle& value, const std::string& what) {
     const at::Tensor t = THPVariable_Unpack(value.ptr());
     // A meta tensor has no values to read: refused here rather than by the first operation that reads one.
     if (t.defined() && !(t.is_cpu() || t.is_cuda()))
-      throw py::value_error(what + ": expected a tensor on the CPU or a CUDA device, got one on " +
-                            t.device().str());
+      throw py::value_error(what + ": expected a tensor on the CPU or a CUDA device, got one on " + t.device().str());
     return t;
   }
-  throw py::type_error(what + ": expected a torch.Tensor, got " + python_type(value) +
-                       (py::isinstance<py::list>(value) || py::isinstance<py::tuple>(value)
-                            ? " (wrap it: torch.tensor(...))"
-                            : ""));
+  throw py::type_error(
+      what + ": expected a torch.Tensor, got " + python_type(value) +
+      (py::isinstance<py::list>(value) || py::isinstance<py::tuple>(value) ? " (wrap it: torch.tensor(...))" : ""));
 }
 
 inline int64_t to_int(const py::handle& value, const std::string& what) {
@@ -51,9 +49,8 @@ inline std::optional<at::Tensor> to_optional_tensor(const py::handle& value, con
 // A camera as the Python API gives and takes it.
 inline py::dict camera_dict(const sfgs::Camera& c) {
   py::dict d;
-  d["world_to_camera"] = at::tensor(std::vector<double>(c.world_to_camera.begin(), c.world_to_camera.end()),
-                                    at::kDouble)
-                             .view({4, 4});
+  d["world_to_camera"] =
+      at::tensor(std::vector<double>(c.world_to_camera.begin(), c.world_to_camera.end()), at::kDouble).view({4, 4});
   d["fx"] = c.fx;
   d["fy"] = c.fy;
   d["cx"] = c.cx;

@@ -96,8 +96,8 @@ void Animator::stage_frame(model::FrameTime time) {
 void Animator::splat(const model::AvatarOutput& out) {
   const StageScope stage("render");
   Gaussians gaussians = model::to_gaussians(out);
-  gaussians.opacities = cull_back_facing(gaussians.opacities, out.means, out.posed_normals, camera_centre_,
-                                         options_.back_facing_cosine);
+  gaussians.opacities =
+      cull_back_facing(gaussians.opacities, out.means, out.posed_normals, camera_centre_, options_.back_facing_cosine);
   gaussians.means = camera_frame_.points(gaussians.means);
   gaussians.covariances = camera_frame_.covariances(gaussians.covariances);
   result_ = sfgs::render(gaussians, background_, origin_camera_, options_.render);

@@ -14,10 +14,9 @@ at::Tensor cull_back_facing(const at::Tensor& opacities, const at::Tensor& means
   TORCH_CHECK(normals.defined() && normals.sizes() == means.sizes() && normals.device() == means.device(),
               "cull_back_facing: normals must be an (", n, ", 3) tensor on ", means.device(), ", got ",
               describe(normals));
-  TORCH_CHECK(opacities.defined() && opacities.dim() == 1 && opacities.size(0) == n &&
-                  opacities.device() == means.device(),
-              "cull_back_facing: opacities must be an (", n, ") tensor on ", means.device(), ", got ",
-              describe(opacities));
+  TORCH_CHECK(
+      opacities.defined() && opacities.dim() == 1 && opacities.size(0) == n && opacities.device() == means.device(),
+      "cull_back_facing: opacities must be an (", n, ") tensor on ", means.device(), ", got ", describe(opacities));
   TORCH_CHECK(centre.defined() && centre.numel() == 3 && centre.device() == means.device(),
               "cull_back_facing: the camera centre must be a (3) tensor on ", means.device(), ", got ",
               describe(centre));

@@ -15,8 +15,8 @@
 namespace sfgs::animate {
 
 // opacities (N) with those of back-facing Gaussians set to zero (splatting then skips them): means and normals
-// (N, 3) world, normals of unit length; camera_centre (3) on their device (sfgs::camera_centre) (a tensor, so a recorded CUDA graph
-// reads the current camera); max_cosine >= 1 culls nothing. No host synchronisation.
+// (N, 3) world, normals of unit length; camera_centre (3) on their device (sfgs::camera_centre) (a tensor, so a
+// recorded CUDA graph reads the current camera); max_cosine >= 1 culls nothing. No host synchronisation.
 at::Tensor cull_back_facing(const at::Tensor& opacities, const at::Tensor& means, const at::Tensor& normals,
                             const at::Tensor& camera_centre, double max_cosine);
 

@@ -103,7 +103,7 @@ PosedSkeleton KinematicTreeImpl::pose(const at::Tensor& rotations, const at::Ten
                                       const at::Tensor& translation) const {
   check_pose_inputs(rotations, rest_joints, translation);
   return fuses(rotations, rest_joints, translation) ? pose_fused(rotations, rest_joints, translation)
-                                                   : compose(rotations, rest_joints, translation);
+                                                    : compose(rotations, rest_joints, translation);
 }
 
 bool KinematicTreeImpl::fuses(const at::Tensor& rotations, const at::Tensor& rest_joints,
@@ -118,8 +118,8 @@ PosedSkeleton KinematicTreeImpl::pose_fused(const at::Tensor& rotations, const a
                                             const at::Tensor& translation) const {
   const int64_t b = rotations.size(0), j = size();
   if (!device_parents_.defined() || device_parents_.device() != rotations.device())
-    device_parents_ = at::tensor(std::vector<int32_t>(parents_.begin(), parents_.end()), at::kInt)
-                          .to(rotations.device());
+    device_parents_ =
+        at::tensor(std::vector<int32_t>(parents_.begin(), parents_.end()), at::kInt).to(rotations.device());
   const at::Tensor r = rotations.contiguous(), rest = rest_joints.contiguous(), t = translation.contiguous();
   PosedSkeleton out;
   out.joints = at::empty({b, j, 3}, r.options());

@@ -46,8 +46,7 @@ class ModelChecks {
 
   // The arrays every skinned model has (SmplxModelData, ManoModelData): template, faces, joint regressor, skinning
   // weights, kinematic tree, shape and pose blend shapes. Returns the vertex count.
-  template <typename ModelData>
-  int64_t skinned_model(const ModelData& d, int64_t joints) const {
+  template <typename ModelData> int64_t skinned_model(const ModelData& d, int64_t joints) const {
     TORCH_CHECK(d.v_template.defined() && d.v_template.dim() == 2 && d.v_template.size(1) == 3, what_,
                 ": v_template must have shape (V, 3), got ", describe(d.v_template));
     const int64_t v = d.v_template.size(0);

@@ -25,7 +25,7 @@ const std::array<SmplxPose::Field, 9>& SmplxPose::fields() {
 SmplxPose SmplxPose::zeros(int64_t expression_count) {
   SmplxPose p;
   for (const Field& f : fields())
-    p.*(f.member) = f.joints == 0 ? at::zeros({expression_count})
+    p.*(f.member) = f.joints == 0   ? at::zeros({expression_count})
                     : f.joints == 1 ? at::zeros({3})
                                     : at::zeros({f.joints, 3});
   return p;

@@ -58,8 +58,8 @@ int64_t Arguments::integer(const std::string& name, int64_t fallback, int64_t lo
     used = 0;
   }
   if (used != v.size() || x < lo || x > hi)
-    throw std::invalid_argument("--" + name + " expects an integer in [" + std::to_string(lo) + ", " + std::to_string(hi) +
-                                "], got '" + v + "'");
+    throw std::invalid_argument("--" + name + " expects an integer in [" + std::to_string(lo) + ", " +
+                                std::to_string(hi) + "], got '" + v + "'");
   return x;
 }
 
@@ -74,8 +74,8 @@ double Arguments::real(const std::string& name, double fallback, double lo, doub
     used = 0;
   }
   if (used != v.size() || !(x >= lo && x <= hi))
-    throw std::invalid_argument("--" + name + " expects a number in [" + std::to_string(lo) + ", " + std::to_string(hi) +
-                                "], got '" + v + "'");
+    throw std::invalid_argument("--" + name + " expects a number in [" + std::to_string(lo) + ", " +
+                                std::to_string(hi) + "], got '" + v + "'");
   return x;
 }
 

@@ -162,14 +162,16 @@ int run_eval(Arguments& args) {
   };
   const train::AvatarEvaluation e = train::evaluate_avatar(dataset, split, t.avatar, options, images(origin), force);
   const std::string written = train::write_result(run, origin, evaluation_json(e));
-  std::printf("sfgs eval: %s\n  %s\n  render %.2f ms a frame (median; avatar + rasterisation; the first frame "
-              "%.1f ms%s); %s\n%s",
-              dataset.source.c_str(), metrics::to_string(e.summary).c_str(), e.render_milliseconds,
-              e.first_render_milliseconds, t.avatar->part_labels().is_cuda() ? ", recording the CUDA graph" : "",
-              written.c_str(), group_lines(e).c_str());
+  std::printf(
+      "sfgs eval: %s\n  %s\n  render %.2f ms a frame (median; avatar + rasterisation; the first frame "
+      "%.1f ms%s); %s\n%s",
+      dataset.source.c_str(), metrics::to_string(e.summary).c_str(), e.render_milliseconds, e.first_render_milliseconds,
+      t.avatar->part_labels().is_cuda() ? ", recording the CUDA graph" : "", written.c_str(), group_lines(e).c_str());
   for (const std::string& stale : train::stale_results(run))
-    std::printf("  note: %s in the run measured another checkpoint than its current one (stale); evaluate again to "
-                "replace it\n", stale.c_str());
+    std::printf(
+        "  note: %s in the run measured another checkpoint than its current one (stale); evaluate again to "
+        "replace it\n",
+        stale.c_str());
   if (!fit_poses) return 0;
   // The NeuMan protocol's test-time pose fitting, reported beside the plain protocol, never instead of it.
   std::printf("sfgs eval: fitting each frame's pose to its image (%lld loss evaluations, the avatar frozen)\n",
@@ -237,8 +239,8 @@ std::vector<std::string> earlier_render_files(const std::string& folder, bool fo
       j = nlohmann::json::parse(in);
     } catch (const std::exception&) {
     }
-    TORCH_CHECK(j.is_object() && j.value("format", "") == kRenderManifestFormat && j.contains("written"),
-                "render: '", manifest.string(), "' is not a manifest sfgs wrote: render into another folder");
+    TORCH_CHECK(j.is_object() && j.value("format", "") == kRenderManifestFormat && j.contains("written"), "render: '",
+                manifest.string(), "' is not a manifest sfgs wrote: render into another folder");
     for (const auto& name : j.at("written")) listed.insert(name.get<std::string>());
   }
   static const std::regex own_name(R"(frame_[0-9]{4,}\.png|render\.mp4)");
@@ -299,9 +301,9 @@ RenderPace render_frames(train::TrainedAvatar& t, RenderRequest& request, Writte
   // The dataset's camera orbits the training frame's body; the other cameras aim at the motion's first frame (orbit,
   // fixed) or follow the body's root as it moves (follow), from the front (+Z, where the body model faces).
   const body::SmplxPose first_pose = source.pose(t.avatar, 0);
-  const std::array<double, 3> first =
-      request.camera.empty() ? centre_of(train::pose_avatar(t.avatar, trained_on, 0))
-                             : centre_of(t.avatar->forward(first_pose, source.replay_time(0)));
+  const std::array<double, 3> first = request.camera.empty()
+                                          ? centre_of(train::pose_avatar(t.avatar, trained_on, 0))
+                                          : centre_of(t.avatar->forward(first_pose, source.replay_time(0)));
   const auto root_of = [](const body::SmplxPose& pose) {
     std::array<double, 3> root{0, 0, 0};
     if (!pose.transl.defined()) return root;
@@ -412,14 +414,14 @@ int run_render(Arguments& args) {
                         std::vector<unsigned char>(text.begin(), text.end()), true);
   for (const std::string& name : earlier)
     if (name != kRenderManifest && !names.count(name)) fs::remove(fs::path(request.out) / name);
-  std::printf("sfgs render: %lld frames to %s (%s) in %.2f s\n"
-              "  render %.1f frames/s (median frame %.2f ms: avatar + rasterisation%s; the first frame %.1f ms)\n"
-              "  encode %.1f frames/s (%d PNG threads%s, beside the render)\n",
-              (long long)request.frames, request.out.c_str(),
-              wrote_video ? "PNG + render.mp4" : "PNG only: this build's OpenCV has no MP4 encoder", pace.total_seconds,
-              1e3 / std::max(pace.median_frame_ms, 1e-9), pace.median_frame_ms,
-              device.is_cuda() ? ", a CUDA graph replay" : "", pace.first_frame_ms, pace.encode_fps,
-              pace.encode_threads, wrote_video ? " and one for the video" : "");
+  std::printf(
+      "sfgs render: %lld frames to %s (%s) in %.2f s\n"
+      "  render %.1f frames/s (median frame %.2f ms: avatar + rasterisation%s; the first frame %.1f ms)\n"
+      "  encode %.1f frames/s (%d PNG threads%s, beside the render)\n",
+      (long long)request.frames, request.out.c_str(),
+      wrote_video ? "PNG + render.mp4" : "PNG only: this build's OpenCV has no MP4 encoder", pace.total_seconds,
+      1e3 / std::max(pace.median_frame_ms, 1e-9), pace.median_frame_ms, device.is_cuda() ? ", a CUDA graph replay" : "",
+      pace.first_frame_ms, pace.encode_fps, pace.encode_threads, wrote_video ? " and one for the video" : "");
   return 0;
 }
 

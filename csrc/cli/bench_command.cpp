@@ -45,7 +45,8 @@ int run_bench(Arguments& args) {
   scene::GaussianScene s = scene::demo_scene(count, width, height, 7, at::kFloat);
   const at::Device dev(device == "cuda" ? at::kCUDA : at::kCPU);
   Gaussians& g = s.gaussians;
-  for (at::Tensor* t : {&g.means, &g.scales, &g.rotations, &g.opacities, &g.features}) *t = t->to(dev).set_requires_grad(true);
+  for (at::Tensor* t : {&g.means, &g.scales, &g.rotations, &g.opacities, &g.features})
+    *t = t->to(dev).set_requires_grad(true);
   s.background = s.background.to(dev);
 
   std::vector<double> forward_ms, backward_ms;

@@ -33,8 +33,7 @@ at::Tensor eight_bit_image(const at::Tensor& image) {
 }
 
 FrameEncoder::FrameEncoder(VideoWriter* video, bool overwrite, int png_threads)
-    : video_(video), overwrite_(overwrite),
-      capacity_(kQueuedFramesPerThread * size_t(std::max(png_threads, 1) + 1)) {
+    : video_(video), overwrite_(overwrite), capacity_(kQueuedFramesPerThread * size_t(std::max(png_threads, 1) + 1)) {
   const auto write_png = [this](const at::Tensor& image, const Frame& f) {
     data::write_png(f.path, image, overwrite_);
   };
@@ -91,8 +90,7 @@ void FrameEncoder::rethrow() {
   if (error_) std::rethrow_exception(error_);
 }
 
-void FrameEncoder::drain(std::deque<Frame>& queue,
-                         const std::function<void(const at::Tensor&, const Frame&)>& encode) {
+void FrameEncoder::drain(std::deque<Frame>& queue, const std::function<void(const at::Tensor&, const Frame&)>& encode) {
   for (;;) {
     Frame frame;
     {

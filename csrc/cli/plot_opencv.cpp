@@ -32,8 +32,8 @@ std::string label(double v) {
 
 // One panel: both PSNR series against x(point).
 void draw_panel(cv::Mat& canvas, int left, const std::vector<train::ErrorCurvePoint>& points,
-                const std::function<double(const train::ErrorCurvePoint&)>& x, const std::string& x_name,
-                double y_low, double y_high) {
+                const std::function<double(const train::ErrorCurvePoint&)>& x, const std::string& x_name, double y_low,
+                double y_high) {
   double x_high = 0;
   for (const auto& p : points) x_high = std::max(x_high, x(p));
   x_high = x_high > 0 ? x_high : 1;
@@ -75,10 +75,11 @@ bool write_error_curve_plot(const std::vector<train::ErrorCurvePoint>& points, c
   if (!std::isfinite(low)) return false;
   low = std::floor(low) - 1, high = std::ceil(high) + 1;
   cv::Mat canvas(kPanelHeight, 2 * kPanelWidth, CV_8UC3, cv::Scalar(255, 255, 255));
-  draw_panel(canvas, 0, points, [](const train::ErrorCurvePoint& p) { return double(p.iteration); }, "iteration",
-             low, high);
-  draw_panel(canvas, kPanelWidth, points, [](const train::ErrorCurvePoint& p) { return p.training_seconds; },
-             "training seconds", low, high);
+  draw_panel(
+      canvas, 0, points, [](const train::ErrorCurvePoint& p) { return double(p.iteration); }, "iteration", low, high);
+  draw_panel(
+      canvas, kPanelWidth, points, [](const train::ErrorCurvePoint& p) { return p.training_seconds; },
+      "training seconds", low, high);
   cv::putText(canvas, "val", {2 * kPanelWidth - 130, 18}, cv::FONT_HERSHEY_SIMPLEX, 0.5, kValColour, 2, cv::LINE_AA);
   cv::putText(canvas, "test", {2 * kPanelWidth - 80, 18}, cv::FONT_HERSHEY_SIMPLEX, 0.5, kTestColour, 2, cv::LINE_AA);
   // OpenCV draws BGR; the PNG writer takes RGB floats in [0, 1].

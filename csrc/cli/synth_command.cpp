@@ -19,20 +19,25 @@ int run_synth(Arguments& args) {
   o.frames = args.integer("frames", o.frames, 1, 100000);
   o.frames_per_second = args.real("fps", o.frames_per_second, 1e-3, 1e4);
   const std::string light = args.text("light", "key");
-  TORCH_CHECK(light == "key" || light == "head", "--light: expected 'key' (fixed in the world, with shadows) or "
-              "'head' (at the camera), got '", light, "'");
+  TORCH_CHECK(light == "key" || light == "head",
+              "--light: expected 'key' (fixed in the world, with shadows) or "
+              "'head' (at the camera), got '",
+              light, "'");
   o.key_light = light == "key";
   o.width = args.integer("width", o.width, 16, kMaxImageSide);
   o.height = args.integer("height", o.height, 16, kMaxImageSide);
   o.seed = uint64_t(args.integer("seed", int64_t(o.seed), 0, INT64_MAX));
   o.overwrite = args.flag("force");
   const std::string layout = args.text("layout", "sfgs");
-  TORCH_CHECK(layout == "sfgs" || layout == "neuman", "--layout: expected 'sfgs' (dataset.json) or 'neuman' "
-              "(NeuMan/ExAvatar folders), got '", layout, "'");
+  TORCH_CHECK(layout == "sfgs" || layout == "neuman",
+              "--layout: expected 'sfgs' (dataset.json) or 'neuman' "
+              "(NeuMan/ExAvatar folders), got '",
+              layout, "'");
   o.layout = layout == "sfgs" ? data::DatasetLayout::kSfgs : data::DatasetLayout::kNeuman;
   o.pose_noise = data::pose_noise_level(args.text("pose-noise", "none"));
   const std::string keypoint_noise = args.text("keypoint-noise", "detector");
-  TORCH_CHECK(keypoint_noise == "detector" || keypoint_noise == "none", "--keypoint-noise: expected 'detector' "
+  TORCH_CHECK(keypoint_noise == "detector" || keypoint_noise == "none",
+              "--keypoint-noise: expected 'detector' "
               "(noise, low scores, dropped points and outliers as a detector reports) or 'none' (exact), got '",
               keypoint_noise, "'");
   o.keypoint_noise.exact = keypoint_noise == "none";
@@ -52,8 +57,8 @@ int run_synth(Arguments& args) {
   std::printf("sfgs synth: wrote %lld frames (%lld train, %lld val, %lld test%s) of %lld x %lld to %s\n",
               (long long)d.size(), (long long)d.split(data::Split::kTrain).size(),
               (long long)d.split(data::Split::kVal).size(), (long long)d.split(data::Split::kTest).size(),
-              o.test_motions.empty() ? ", interleaved" : (": new motions " + test_motions).c_str(),
-              (long long)o.width, (long long)o.height, out.c_str());
+              o.test_motions.empty() ? ", interleaved" : (": new motions " + test_motions).c_str(), (long long)o.width,
+              (long long)o.height, out.c_str());
   if (!o.pose_noise.is_zero())
     std::printf("sfgs synth: fits corrupted at level %s (the exact ones in %s)\n", o.pose_noise.name.c_str(),
                 o.layout == data::DatasetLayout::kSfgs ? "dataset.json: smplx_truth, betas_truth" : "ground_truth/");

@@ -48,8 +48,9 @@ void finish_training(const train::TrainSummary& s, int64_t scheduled) {
   if (s.rounds > 1)
     std::printf("  round %lld of %lld, in %s\n", (long long)s.round, (long long)s.rounds, run.path.c_str());
   if (s.steps == 0) {
-    std::printf("  run '%s' is already at iteration %lld of %lld: nothing to do (raise --iterations to train further)\n",
-                run.path.c_str(), (long long)s.iterations, (long long)scheduled);
+    std::printf(
+        "  run '%s' is already at iteration %lld of %lld: nothing to do (raise --iterations to train further)\n",
+        run.path.c_str(), (long long)s.iterations, (long long)scheduled);
     return;
   }
   std::string validation = "no validation frames in the dataset";
@@ -60,13 +61,15 @@ void finish_training(const train::TrainSummary& s, int64_t scheduled) {
   } else if (s.has_validation_frames) {
     validation = "not validated in this call";
   }
-  std::printf("  iterations %lld-%lld (%lld steps, %.1f ms each); the run is %s at iteration %lld of %lld; final loss "
-              "%.4f; %s\n",
-              (long long)s.first_iteration + 1, (long long)s.iterations, (long long)s.steps,
-              1000.0 * s.step_seconds / double(s.steps), s.finished ? "finished" : "paused", (long long)s.iterations,
-              (long long)scheduled, s.final_loss, validation.c_str());
+  std::printf(
+      "  iterations %lld-%lld (%lld steps, %.1f ms each); the run is %s at iteration %lld of %lld; final loss "
+      "%.4f; %s\n",
+      (long long)s.first_iteration + 1, (long long)s.iterations, (long long)s.steps,
+      1000.0 * s.step_seconds / double(s.steps), s.finished ? "finished" : "paused", (long long)s.iterations,
+      (long long)scheduled, s.final_loss, validation.c_str());
   std::printf("  %.1f s of training steps over the whole run\n", s.training_seconds);
-  const std::string csv = (fs::path(run.path) / "curve.csv").string(), png = (fs::path(run.path) / "curve.png").string();
+  const std::string csv = (fs::path(run.path) / "curve.csv").string(),
+                    png = (fs::path(run.path) / "curve.png").string();
   const std::vector<train::ErrorCurvePoint> curve = train::write_error_curve_csv(run, csv);
   const bool plotted = write_error_curve_plot(curve, png, true);
   std::printf("  run-time versus error: %s%s%s\n", csv.c_str(), plotted ? ", " : "", plotted ? png.c_str() : "");
@@ -93,8 +96,8 @@ RunEvaluation evaluate_run(const train::RunFolder& run, const data::Dataset& dat
   t.avatar->eval();
   t.avatar->cache_static_features();
   RunEvaluation e;
-  e.test = train::evaluate_avatar(dataset, data::Split::kTest, t.avatar, metrics::EvaluationOptions{}, images,
-                                  overwrite);
+  e.test =
+      train::evaluate_avatar(dataset, data::Split::kTest, t.avatar, metrics::EvaluationOptions{}, images, overwrite);
   train::write_result(run, origin, evaluation_json(e.test));
   if (!dataset.split(data::Split::kVal).empty()) {
     e.val = train::evaluate_avatar(dataset, data::Split::kVal, t.avatar, metrics::EvaluationOptions{}, "", overwrite);
@@ -165,8 +168,8 @@ int run_train(Arguments& args) {
   args.finish();
   // A run inside its dataset would mix its files into the dataset's (and a --force could remove them).
   const fs::path data_path = fs::weakly_canonical(data_folder), run_path = fs::weakly_canonical(run.path);
-  const bool inside = std::mismatch(data_path.begin(), data_path.end(), run_path.begin(), run_path.end()).first ==
-                      data_path.end();
+  const bool inside =
+      std::mismatch(data_path.begin(), data_path.end(), run_path.begin(), run_path.end()).first == data_path.end();
   TORCH_CHECK(!inside, "--out '", run.path, "' lies in the dataset folder '", data_folder,
               "': give the run a folder of its own, outside the dataset");
   const data::Dataset dataset = data::read_dataset(data_folder);
@@ -219,8 +222,10 @@ int run_ablate(Arguments& args) {
     table.push_back(j);
   }
   const std::string json_text = table.dump(1) + "\n";
-  write_file_atomically((fs::path(out) / "ablation.json").string(), std::vector<unsigned char>(json_text.begin(), json_text.end()), force);
-  write_file_atomically((fs::path(out) / "ablation.md").string(), std::vector<unsigned char>(markdown.begin(), markdown.end()), force);
+  write_file_atomically((fs::path(out) / "ablation.json").string(),
+                        std::vector<unsigned char>(json_text.begin(), json_text.end()), force);
+  write_file_atomically((fs::path(out) / "ablation.md").string(),
+                        std::vector<unsigned char>(markdown.begin(), markdown.end()), force);
   std::printf("%s", markdown.c_str());
   return 0;
 }
@@ -252,12 +257,14 @@ int run_demo(Arguments& args) {
               listed(video.test_motions).c_str());
   const data::Dataset dataset = data::write_synthetic_video(data_folder, video);
   const train::RunFolder run{(fs::path(out) / "run").string()};
-  std::printf("sfgs demo 2/4: training %lld iterations on %s\n", (long long)config.schedule.iterations, config.device.c_str());
+  std::printf("sfgs demo 2/4: training %lld iterations on %s\n", (long long)config.schedule.iterations,
+              config.device.c_str());
   train::TrainOptions options;
   options.overwrite = true;
   finish_training(train::train_avatar(dataset, config, run, options), config.schedule.iterations);
-  std::printf("sfgs demo 3/4: evaluating the new motions (test) and the held-out frames of the training motions "
-              "(val), ExAvatar/SFGS protocol\n");
+  std::printf(
+      "sfgs demo 3/4: evaluating the new motions (test) and the held-out frames of the training motions "
+      "(val), ExAvatar/SFGS protocol\n");
   const RunEvaluation e = evaluate_run(run, dataset, config.device, (fs::path(out) / "test_renders").string(), true,
                                        "sfgs demo " + args.line());
   std::printf("  new motions:      %s\n%s", metrics::to_string(e.test.summary).c_str(), group_lines(e.test).c_str());
@@ -266,10 +273,11 @@ int run_demo(Arguments& args) {
   const std::string render_folder = (fs::path(out) / "novel").string();
   Arguments render_args({"--run", run.path, "--out", render_folder, "--frames", "24", "--force"}, {"force"});
   run_render(render_args);
-  std::printf("sfgs demo: done. New-motion PSNR %.2f dB, SSIM %.4f (held-out frames of the training motions: %.2f dB); "
-              "test renders in %s, novel views in %s\n",
-              e.test.summary.psnr, e.test.summary.ssim, e.val->summary.psnr,
-              (fs::path(out) / "test_renders").string().c_str(), render_folder.c_str());
+  std::printf(
+      "sfgs demo: done. New-motion PSNR %.2f dB, SSIM %.4f (held-out frames of the training motions: %.2f dB); "
+      "test renders in %s, novel views in %s\n",
+      e.test.summary.psnr, e.test.summary.ssim, e.val->summary.psnr, (fs::path(out) / "test_renders").string().c_str(),
+      render_folder.c_str());
   return 0;
 }
 

@@ -94,7 +94,8 @@ bool VideoWriter::available() const { return state_->writer.isOpened(); }
 
 void VideoWriter::add(const at::Tensor& image) {
   if (!available()) return;
-  const at::Tensor bgr = image.detach().cpu().flip({2}).clamp(0, 1).mul(kEightBitMax).round().to(at::kByte).contiguous();
+  const at::Tensor bgr =
+      image.detach().cpu().flip({2}).clamp(0, 1).mul(kEightBitMax).round().to(at::kByte).contiguous();
   cv::Mat frame(int(bgr.size(0)), int(bgr.size(1)), CV_8UC3, bgr.data_ptr<uint8_t>());
   state_->writer.write(frame);
   ++state_->frames;

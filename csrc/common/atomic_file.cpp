@@ -52,8 +52,8 @@ void write_file_atomically(const std::string& path, const std::vector<unsigned c
   const std::string temporary = temporary_path(path);
   FILE* f = std::fopen(temporary.c_str(), "wb");
   if (!f) throw std::runtime_error("cannot create '" + temporary + "': " + std::strerror(errno));
-  const bool written = std::fwrite(bytes.data(), 1, bytes.size(), f) == bytes.size() && std::fflush(f) == 0 &&
-                       ::fsync(::fileno(f)) == 0;
+  const bool written =
+      std::fwrite(bytes.data(), 1, bytes.size(), f) == bytes.size() && std::fflush(f) == 0 && ::fsync(::fileno(f)) == 0;
   const int write_error = errno;
   const bool closed = std::fclose(f) == 0;
   if (!written || !closed || std::rename(temporary.c_str(), path.c_str()) != 0) {

@@ -11,8 +11,6 @@ std::string describe(const at::Tensor& t) {
   return s.str();
 }
 
-bool is_float_or_double(const at::Tensor& t) {
-  return t.scalar_type() == at::kFloat || t.scalar_type() == at::kDouble;
-}
+bool is_float_or_double(const at::Tensor& t) { return t.scalar_type() == at::kFloat || t.scalar_type() == at::kDouble; }
 
 }  // namespace sfgs

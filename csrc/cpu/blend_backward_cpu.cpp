@@ -39,7 +39,9 @@ template <typename T>
 void replay_tile(const BackwardPass<T>& a, int64_t tile, std::vector<TileEntry<T>>& entries,
                  std::vector<std::vector<ReplayedPair<T>>>& replay) {
   const TileBox box = tile_box(a.grid, tile);
-  const auto last_of = [&](int lx, int ly) { return a.contributors[int64_t(box.y0 + ly) * a.grid.width + box.x0 + lx]; };
+  const auto last_of = [&](int lx, int ly) {
+    return a.contributors[int64_t(box.y0 + ly) * a.grid.width + box.x0 + lx];
+  };
   int32_t longest = 0;
   for (int ly = 0; ly < box.height; ++ly)
     for (int lx = 0; lx < box.width; ++lx) longest = std::max(longest, last_of(lx, ly));
@@ -119,7 +121,8 @@ template <typename T> void tile_gradients(const BackwardPass<T>& a, int64_t begi
 
 // Sums each Gaussian's slots in emission order and turns the sums into its input gradients.
 template <typename T>
-void gaussian_gradients(const SplatScene<T>& s, const int64_t* gaussian_offsets, const T* slots, const Gradients<T>& out) {
+void gaussian_gradients(const SplatScene<T>& s, const int64_t* gaussian_offsets, const T* slots,
+                        const Gradients<T>& out) {
   const int64_t slot_width = kProjectedGradWidth + s.channels;
   at::parallel_for(0, s.count, kGaussiansPerTask, [&](int64_t begin, int64_t end) {
     std::vector<T> sum(static_cast<size_t>(slot_width));
@@ -143,18 +146,17 @@ void blend_backward(const SplatScene<T>& s, const TileGrid& grid, const TileList
   const int64_t tiles = tile_count(grid);
   std::vector<T> slots(size_t(intersections * (kProjectedGradWidth + s.channels)), T(0));
   std::vector<T> background_partials(size_t(tiles * s.channels), T(0));
-  const BackwardPass<T> pass{s,     grid,         lists, final_transmittance, contributors, grads,
-                             slots.data(), background_partials.data()};
+  const BackwardPass<T> pass{
+      s, grid, lists, final_transmittance, contributors, grads, slots.data(), background_partials.data()};
   at::parallel_for(0, tiles, 1, [&](int64_t begin, int64_t end) { tile_gradients(pass, begin, end); });
   gaussian_gradients(s, gaussian_offsets, slots.data(), out);
   for (int64_t t = 0; t < tiles; ++t)
     for (int c = 0; c < s.channels; ++c) out.background[c] += background_partials[size_t(t * s.channels + c)];
 }
 
-#define SFGS_INSTANTIATE(T)                                                                                         \
-  template void blend_backward<T>(const SplatScene<T>&, const TileGrid&, const TileLists<T>&, const int64_t*,      \
-                                  int64_t, const T*, const int32_t*, const OutputGradientArrays<T>&,              \
-                                  const Gradients<T>&);
+#define SFGS_INSTANTIATE(T)                                                                                            \
+  template void blend_backward<T>(const SplatScene<T>&, const TileGrid&, const TileLists<T>&, const int64_t*, int64_t, \
+                                  const T*, const int32_t*, const OutputGradientArrays<T>&, const Gradients<T>&);
 SFGS_INSTANTIATE(float)
 SFGS_INSTANTIATE(double)
 #undef SFGS_INSTANTIATE

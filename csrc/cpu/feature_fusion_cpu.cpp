@@ -10,15 +10,13 @@ namespace {
 
 constexpr int64_t kElementsPerTask = 16384;  // at::parallel_for's grain: a task's share is worth a thread
 
-template <typename T>
-void mix(const GatedMixArrays<T>& a) {
+template <typename T> void mix(const GatedMixArrays<T>& a) {
   at::parallel_for(0, a.count, kElementsPerTask, [&](int64_t begin, int64_t end) {
     for (int64_t i = begin; i < end; ++i) a.out[i] = gated_mix_value(a.logits[i], a.a[i], a.b[i]);
   });
 }
 
-template <typename T>
-void mix_backward(const GatedMixGradientArrays<T>& a) {
+template <typename T> void mix_backward(const GatedMixGradientArrays<T>& a) {
   at::parallel_for(0, a.count, kElementsPerTask, [&](int64_t begin, int64_t end) {
     for (int64_t i = begin; i < end; ++i) {
       const GatedMixGradient<T> g = gated_mix_gradient(a.logits[i], a.a[i], a.b[i], a.grad_out[i]);
@@ -29,8 +27,7 @@ void mix_backward(const GatedMixGradientArrays<T>& a) {
   });
 }
 
-template <typename T>
-void gather(const RowGatherArrays<T>& r) {
+template <typename T> void gather(const RowGatherArrays<T>& r) {
   at::parallel_for(0, r.rows, std::max<int64_t>(1, kElementsPerTask / std::max<int64_t>(1, r.columns)),
                    [&](int64_t begin, int64_t end) {
                      for (int64_t row = begin; row < end; ++row) {

@@ -14,8 +14,7 @@ constexpr int64_t kElementsPerTask = 16384;  // at::parallel_for's grain: a task
 // Rows a partial table sums: enough that the tables (group_count x width each) stay few next to the rows.
 constexpr int64_t kRowsPerPartial = 4096;
 
-template <typename T>
-void forward_rows(const FirstLayerArrays<T>& a) {
+template <typename T> void forward_rows(const FirstLayerArrays<T>& a) {
   at::parallel_for(0, a.rows, std::max<int64_t>(1, kElementsPerTask / a.width), [&](int64_t begin, int64_t end) {
     for (int64_t row = begin; row < end; ++row) {
       const int64_t group = a.groups[row];
@@ -28,8 +27,7 @@ void forward_rows(const FirstLayerArrays<T>& a) {
   });
 }
 
-template <typename T>
-void backward_rows(const FirstLayerGradientArrays<T>& a) {
+template <typename T> void backward_rows(const FirstLayerGradientArrays<T>& a) {
   const int64_t table = a.group_count * a.width;
   at::parallel_for(0, a.partial_rows, 1, [&](int64_t begin, int64_t end) {
     for (int64_t partial = begin; partial < end; ++partial) {

@@ -11,15 +11,13 @@ namespace {
 
 constexpr int64_t kRowsPerTask = 1024;
 
-template <typename T>
-void forward_rows(const GroupNormArrays<T>& a) {
+template <typename T> void forward_rows(const GroupNormArrays<T>& a) {
   at::parallel_for(0, a.rows, kRowsPerTask, [&](int64_t begin, int64_t end) {
     for (int64_t row = begin; row < end; ++row) forward_row(a, row);
   });
 }
 
-template <typename T>
-void backward_rows(const GroupNormGradientArrays<T>& a) {
+template <typename T> void backward_rows(const GroupNormGradientArrays<T>& a) {
   at::parallel_for(0, a.partial_rows, 1, [&](int64_t begin, int64_t end) {
     for (int64_t task = begin; task < end; ++task) {
       T* columns = a.column_partials + task * 3 * a.channels;

@@ -51,9 +51,12 @@ InputGradients backward_typed(const SplatInputs& in, const CameraSpec& camera, c
   const at::Tensor grad_depth = or_zeros(grads.depth_sum, {h, w});
 
   InputGradients out;
-  for (auto [gradient, input] : {std::pair{&out.means, &in.means}, {&out.scales, &in.scales},
-                                 {&out.rotations, &in.rotations}, {&out.covariances, &in.covariances},
-                                 {&out.opacities, &in.opacities}, {&out.features, &in.features},
+  for (auto [gradient, input] : {std::pair{&out.means, &in.means},
+                                 {&out.scales, &in.scales},
+                                 {&out.rotations, &in.rotations},
+                                 {&out.covariances, &in.covariances},
+                                 {&out.opacities, &in.opacities},
+                                 {&out.features, &in.features},
                                  {&out.background, &in.background}})
     if (input->defined()) *gradient = at::zeros_like(*input);
   const auto data = [](const at::Tensor& t) { return t.defined() ? t.data_ptr<T>() : nullptr; };

@@ -16,8 +16,7 @@ constexpr int64_t kRowsPerTask = 8;  // rows of one channel per parallel task
 constexpr int kMomentMaps = 5;       // mu_x, mu_y, xx, yy, xy
 
 // out[j] = sum_k taps[k] padded[j + k] for j < count: the window over a line padded by kWindowRadius each side.
-template <typename T>
-void filter_padded_line(const T* taps, const T* padded, int64_t count, T* out) {
+template <typename T> void filter_padded_line(const T* taps, const T* padded, int64_t count, T* out) {
   for (int64_t j = 0; j < count; ++j) out[j] = taps[0] * padded[j];
   for (int k = 1; k < kSsimWindowSize; ++k)
     for (int64_t j = 0; j < count; ++j) out[j] += taps[k] * padded[j + k];
@@ -36,8 +35,7 @@ void filter_column_window(const T* taps, const T* plane, int64_t height, int64_t
   }
 }
 
-template <typename T>
-void forward_images(const SsimArrays<T>& a) {
+template <typename T> void forward_images(const SsimArrays<T>& a) {
   const int64_t h = a.height, w = a.width, c = a.channels, plane = h * w;
   std::vector<T> rows(size_t(kMomentMaps * c * plane));
   at::parallel_for(0, c * h, kRowsPerTask, [&](int64_t begin, int64_t end) {
@@ -80,8 +78,7 @@ void forward_images(const SsimArrays<T>& a) {
   });
 }
 
-template <typename T>
-void backward_images(const SsimGradientArrays<T>& a) {
+template <typename T> void backward_images(const SsimGradientArrays<T>& a) {
   const int64_t h = a.height, w = a.width, c = a.channels, plane = h * w;
   // The derivative maps' planes are already planar: pad each row, filter it.
   std::vector<T> rows(size_t(kDerivativeMaps * c * plane));

@@ -29,7 +29,8 @@ struct Projection {
 };
 
 // Refuses (c10::Error) a scene whose Gaussian-tile pairs could exceed kCpuMaxTilePairs before testing any tile.
-template <typename T> Projection project(const SplatScene<T>& scene, const TileGrid& grid, const at::TensorOptions& real);
+template <typename T>
+Projection project(const SplatScene<T>& scene, const TileGrid& grid, const at::TensorOptions& real);
 
 // ---- binning -----------------------------------------------------------------------------------------------------
 

@@ -35,8 +35,8 @@ template <> struct DepthBits<double> {
   static __device__ Key of(double v) { return Key(__double_as_longlong(v)); }
 };
 // Above every finite positive depth: culled Gaussians rank last.
-template <typename T> constexpr typename DepthBits<T>::Key kCulledDepthKey =
-    (typename DepthBits<T>::Key(1) << DepthBits<T>::kBits) - 1;
+template <typename T>
+constexpr typename DepthBits<T>::Key kCulledDepthKey = (typename DepthBits<T>::Key(1) << DepthBits<T>::kBits) - 1;
 
 // One intersection as emitted for the per-tile sort: its Gaussian's depth bits (depths are positive and finite, so
 // the bits order as the values) and index. A record of all one bits is a slot emission never wrote (only possible
@@ -268,8 +268,8 @@ __global__ void depth_key_kernel(const T* projected, const TileRect* tile_rects,
                                  typename DepthBits<T>::Key* keys, int32_t* indices) {
   const int64_t i = int64_t(blockIdx.x) * blockDim.x + threadIdx.x;
   if (i >= count) return;
-  keys[i] = rect_has_tiles(tile_rects[i]) ? DepthBits<T>::of(projected[i * kProjectedWidth + kDepth])
-                                          : kCulledDepthKey<T>;
+  keys[i] =
+      rect_has_tiles(tile_rects[i]) ? DepthBits<T>::of(projected[i * kProjectedWidth + kDepth]) : kCulledDepthKey<T>;
   indices[i] = int32_t(i);
 }
 
@@ -337,8 +337,8 @@ void bin_per_tile(const SplatScene<T>& s, const ForwardBuffers<T>& b, int64_t in
     // All one bits: the mark of a slot that emission did not write.
     check_cuda(cudaMemsetAsync(records, 0xff, sizeof(Record) * intersections, stream), "record reset");
     check_cuda(cudaMemsetAsync(cursors, 0, sizeof(unsigned) * buckets, stream), "cursor reset");
-    emit_tile_records_kernel<T><<<blocks_for(s.count, kLinearThreads), kLinearThreads, 0, stream>>>(
-        b, s.count, grid, cursors, records);
+    emit_tile_records_kernel<T>
+        <<<blocks_for(s.count, kLinearThreads), kLinearThreads, 0, stream>>>(b, s.count, grid, cursors, records);
     check_cuda(cudaGetLastError(), "emit_tile_records_kernel launch");
   }
   const Stage stage("tile sort", stream);
@@ -349,21 +349,29 @@ void bin_per_tile(const SplatScene<T>& s, const ForwardBuffers<T>& b, int64_t in
   };
   // The smallest class that holds the longest run (bin_intersections guarantees one does).
   const int64_t items = (longest + kSortThreads - 1) / kSortThreads;
-  if (items <= 1) launch(std::integral_constant<int, 1>{});
-  else if (items <= 2) launch(std::integral_constant<int, 2>{});
-  else if (items <= 3) launch(std::integral_constant<int, 3>{});
-  else if (items <= 4) launch(std::integral_constant<int, 4>{});
-  else if (items <= 6) launch(std::integral_constant<int, 6>{});
-  else if (items <= 8 || kMaxSortItems<T> == 8) launch(std::integral_constant<int, 8>{});
-  else if (items <= 12) launch(std::integral_constant<int, std::min(12, kMaxSortItems<T>)>{});
-  else launch(std::integral_constant<int, kMaxSortItems<T>>{});
+  if (items <= 1)
+    launch(std::integral_constant<int, 1>{});
+  else if (items <= 2)
+    launch(std::integral_constant<int, 2>{});
+  else if (items <= 3)
+    launch(std::integral_constant<int, 3>{});
+  else if (items <= 4)
+    launch(std::integral_constant<int, 4>{});
+  else if (items <= 6)
+    launch(std::integral_constant<int, 6>{});
+  else if (items <= 8 || kMaxSortItems<T> == 8)
+    launch(std::integral_constant<int, 8>{});
+  else if (items <= 12)
+    launch(std::integral_constant<int, std::min(12, kMaxSortItems<T>)>{});
+  else
+    launch(std::integral_constant<int, kMaxSortItems<T>>{});
   check_cuda(cudaGetLastError(), "sort_tiles_kernel launch");
 }
 
 // Radix path: depth ranks from a global sort, then (tile, rank) keys radix sorted and cut into tile ranges.
 template <typename T, typename Key>
-void bin_radix(const SplatScene<T>& s, const ForwardBuffers<T>& b, int64_t intersections, int rank_bits,
-               int key_bits, const ScratchAllocator& scratch, cudaStream_t stream) {
+void bin_radix(const SplatScene<T>& s, const ForwardBuffers<T>& b, int64_t intersections, int rank_bits, int key_bits,
+               const ScratchAllocator& scratch, cudaStream_t stream) {
   const TileGrid grid = grid_of(s);
   const unsigned gaussian_blocks = blocks_for(s.count, kLinearThreads);
   int32_t* depth_order = allocate<int32_t>(scratch, s.count);
@@ -374,7 +382,7 @@ void bin_radix(const SplatScene<T>& s, const ForwardBuffers<T>& b, int64_t inter
     cub::DoubleBuffer<DepthKey> depth_keys(allocate<DepthKey>(scratch, s.count), allocate<DepthKey>(scratch, s.count));
     cub::DoubleBuffer<int32_t> indices(allocate<int32_t>(scratch, s.count), depth_order);
     depth_key_kernel<T><<<gaussian_blocks, kLinearThreads, 0, stream>>>(b.projected, b.tile_rects, s.count,
-                                                                       depth_keys.Current(), indices.Current());
+                                                                        depth_keys.Current(), indices.Current());
     check_cuda(cudaGetLastError(), "depth_key_kernel launch");
     // Radix sort is stable: equal depths keep index order, as the CPU reference's stable sort does.
     std::size_t temp_bytes = 0;
@@ -382,9 +390,9 @@ void bin_radix(const SplatScene<T>& s, const ForwardBuffers<T>& b, int64_t inter
                                                DepthBits<T>::kBits, stream),
                "depth sort size query");
     void* temp = allocate<unsigned char>(scratch, int64_t(temp_bytes));
-    check_cuda(cub::DeviceRadixSort::SortPairs(temp, temp_bytes, depth_keys, indices, s.count, 0,
-                                               DepthBits<T>::kBits, stream),
-               "depth sort");
+    check_cuda(
+        cub::DeviceRadixSort::SortPairs(temp, temp_bytes, depth_keys, indices, s.count, 0, DepthBits<T>::kBits, stream),
+        "depth sort");
     depth_order = indices.Current();
     depth_rank_kernel<<<gaussian_blocks, kLinearThreads, 0, stream>>>(depth_order, s.count, depth_rank);
     check_cuda(cudaGetLastError(), "depth_rank_kernel launch");
@@ -400,13 +408,13 @@ void bin_radix(const SplatScene<T>& s, const ForwardBuffers<T>& b, int64_t inter
     int64_t* gaussian_offsets = allocate<int64_t>(scratch, s.count + 1);
     check_cuda(cudaMemsetAsync(gaussian_offsets, 0, sizeof(int64_t), stream), "offset reset");
     std::size_t temp_bytes = 0;
-    check_cuda(cub::DeviceScan::InclusiveSum(nullptr, temp_bytes, b.gaussian_tile_counts, gaussian_offsets + 1,
-                                             s.count, stream),
+    check_cuda(cub::DeviceScan::InclusiveSum(nullptr, temp_bytes, b.gaussian_tile_counts, gaussian_offsets + 1, s.count,
+                                             stream),
                "tile count scan size query");
     void* temp = allocate<unsigned char>(scratch, int64_t(temp_bytes));
-    check_cuda(cub::DeviceScan::InclusiveSum(temp, temp_bytes, b.gaussian_tile_counts, gaussian_offsets + 1, s.count,
-                                             stream),
-               "tile count scan");
+    check_cuda(
+        cub::DeviceScan::InclusiveSum(temp, temp_bytes, b.gaussian_tile_counts, gaussian_offsets + 1, s.count, stream),
+        "tile count scan");
     emit_rank_keys_kernel<T, Key><<<gaussian_blocks, kLinearThreads, 0, stream>>>(
         b, gaussian_offsets, depth_rank, s.count, grid, rank_bits, keys.Current());
     check_cuda(cudaGetLastError(), "emit_rank_keys_kernel launch");
@@ -417,8 +425,7 @@ void bin_radix(const SplatScene<T>& s, const ForwardBuffers<T>& b, int64_t inter
     check_cuda(cub::DeviceRadixSort::SortKeys(nullptr, temp_bytes, keys, intersections, 0, key_bits, stream),
                "tile sort size query");
     void* temp = allocate<unsigned char>(scratch, int64_t(temp_bytes));
-    check_cuda(cub::DeviceRadixSort::SortKeys(temp, temp_bytes, keys, intersections, 0, key_bits, stream),
-               "tile sort");
+    check_cuda(cub::DeviceRadixSort::SortKeys(temp, temp_bytes, keys, intersections, 0, key_bits, stream), "tile sort");
   }
   {
     const Stage stage("tile ranges", stream);
@@ -480,9 +487,9 @@ void bin_intersections(const SplatScene<T>& s, const ForwardBuffers<T>& b, const
 }
 
 template BinStats apply_bin_budget<float>(const SplatScene<float>&, const ForwardBuffers<float>&, const BinBudget&,
-                                         cudaStream_t);
-template BinStats apply_bin_budget<double>(const SplatScene<double>&, const ForwardBuffers<double>&,
-                                          const BinBudget&, cudaStream_t);
+                                          cudaStream_t);
+template BinStats apply_bin_budget<double>(const SplatScene<double>&, const ForwardBuffers<double>&, const BinBudget&,
+                                           cudaStream_t);
 template void bin_intersections<float>(const SplatScene<float>&, const ForwardBuffers<float>&, const BinStats&,
                                        const ScratchAllocator&, cudaStream_t);
 template void bin_intersections<double>(const SplatScene<double>&, const ForwardBuffers<double>&, const BinStats&,

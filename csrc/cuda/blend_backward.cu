@@ -109,9 +109,7 @@ __device__ __forceinline__ int32_t tile_prologue(const BlendBackwardParams<T>& a
 }
 
 // The replay's running state: transmittance before the next pair, and what has been blended so far.
-template <typename T> struct Replay {
-  T transmittance, running_dot, running_depth;
-};
+template <typename T> struct Replay { T transmittance, running_dot, running_depth; };
 
 // One blended pair's gradient values (ProjectedGradField, then the chunk's features) into grad; advances the replay.
 template <typename T, int kChannels>
@@ -129,9 +127,8 @@ __device__ __forceinline__ void pair_gradient(const BackwardShared<T, kChannels>
   r.running_dot += weight * dot;
   r.running_depth += weight * g.depth;
   grad[kGradDepth] = weight * p.grad_depth;
-  const T grad_pair_alpha =
-      composite_grad_alpha(pair.alpha, r.transmittance, dot, p.total_dot - r.running_dot, g.depth, p.grad_depth,
-                           p.depth_sum - r.running_depth, p.final_t, p.grad_alpha);
+  const T grad_pair_alpha = composite_grad_alpha(pair.alpha, r.transmittance, dot, p.total_dot - r.running_dot, g.depth,
+                                                 p.grad_depth, p.depth_sum - r.running_depth, p.final_t, p.grad_alpha);
   Vec2<T> grad_mean(T(0));
   Vec3<T> grad_conic(T(0));
   T grad_opacity = T(0);
@@ -189,8 +186,10 @@ __device__ __forceinline__ void add_batch_gradients(const BlendBackwardParams<T>
     if (feature && f - kProjectedGradWidth >= channel_count) continue;
     if (a.deterministic) {
       T* slot = a.slots + (first_slot + j) * (kProjectedGradWidth + a.channels);
-      if (feature) slot[kProjectedGradWidth + channel] = sum;
-      else slot[f] = channel_begin == 0 ? sum : slot[f] + sum;
+      if (feature)
+        slot[kProjectedGradWidth + channel] = sum;
+      else
+        slot[f] = channel_begin == 0 ? sum : slot[f] + sum;
     } else if (sum != T(0)) {
       const int64_t gaussian = sh.gaussian[j];
       atomicAdd(feature ? a.grad_features + gaussian * a.channels + channel
@@ -261,8 +260,10 @@ __device__ int64_t find_intersection(const ProjectBackwardParams<T>& a, int64_t 
     const int32_t other = a.in.isect_gaussian[mid];
     if (other == gaussian) return mid;
     const T other_depth = a.in.projected[int64_t(other) * kProjectedWidth + kDepth];
-    if (other_depth < depth || (other_depth == depth && other < gaussian)) lo = mid + 1;
-    else hi = mid;
+    if (other_depth < depth || (other_depth == depth && other < gaussian))
+      lo = mid + 1;
+    else
+      hi = mid;
   }
   return -1;
 }
@@ -286,8 +287,7 @@ __device__ void sum_slots(const ProjectBackwardParams<T>& a, int64_t i, int chan
     }
 }
 
-template <typename T>
-__global__ void project_backward_kernel(const SplatScene<T> s, const ProjectBackwardParams<T> a) {
+template <typename T> __global__ void project_backward_kernel(const SplatScene<T> s, const ProjectBackwardParams<T> a) {
   const int64_t i = int64_t(blockIdx.x) * blockDim.x + threadIdx.x;
   if (i >= s.count) return;
   const TileRect r = a.in.tile_rects[i];
@@ -301,8 +301,10 @@ __global__ void project_backward_kernel(const SplatScene<T> s, const ProjectBack
 #pragma unroll
     for (int f = 0; f < kProjectedGradWidth; ++f) grad[f] = a.grad_projected[i * kProjectedGradWidth + f];
   }
-  if (visible) write_input_gradients(s, i, grad, a.out);
-  else write_zero_gradients(s, i, a.out);
+  if (visible)
+    write_input_gradients(s, i, grad, a.out);
+  else
+    write_zero_gradients(s, i, a.out);
 }
 
 // Sums the per-tile background partials of channel blockIdx.x in a fixed order.
@@ -329,8 +331,8 @@ void backward(const SplatScene<T>& s, const BackwardInputs<T>& in, const Gradien
               const ScratchAllocator& scratch, cudaStream_t stream) {
   const TileGrid grid = grid_of(s);
   const int64_t tiles = tile_count(grid);
-  BlendBackwardParams<T> blend{in, s.features, s.channels, grid, deterministic, nullptr, nullptr, nullptr, nullptr,
-                               nullptr};
+  BlendBackwardParams<T> blend{in,      s.features, s.channels, grid,    deterministic,
+                               nullptr, nullptr,    nullptr,    nullptr, nullptr};
   blend.tile_limits = allocate<int32_t>(scratch, tiles);
   blend.background_partials = allocate<T>(scratch, tiles * s.channels);
   if (deterministic) {
@@ -341,8 +343,7 @@ void backward(const SplatScene<T>& s, const BackwardInputs<T>& in, const Gradien
     if (s.count > 0) {
       check_cuda(cudaMemsetAsync(blend.grad_projected, 0, sizeof(T) * s.count * kProjectedGradWidth, stream),
                  "gradient accumulator reset");
-      check_cuda(cudaMemsetAsync(out.features, 0, sizeof(T) * s.count * s.channels, stream),
-                 "feature gradient reset");
+      check_cuda(cudaMemsetAsync(out.features, 0, sizeof(T) * s.count * s.channels, stream), "feature gradient reset");
     }
   }
   {
@@ -355,19 +356,19 @@ void backward(const SplatScene<T>& s, const BackwardInputs<T>& in, const Gradien
   }
   const Stage stage("project backward", stream);
   if (s.count > 0) {
-    const ProjectBackwardParams<T> project{in,          out,        grid, deterministic, blend.grad_projected,
-                                           blend.slots, blend.tile_limits};
+    const ProjectBackwardParams<T> project{
+        in, out, grid, deterministic, blend.grad_projected, blend.slots, blend.tile_limits};
     project_backward_kernel<T><<<blocks_for(s.count, kLinearThreads), kLinearThreads, 0, stream>>>(s, project);
     check_cuda(cudaGetLastError(), "project_backward_kernel launch");
   }
   background_grad_kernel<T><<<unsigned(s.channels), kLinearThreads, 0, stream>>>(blend.background_partials, tiles,
-                                                                                  s.channels, out.background);
+                                                                                 s.channels, out.background);
   check_cuda(cudaGetLastError(), "background_grad_kernel launch");
 }
 
 template void backward<float>(const SplatScene<float>&, const BackwardInputs<float>&, const Gradients<float>&, bool,
                               const ScratchAllocator&, cudaStream_t);
-template void backward<double>(const SplatScene<double>&, const BackwardInputs<double>&, const Gradients<double>&,
-                               bool, const ScratchAllocator&, cudaStream_t);
+template void backward<double>(const SplatScene<double>&, const BackwardInputs<double>&, const Gradients<double>&, bool,
+                               const ScratchAllocator&, cudaStream_t);
 
 }  // namespace sfgs::splat::cuda_kernels

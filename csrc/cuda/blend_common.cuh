@@ -20,9 +20,9 @@ struct TilePixel {
 
 __device__ inline TilePixel tile_pixel(int tile, int tiles_x, int thread) {
   const int warp = thread / kWarpSize, lane = thread % kWarpSize;
-  return TilePixel{(tile % tiles_x) * kTileSize + (warp % kWarpBlocksPerRow) * kWarpBlockWidth + lane % kWarpBlockWidth,
-                   (tile / tiles_x) * kTileSize + (warp / kWarpBlocksPerRow) * kWarpBlockHeight +
-                       lane / kWarpBlockWidth};
+  return TilePixel{
+      (tile % tiles_x) * kTileSize + (warp % kWarpBlocksPerRow) * kWarpBlockWidth + lane % kWarpBlockWidth,
+      (tile / tiles_x) * kTileSize + (warp / kWarpBlocksPerRow) * kWarpBlockHeight + lane / kWarpBlockWidth};
 }
 
 // Inclusive pixel block of warp `warp` of a tile, clipped to the image (empty when it lies outside).
@@ -42,8 +42,8 @@ __device__ inline PixelBlock warp_block(int tile, const TileGrid& grid, int warp
 // Stores Gaussian `gaussian` at batch position j of any of the shared layouts; Gaussian -1 (an unfilled slot) as one
 // that touches no pixel.
 template <typename Shared, typename T>
-__device__ inline void store_batch_gaussian(Shared& sh, int j, const T* projected, int32_t gaussian,
-                                            const T* features, int channels, int channel_begin, int channel_count) {
+__device__ inline void store_batch_gaussian(Shared& sh, int j, const T* projected, int32_t gaussian, const T* features,
+                                            int channels, int channel_begin, int channel_count) {
   constexpr int kChannels = std::extent<decltype(Shared::features)>::value;
   if (gaussian < 0) {
     sh.mean_x[j] = sh.mean_y[j] = sh.conic_a[j] = sh.conic_b[j] = sh.conic_c[j] = T(0);

@@ -24,8 +24,7 @@ namespace {
 
 // Resident blocks per multiprocessor that the float kernel is register-limited for (40 registers, no spills); double
 // keeps the compiler's choice.
-template <typename T>
-constexpr int kForwardBlendBlocks = std::is_same_v<T, float> ? 6 : 1;
+template <typename T> constexpr int kForwardBlendBlocks = std::is_same_v<T, float> ? 6 : 1;
 constexpr int kPlanThreads = 1024;
 
 // Which runs the blend cuts into segments of segment_length: those longer than a segment and than `share` times the
@@ -41,8 +40,7 @@ struct CutRule {
   }
 };
 
-template <typename T, int kChannels>
-struct ForwardShared {
+template <typename T, int kChannels> struct ForwardShared {
   T mean_x[kBlendThreads], mean_y[kBlendThreads];
   T conic_a[kBlendThreads], conic_b[kBlendThreads], conic_c[kBlendThreads];
   T opacity[kBlendThreads], depth[kBlendThreads], level[kBlendThreads];
@@ -72,15 +70,13 @@ struct SegmentPlan {
   CutRule cut;
 };
 
-template <typename T>
-struct PartialComposites {
+template <typename T> struct PartialComposites {
   T* values;      // per slot and pixel: the chunk's colours, transmittance (negated where the segment's own
                   // composite stopped: the serial loop stops inside it whatever the entering transmittance), depth sum
   int32_t* last;  // per slot and pixel: run position + 1 of the last blended Gaussian, 0 for none
 };
 
-template <typename T>
-struct BlendForwardParams {
+template <typename T> struct BlendForwardParams {
   ForwardBuffers<T> b;
   const T* features;
   const T* background;
@@ -90,8 +86,7 @@ struct BlendForwardParams {
   PartialComposites<T> partials;
 };
 
-template <typename T, int kChannels>
-struct PixelComposite {
+template <typename T, int kChannels> struct PixelComposite {
   T transmittance, depth;
   T colour[kChannels];
   int32_t last;
@@ -101,16 +96,14 @@ struct PixelComposite {
   }
 };
 
-template <typename T>
-struct BlockPixel {
+template <typename T> struct BlockPixel {
   int x, y;
   bool inside;
   T px, py;
   PixelBlock block;
 };
 
-template <typename T>
-__device__ BlockPixel<T> block_pixel(int tile, const TileGrid& grid) {
+template <typename T> __device__ BlockPixel<T> block_pixel(int tile, const TileGrid& grid) {
   const TilePixel pixel = tile_pixel(tile, grid.tiles_x, threadIdx.x);
   BlockPixel<T> p;
   p.x = pixel.x;
@@ -187,10 +180,7 @@ __device__ void write_pixel(const BlendForwardParams<T>& a, int channel_begin, i
   }
 }
 
-template <int kChannels>
-__host__ __device__ constexpr int partial_width() {
-  return kChannels + 2;
-}
+template <int kChannels> __host__ __device__ constexpr int partial_width() { return kChannels + 2; }
 
 // Cuts the runs longer than the cut rule's length (from the pass's own intersection count, which a budgeted pass
 // knows only here) into segments, in the blend's tile order (longest first), so that the longest runs' blocks start
@@ -344,16 +334,14 @@ __global__ void __launch_bounds__(kBlendThreads, kForwardBlendBlocks<T>)
   write_pixel(a, channel_begin, channel_count, at, pixel);
 }
 
-template <typename T>
-CutRule cut_rule(int64_t segment_length) {
+template <typename T> CutRule cut_rule(int64_t segment_length) {
   int device = 0, processors = 0;
   check_cuda(cudaGetDevice(&device), "cudaGetDevice");
   check_cuda(cudaDeviceGetAttribute(&processors, cudaDevAttrMultiProcessorCount, device), "multiprocessor count");
   return CutRule{segment_length, int64_t(processors) * kForwardBlendBlocks<T>, blend_cut_share()};
 }
 
-template <typename T>
-void blend_whole_tiles(const BlendForwardParams<T>& params, int64_t tiles, cudaStream_t stream) {
+template <typename T> void blend_whole_tiles(const BlendForwardParams<T>& params, int64_t tiles, cudaStream_t stream) {
   record_blend_path(BlendPath::kWholeTiles);
   if (tiles == 0) return;
   for_each_channel_chunk(params.channels, [&](auto width, int channel_begin, int channel_count) {

@@ -81,7 +81,9 @@ void kinematic_chain(const KinematicChainArrays&, at::Device) {
 void axis_angle_to_matrix(const AxisAngleArrays&, at::Device) {
   TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
 }
-void vertex_normals(const VertexNormalArrays&, at::Device) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
+void vertex_normals(const VertexNormalArrays&, at::Device) {
+  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
+}
 
 }  // namespace sfgs::body::cuda
 
@@ -135,7 +137,9 @@ void backward(const PixelLossGradientArrays<double>&, at::Device) {
 
 namespace sfgs::plane_sampling::cuda {
 
-void gradient(const PlaneGradientArrays<float>&, at::Device) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
+void gradient(const PlaneGradientArrays<float>&, at::Device) {
+  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
+}
 void gradient(const PlaneGradientArrays<double>&, at::Device) {
   TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
 }

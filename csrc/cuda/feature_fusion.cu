@@ -25,13 +25,11 @@ unsigned blocks_for(int64_t work, int64_t work_per_block, int device) {
 }
 
 // A float4's four values through the scalar math.
-template <typename F>
-__device__ __forceinline__ float4 each(const float4& x, const float4& y, const float4& z, F f) {
+template <typename F> __device__ __forceinline__ float4 each(const float4& x, const float4& y, const float4& z, F f) {
   return make_float4(f(x.x, y.x, z.x), f(x.y, y.y, z.y), f(x.z, y.z, z.z), f(x.w, y.w, z.w));
 }
 
-template <typename T>
-__global__ void __launch_bounds__(kThreads) mix_kernel(const GatedMixArrays<T> a) {
+template <typename T> __global__ void __launch_bounds__(kThreads) mix_kernel(const GatedMixArrays<T> a) {
   for (int64_t i = int64_t(blockIdx.x) * blockDim.x + threadIdx.x; i < a.count; i += int64_t(gridDim.x) * blockDim.x)
     a.out[i] = gated_mix_value(a.logits[i], a.a[i], a.b[i]);
 }
@@ -46,8 +44,7 @@ __global__ void __launch_bounds__(kThreads) mix_kernel4(const GatedMixArrays<flo
     out[i] = each(logits[i], x[i], y[i], [](float l, float p, float q) { return gated_mix_value(l, p, q); });
 }
 
-template <typename T>
-__device__ __forceinline__ void mix_gradient_at(const GatedMixGradientArrays<T>& a, int64_t i) {
+template <typename T> __device__ __forceinline__ void mix_gradient_at(const GatedMixGradientArrays<T>& a, int64_t i) {
   const GatedMixGradient<T> g = gated_mix_gradient(a.logits[i], a.a[i], a.b[i], a.grad_out[i]);
   a.grad_logits[i] = g.logit;
   a.grad_a[i] = g.a;
@@ -111,25 +108,16 @@ __global__ void __launch_bounds__(32 * kRowsPerBlock)
   }
 }
 
-template <typename T>
-bool vectorisable(const GatedMixArrays<T>&) {
-  return false;
-}
+template <typename T> bool vectorisable(const GatedMixArrays<T>&) { return false; }
 bool vectorisable(const GatedMixArrays<float>& a) {
   return a.count % 4 == 0 && aligned16(a.logits) && aligned16(a.a) && aligned16(a.b) && aligned16(a.out);
 }
-template <typename T>
-bool vectorisable(const GatedMixGradientArrays<T>&) {
-  return false;
-}
+template <typename T> bool vectorisable(const GatedMixGradientArrays<T>&) { return false; }
 bool vectorisable(const GatedMixGradientArrays<float>& a) {
   return a.count % 4 == 0 && aligned16(a.logits) && aligned16(a.a) && aligned16(a.b) && aligned16(a.grad_out) &&
          aligned16(a.grad_logits) && aligned16(a.grad_a) && aligned16(a.grad_b);
 }
-template <typename T>
-bool vectorisable(const RowGatherArrays<T>&) {
-  return false;
-}
+template <typename T> bool vectorisable(const RowGatherArrays<T>&) { return false; }
 bool vectorisable(const RowGatherArrays<float>& r) {
   // Row strides of a multiple of four floats keep every row's start 16-byte aligned when the arrays' starts are.
   return r.columns % 4 == 0 && r.first_row_stride % 4 == 0 && r.second_row_stride % 4 == 0 && aligned16(r.first) &&
@@ -137,16 +125,14 @@ bool vectorisable(const RowGatherArrays<float>& r) {
 }
 
 // Whether both sources' rows are contiguous (column stride 1; an absent or empty second source counts as such).
-template <typename T>
-bool contiguous_source_rows(const RowGatherArrays<T>& r) {
+template <typename T> bool contiguous_source_rows(const RowGatherArrays<T>& r) {
   const bool second_absent = r.second == nullptr || r.rows <= r.first_rows;
   return (r.first_column_stride == 1 || r.first_rows == 0) && (r.second_column_stride == 1 || second_absent);
 }
 
 }  // namespace
 
-template <typename T>
-void gated_mix(const GatedMixArrays<T>& a, int device, cudaStream_t stream) {
+template <typename T> void gated_mix(const GatedMixArrays<T>& a, int device, cudaStream_t stream) {
   if (a.count == 0) return;
   if constexpr (std::is_same_v<T, float>) {
     if (vectorisable(a)) {
@@ -158,8 +144,7 @@ void gated_mix(const GatedMixArrays<T>& a, int device, cudaStream_t stream) {
   check_launch("mix_kernel");
 }
 
-template <typename T>
-void gated_mix_backward(const GatedMixGradientArrays<T>& a, int device, cudaStream_t stream) {
+template <typename T> void gated_mix_backward(const GatedMixGradientArrays<T>& a, int device, cudaStream_t stream) {
   if (a.count == 0) return;
   if constexpr (std::is_same_v<T, float>) {
     if (vectorisable(a)) {
@@ -171,8 +156,7 @@ void gated_mix_backward(const GatedMixGradientArrays<T>& a, int device, cudaStre
   check_launch("mix_backward_kernel");
 }
 
-template <typename T>
-void gather_rows(const RowGatherArrays<T>& r, int device, cudaStream_t stream) {
+template <typename T> void gather_rows(const RowGatherArrays<T>& r, int device, cudaStream_t stream) {
   if (r.rows == 0 || r.columns == 0) return;
   const dim3 block(32, kRowsPerBlock);
   if (!contiguous_source_rows(r)) {

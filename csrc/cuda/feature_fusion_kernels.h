@@ -8,11 +8,8 @@
 
 namespace sfgs::feature_fusion::cuda_kernels {
 
-template <typename T>
-void gated_mix(const GatedMixArrays<T>& arrays, int device, cudaStream_t stream);
-template <typename T>
-void gated_mix_backward(const GatedMixGradientArrays<T>& arrays, int device, cudaStream_t stream);
-template <typename T>
-void gather_rows(const RowGatherArrays<T>& arrays, int device, cudaStream_t stream);
+template <typename T> void gated_mix(const GatedMixArrays<T>& arrays, int device, cudaStream_t stream);
+template <typename T> void gated_mix_backward(const GatedMixGradientArrays<T>& arrays, int device, cudaStream_t stream);
+template <typename T> void gather_rows(const RowGatherArrays<T>& arrays, int device, cudaStream_t stream);
 
 }  // namespace sfgs::feature_fusion::cuda_kernels

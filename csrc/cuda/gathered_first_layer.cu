@@ -40,8 +40,7 @@ int64_t blocks_for(int64_t rows, int rows_per_block, int blocks_per_sm, int devi
 }
 
 // The forward's values of one load: a T, or four floats.
-template <typename T>
-__device__ __forceinline__ T forward_value(T row_input, T group_input) {
+template <typename T> __device__ __forceinline__ T forward_value(T row_input, T group_input) {
   return first_layer_value(row_input, group_input);
 }
 
@@ -50,13 +49,9 @@ __device__ __forceinline__ float4 forward_value(const float4& row_input, const f
                      first_layer_value(row_input.z, group_input.z), first_layer_value(row_input.w, group_input.w));
 }
 
-template <typename V>
-__device__ __forceinline__ V invalid_value() {
-  return invalid_group_value<V>();
-}
+template <typename V> __device__ __forceinline__ V invalid_value() { return invalid_group_value<V>(); }
 
-template <>
-__device__ __forceinline__ float4 invalid_value<float4>() {
+template <> __device__ __forceinline__ float4 invalid_value<float4>() {
   const float nan = invalid_group_value<float>();
   return make_float4(nan, nan, nan, nan);
 }
@@ -121,10 +116,7 @@ __global__ void __launch_bounds__(kBackwardThreads) backward_kernel(const FirstL
   }
 }
 
-template <typename T>
-bool vectorisable(const FirstLayerArrays<T>&) {
-  return false;
-}
+template <typename T> bool vectorisable(const FirstLayerArrays<T>&) { return false; }
 bool vectorisable(const FirstLayerArrays<float>& a) {
   // Rows of a multiple of four floats keep every row's start 16-byte aligned when the arrays' starts are.
   return a.width % 4 == 0 && aligned16(a.row_inputs) && aligned16(a.group_inputs) && aligned16(a.out);
@@ -136,8 +128,7 @@ int64_t first_layer_backward_blocks(int64_t rows, int device) {
   return blocks_for(rows, kBackwardWarps, kBackwardBlocksPerSm, device);
 }
 
-template <typename T>
-void first_layer_forward(const FirstLayerArrays<T>& a, int device, cudaStream_t stream) {
+template <typename T> void first_layer_forward(const FirstLayerArrays<T>& a, int device, cudaStream_t stream) {
   const dim3 block(kWarpSize, kForwardWarps);
   const unsigned blocks = unsigned(blocks_for(a.rows, kForwardWarps, kForwardBlocksPerSm, device));
   if constexpr (std::is_same_v<T, float>) {
@@ -150,8 +141,7 @@ void first_layer_forward(const FirstLayerArrays<T>& a, int device, cudaStream_t 
   check_launch("forward_kernel");
 }
 
-template <typename T>
-void first_layer_backward(const FirstLayerGradientArrays<T>& a, int device, cudaStream_t stream) {
+template <typename T> void first_layer_backward(const FirstLayerGradientArrays<T>& a, int device, cudaStream_t stream) {
   const size_t table_bytes = size_t(a.group_count * a.width) * sizeof(T);
   const dim3 block(kWarpSize, kBackwardWarps);
   const unsigned blocks = unsigned(a.partial_rows);

@@ -14,8 +14,7 @@ namespace sfgs::gathered_mlp::cuda_kernels {
 // Blocks of the backward on `device` for `rows` rows: the partial tables it writes, one a block.
 int64_t first_layer_backward_blocks(int64_t rows, int device);
 
-template <typename T>
-void first_layer_forward(const FirstLayerArrays<T>& arrays, int device, cudaStream_t stream);
+template <typename T> void first_layer_forward(const FirstLayerArrays<T>& arrays, int device, cudaStream_t stream);
 // arrays.partial_rows must be first_layer_backward_blocks(arrays.rows, device).
 template <typename T>
 void first_layer_backward(const FirstLayerGradientArrays<T>& arrays, int device, cudaStream_t stream);

@@ -16,7 +16,7 @@ namespace sfgs::gathered_mlp::cuda_kernels {
 namespace {
 
 constexpr int kWidth = kFusedWidth;
-constexpr int kTile = 16;                 // wmma tile edge, and rows per warp pass
+constexpr int kTile = 16;  // wmma tile edge, and rows per warp pass
 constexpr int kTilesAcross = kWidth / kTile;
 constexpr int kWarps = 4;
 constexpr int kThreads = kWarps * 32;
@@ -46,8 +46,8 @@ __global__ void __launch_bounds__(kThreads) gathered_mlp_kernel(const GatheredMl
   float* output_weight = hidden_bias + kWidth;
   float* output_bias = output_weight + kFusedMaxOutputs * kWidth;
   const int warp = threadIdx.x / 32, lane = threadIdx.x % 32;
-  unsigned char* scratch = shared + kWeightBytes + kHiddenBiasBytes + kOutputWeightBytes + kOutputBiasBytes +
-                           warp * kWarpScratchBytes;
+  unsigned char* scratch =
+      shared + kWeightBytes + kHiddenBiasBytes + kOutputWeightBytes + kOutputBiasBytes + warp * kWarpScratchBytes;
   __half* input = reinterpret_cast<__half*>(scratch);
   float* hidden = reinterpret_cast<float*>(scratch);
 
@@ -143,9 +143,9 @@ void gathered_mlp_forward(const GatheredMlpArrays& a, cudaStream_t stream) {
   check(cudaDeviceGetAttribute(&processors, cudaDevAttrMultiProcessorCount, device), "cudaDeviceGetAttribute");
   check(cudaFuncSetAttribute(gathered_mlp_kernel, cudaFuncAttributeMaxDynamicSharedMemorySize, kSharedBytes),
         "cudaFuncSetAttribute");
-  check(cudaOccupancyMaxActiveBlocksPerMultiprocessor(&blocks_per_processor, gathered_mlp_kernel, kThreads,
-                                                      kSharedBytes),
-        "cudaOccupancyMaxActiveBlocksPerMultiprocessor");
+  check(
+      cudaOccupancyMaxActiveBlocksPerMultiprocessor(&blocks_per_processor, gathered_mlp_kernel, kThreads, kSharedBytes),
+      "cudaOccupancyMaxActiveBlocksPerMultiprocessor");
   const int64_t passes = (a.rows + kTile - 1) / kTile;
   const int64_t wanted = (passes + kWarps - 1) / kWarps;
   const int blocks = int(std::max<int64_t>(1, std::min<int64_t>(wanted, int64_t(processors) * blocks_per_processor)));

@@ -164,8 +164,7 @@ constexpr int kQuadChannels = 128;
 constexpr int kQuadBlocksPerSm = 6;  // 1,536 threads: sm_89's most, three quarters of sm_90's
 
 // The sum over the aligned block of kGroupLanes lanes holding one group.
-template <int kGroupLanes>
-__device__ __forceinline__ float group_sum(float v) {
+template <int kGroupLanes> __device__ __forceinline__ float group_sum(float v) {
 #pragma unroll
   for (int offset = kGroupLanes / 2; offset > 0; offset /= 2) v += __shfl_xor_sync(0xffffffffu, v, offset);
   return v;
@@ -216,8 +215,7 @@ __device__ __forceinline__ QuadChannel quad_channel(float pre, float bias, float
 }
 
 template <int kGroupLanes>
-__global__ void __launch_bounds__(kThreads, kBlocksPerSm)
-    backward_quad_kernel(const GroupNormGradientArrays<float> a) {
+__global__ void __launch_bounds__(kThreads, kBlocksPerSm) backward_quad_kernel(const GroupNormGradientArrays<float> a) {
   __shared__ float block_columns[3 * kQuadChannels];
   for (int i = threadIdx.x; i < 3 * kQuadChannels; i += blockDim.x) block_columns[i] = 0.0f;
   __syncthreads();
@@ -276,8 +274,7 @@ __global__ void __launch_bounds__(kThreads, kBlocksPerSm)
 using cuda_launch::aligned16;
 
 // Lanes a group takes in the float4 kernels, or 0 where they do not apply (other widths, misaligned arrays).
-template <typename Arrays>
-int quad_group_lanes(const Arrays& a) {
+template <typename Arrays> int quad_group_lanes(const Arrays& a) {
   if (a.channels != kQuadChannels || a.groups <= 0 || a.channels % a.groups != 0) return 0;
   const int lanes = a.channels / a.groups / 4;
   if (lanes != 8 && lanes != 16 && lanes != 32) return 0;
@@ -311,14 +308,22 @@ template <typename T, int K> struct BackwardLaunch {
 template <template <typename, int> class Launch, typename T, typename Arrays>
 void with_lane_values(const Arrays& a, unsigned blocks, cudaStream_t stream) {
   switch (a.channels / 32) {
-    case 1: return Launch<T, 1>::run(a, blocks, stream);
-    case 2: return Launch<T, 2>::run(a, blocks, stream);
-    case 3: return Launch<T, 3>::run(a, blocks, stream);
-    case 4: return Launch<T, 4>::run(a, blocks, stream);
-    case 5: return Launch<T, 5>::run(a, blocks, stream);
-    case 6: return Launch<T, 6>::run(a, blocks, stream);
-    case 7: return Launch<T, 7>::run(a, blocks, stream);
-    case 8: return Launch<T, 8>::run(a, blocks, stream);
+    case 1:
+      return Launch<T, 1>::run(a, blocks, stream);
+    case 2:
+      return Launch<T, 2>::run(a, blocks, stream);
+    case 3:
+      return Launch<T, 3>::run(a, blocks, stream);
+    case 4:
+      return Launch<T, 4>::run(a, blocks, stream);
+    case 5:
+      return Launch<T, 5>::run(a, blocks, stream);
+    case 6:
+      return Launch<T, 6>::run(a, blocks, stream);
+    case 7:
+      return Launch<T, 7>::run(a, blocks, stream);
+    case 8:
+      return Launch<T, 8>::run(a, blocks, stream);
   }
   throw std::runtime_error("sfgs group_norm_relu: unsupported channel count " + std::to_string(a.channels));
 }
@@ -338,9 +343,12 @@ template <typename T> void forward(const GroupNormArrays<T>& a, int device, cuda
   if constexpr (std::is_same_v<T, float>) {
     if (const int lanes = quad_group_lanes(a); lanes > 0 && aligned16(a.out)) {
       const unsigned blocks = unsigned(blocks_for(a.rows, device, kQuadBlocksPerSm));
-      if (lanes == 8) forward_quad_kernel<8><<<blocks, kThreads, 0, stream>>>(a);
-      else if (lanes == 16) forward_quad_kernel<16><<<blocks, kThreads, 0, stream>>>(a);
-      else forward_quad_kernel<32><<<blocks, kThreads, 0, stream>>>(a);
+      if (lanes == 8)
+        forward_quad_kernel<8><<<blocks, kThreads, 0, stream>>>(a);
+      else if (lanes == 16)
+        forward_quad_kernel<16><<<blocks, kThreads, 0, stream>>>(a);
+      else
+        forward_quad_kernel<32><<<blocks, kThreads, 0, stream>>>(a);
       return check_launch("forward_quad_kernel");
     }
   }
@@ -351,9 +359,12 @@ template <typename T> void backward(const GroupNormGradientArrays<T>& a, int, cu
   if constexpr (std::is_same_v<T, float>) {
     if (const int lanes = quad_group_lanes(a); lanes > 0 && aligned16(a.grad_out) && aligned16(a.grad_pre)) {
       const unsigned blocks = unsigned(a.partial_rows);
-      if (lanes == 8) backward_quad_kernel<8><<<blocks, kThreads, 0, stream>>>(a);
-      else if (lanes == 16) backward_quad_kernel<16><<<blocks, kThreads, 0, stream>>>(a);
-      else backward_quad_kernel<32><<<blocks, kThreads, 0, stream>>>(a);
+      if (lanes == 8)
+        backward_quad_kernel<8><<<blocks, kThreads, 0, stream>>>(a);
+      else if (lanes == 16)
+        backward_quad_kernel<16><<<blocks, kThreads, 0, stream>>>(a);
+      else
+        backward_quad_kernel<32><<<blocks, kThreads, 0, stream>>>(a);
       return check_launch("backward_quad_kernel");
     }
   }

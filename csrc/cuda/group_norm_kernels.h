@@ -16,9 +16,7 @@ bool supports(int64_t channels, int64_t groups);
 // Blocks of the backward on `device` for `rows` rows, one partial row of column sums each.
 int64_t backward_blocks(int64_t rows, int device);
 
-template <typename T>
-void forward(const GroupNormArrays<T>& arrays, int device, cudaStream_t stream);
-template <typename T>
-void backward(const GroupNormGradientArrays<T>& arrays, int device, cudaStream_t stream);
+template <typename T> void forward(const GroupNormArrays<T>& arrays, int device, cudaStream_t stream);
+template <typename T> void backward(const GroupNormGradientArrays<T>& arrays, int device, cudaStream_t stream);
 
 }  // namespace sfgs::group_norm::cuda_kernels

@@ -80,9 +80,15 @@ __device__ inline int64_t rect_tiles(const TileRect& r) { return int64_t(r.x1 - 
 // Calls launch(std::integral_constant<int, K>, first channel, channel count) once per chunk of the features.
 template <typename Launch> void for_each_channel_chunk(int channels, Launch&& launch) {
   switch (channels) {
-    case 1: launch(std::integral_constant<int, 1>{}, 0, 1); return;
-    case 2: launch(std::integral_constant<int, 2>{}, 0, 2); return;
-    case 3: launch(std::integral_constant<int, 3>{}, 0, 3); return;
+    case 1:
+      launch(std::integral_constant<int, 1>{}, 0, 1);
+      return;
+    case 2:
+      launch(std::integral_constant<int, 2>{}, 0, 2);
+      return;
+    case 3:
+      launch(std::integral_constant<int, 3>{}, 0, 3);
+      return;
     default:
       for (int begin = 0; begin < channels; begin += kMaxChunkChannels)
         launch(std::integral_constant<int, kMaxChunkChannels>{}, begin, std::min(kMaxChunkChannels, channels - begin));

@@ -32,16 +32,16 @@ __global__ void kinematic_chain_kernel(const KinematicChainArrays a) {
       for (int k = 0; k < 3; ++k) offset[k] = rest[j * 3 + k] - rest[p * 3 + k];
       for (int row = 0; row < 3; ++row) {
         for (int col = 0; col < 3; ++col)
-          r[row * 3 + col] = w[row * 4 + 0] * l[0 * 3 + col] + w[row * 4 + 1] * l[1 * 3 + col] +
-                             w[row * 4 + 2] * l[2 * 3 + col];
+          r[row * 3 + col] =
+              w[row * 4 + 0] * l[0 * 3 + col] + w[row * 4 + 1] * l[1 * 3 + col] + w[row * 4 + 2] * l[2 * 3 + col];
         t[row] = w[row * 4 + 3] + w[row * 4 + 0] * offset[0] + w[row * 4 + 1] * offset[1] + w[row * 4 + 2] * offset[2];
       }
     }
     float* out_world = world + j * 16;
     float* out_skinning = skinning + j * 16;
     for (int row = 0; row < 3; ++row) {
-      const float moved = r[row * 3 + 0] * rest[j * 3 + 0] + r[row * 3 + 1] * rest[j * 3 + 1] +
-                          r[row * 3 + 2] * rest[j * 3 + 2];
+      const float moved =
+          r[row * 3 + 0] * rest[j * 3 + 0] + r[row * 3 + 1] * rest[j * 3 + 1] + r[row * 3 + 2] * rest[j * 3 + 2];
       for (int col = 0; col < 3; ++col) out_world[row * 4 + col] = out_skinning[row * 4 + col] = r[row * 3 + col];
       out_world[row * 4 + 3] = t[row];
       out_skinning[row * 4 + 3] = t[row] - moved;

@@ -13,7 +13,7 @@
 namespace sfgs::mesh_propagation::cuda_kernels {
 
 template <typename T>
-void propagate(const PropagationArrays<T>& arrays, const std::vector<int64_t>& ring_offsets, int64_t passes,
-               int device, cudaStream_t stream);
+void propagate(const PropagationArrays<T>& arrays, const std::vector<int64_t>& ring_offsets, int64_t passes, int device,
+               cudaStream_t stream);
 
 }  // namespace sfgs::mesh_propagation::cuda_kernels

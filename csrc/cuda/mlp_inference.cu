@@ -19,11 +19,11 @@ namespace sfgs::mlp_inference::cuda_kernels {
 namespace {
 
 constexpr int kWidth = kFusedWidth;
-constexpr int kRowsPerPass = 16;                      // the mma tile's rows
-constexpr int kTilesAcross = kWidth / 16;             // 16-column input tiles of a layer
-constexpr int kOutputTiles = kWidth / 8;              // 8-column output tiles of a layer
+constexpr int kRowsPerPass = 16;                          // the mma tile's rows
+constexpr int kTilesAcross = kWidth / 16;                 // 16-column input tiles of a layer
+constexpr int kOutputTiles = kWidth / 8;                  // 8-column output tiles of a layer
 constexpr int kGroupTiles = kOutputTiles / kFusedGroups;  // output tiles per GroupNorm group
-constexpr int kRowPadWords = 4;                       // a row's padding: 16 bytes, one ldmatrix row
+constexpr int kRowPadWords = 4;                           // a row's padding: 16 bytes, one ldmatrix row
 constexpr int kHiddenStride = kWidth / 2 + kRowPadWords;  // words (half pairs) per hidden weight row
 constexpr int kHiddenLayerWords = kWidth * kHiddenStride;
 constexpr int kParameterFloats = 3 * kWidth;  // a layer's bias, gamma and beta
@@ -197,8 +197,7 @@ __global__ void __launch_bounds__(kThreads, 2) mlp_inference_kernel(const MlpInf
   // The row this lane addresses for ldmatrix (matrix lane / 8: output tile + (lane / 16), input half (lane / 8) % 2)
   // in words from a layer's start, for output tiles 0 and 1 of input tile 0.
   const int matrix_row = (lane / 16) * 8 + lane % 8, matrix_half = ((lane / 8) % 2) * 4;
-  const uint32_t first_base =
-      uint32_t(__cvta_generic_to_shared(first_weights + matrix_row * stride0 + matrix_half));
+  const uint32_t first_base = uint32_t(__cvta_generic_to_shared(first_weights + matrix_row * stride0 + matrix_half));
   const uint32_t hidden_base =
       uint32_t(__cvta_generic_to_shared(hidden_weights + matrix_row * kHiddenStride + matrix_half));
   const int64_t passes = (a.rows + kRowsPerPass - 1) / kRowsPerPass;

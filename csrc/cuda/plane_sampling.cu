@@ -12,8 +12,7 @@ namespace {
 constexpr int kWarp = 32;
 constexpr int kWarpsPerBlock = 8;
 
-template <typename T>
-__global__ void gradient_kernel(PlaneGradientArrays<T> a) {
+template <typename T> __global__ void gradient_kernel(PlaneGradientArrays<T> a) {
   const int64_t k = int64_t(blockIdx.x) * kWarpsPerBlock + threadIdx.x / kWarp;
   if (k >= a.chunks) return;
   for (int64_t c = threadIdx.x % kWarp; c < a.channels; c += kWarp)
@@ -22,8 +21,7 @@ __global__ void gradient_kernel(PlaneGradientArrays<T> a) {
 
 }  // namespace
 
-template <typename T>
-void gradient(const PlaneGradientArrays<T>& a, cudaStream_t stream) {
+template <typename T> void gradient(const PlaneGradientArrays<T>& a, cudaStream_t stream) {
   const int64_t blocks = (a.chunks + kWarpsPerBlock - 1) / kWarpsPerBlock;
   gradient_kernel<T><<<unsigned(blocks), kWarpsPerBlock * kWarp, 0, stream>>>(a);
   const cudaError_t status = cudaGetLastError();

@@ -8,7 +8,6 @@
 
 namespace sfgs::plane_sampling::cuda_kernels {
 
-template <typename T>
-void gradient(const PlaneGradientArrays<T>& arrays, cudaStream_t stream);
+template <typename T> void gradient(const PlaneGradientArrays<T>& arrays, cudaStream_t stream);
 
 }  // namespace sfgs::plane_sampling::cuda_kernels

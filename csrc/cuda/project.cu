@@ -90,7 +90,8 @@ __global__ void __launch_bounds__(kFinalizeThreads)
       class_start[c] = start;
       start += count;
     }
-    for (int w = 0; w < kFinalizeThreads / kWarpSize; ++w) longest = warp_longest[w] > longest ? warp_longest[w] : longest;
+    for (int w = 0; w < kFinalizeThreads / kWarpSize; ++w)
+      longest = warp_longest[w] > longest ? warp_longest[w] : longest;
     const int64_t total = bucket_offsets[tiles * kTileBuckets];
     tile_offsets[tiles] = total;
     stats->intersections = total;
@@ -131,7 +132,7 @@ void project_gaussians(const SplatScene<T>& s, ForwardBuffers<T>& b, const Scrat
   check_cuda(cub::DeviceScan::ExclusiveSum(temp, temp_bytes, b.bucket_counts, b.bucket_offsets, buckets, stream),
              "bucket scan");
   finalize_tiles_kernel<<<1, kFinalizeThreads, 0, stream>>>(b.bucket_offsets, tiles, b.tile_offsets, b.tile_order,
-                                                           b.bin_stats, tile_order() == TileOrder::kRowMajor);
+                                                            b.bin_stats, tile_order() == TileOrder::kRowMajor);
   check_cuda(cudaGetLastError(), "finalize_tiles_kernel launch");
 }
 

@@ -16,9 +16,10 @@
 //   bin_intersections  each Gaussian writes a (depth bits, index) record into the next slot of its bucket of each
 //                      touched tile's run, and one block per tile radix sorts its run in shared memory by depth
 //                      bits relative to the tile's nearest, carrying the index, with ties re-sorted by index: the
-//                      order is (depth, index) exactly as in the CPU reference, in float and in double. A tile longer than the shared-memory sort holds sends the whole pass to the radix
-//                      path: a global depth sort gives every Gaussian a unique rank, keys (tile << rank_bits | rank)
-//                      are radix sorted and cut into tile ranges. Both paths give the same lists.
+//                      order is (depth, index) exactly as in the CPU reference, in float and in double. A tile longer
+//                      than the shared-memory sort holds sends the whole pass to the radix path: a global depth sort
+//                      gives every Gaussian a unique rank, keys (tile << rank_bits | rank) are radix sorted and cut
+//                      into tile ranges. Both paths give the same lists.
 //   blend              front-to-back blend, one CTA per tile (longest tiles first); each warp covers a compact 8 x 4
 //                      pixel block and skips, with one ballot per 32 Gaussians, those whose ellipse misses its block
 //                      (pixel_block_touched, the tile test on the block: bit-identical per pixel). A run that would
@@ -76,9 +77,9 @@ struct BinBudget {
 
 template <typename T> struct ForwardBuffers {
   // Per Gaussian.
-  T* projected;               // (N, kProjectedWidth); rows of culled Gaussians are not written
-  TileRect* tile_rects;       // (N)
-  int32_t* radii;             // (N, 2)
+  T* projected;          // (N, kProjectedWidth); rows of culled Gaussians are not written
+  TileRect* tile_rects;  // (N)
+  int32_t* radii;        // (N, 2)
   // Per tile: start of each tile's run of sorted intersections, (tiles + 1); the last entry is the count.
   int64_t* tile_offsets;
   // Device copy of BinStats, written by project_gaussians; the caller reads it.
@@ -89,10 +90,10 @@ template <typename T> struct ForwardBuffers {
   // Per tile: the order in which the blends take the tiles (longest runs first, empty tiles last), (tiles).
   int32_t* tile_order;
   // Scratch shared by project_gaussians and bin_intersections (set by project_gaussians).
-  uint64_t* touched_masks;              // (N) touched tiles of each Gaussian's tile rectangle, if it has <= 64 tiles
-  int64_t* gaussian_tile_counts;        // (N) tiles each Gaussian touches
-  unsigned long long* bucket_counts;    // (tiles * buckets + 1) intersections per tile bucket
-  int64_t* bucket_offsets;              // (tiles * buckets + 1) exclusive scan of bucket_counts
+  uint64_t* touched_masks;            // (N) touched tiles of each Gaussian's tile rectangle, if it has <= 64 tiles
+  int64_t* gaussian_tile_counts;      // (N) tiles each Gaussian touches
+  unsigned long long* bucket_counts;  // (tiles * buckets + 1) intersections per tile bucket
+  int64_t* bucket_offsets;            // (tiles * buckets + 1) exclusive scan of bucket_counts
   // Per pixel; needed by blend only.
   T* image;                // (H, W, C)
   T* alpha;                // (H, W)

@@ -55,22 +55,19 @@ class TorchScratch {
 };
 
 template <typename T> const T* data_or_null(const at::Tensor& t) { return t.defined() ? t.data_ptr<T>() : nullptr; }
-template <typename T> T* mutable_data_or_null(const at::Tensor& t) {
-  return t.defined() ? t.data_ptr<T>() : nullptr;
-}
+template <typename T> T* mutable_data_or_null(const at::Tensor& t) { return t.defined() ? t.data_ptr<T>() : nullptr; }
 
 void check_on_device(const at::Tensor& t, const char* name, const at::Tensor& means) {
   if (!t.defined()) return;
   TORCH_CHECK(t.device() == means.device() && t.scalar_type() == means.scalar_type() && t.is_contiguous(),
-              "sfgs CUDA backend: ", name, " must be a contiguous ", means.scalar_type(), " tensor on ",
-              means.device(), ", got a ", t.scalar_type(), " tensor on ", t.device(),
-              t.is_contiguous() ? "" : " (not contiguous)");
+              "sfgs CUDA backend: ", name, " must be a contiguous ", means.scalar_type(), " tensor on ", means.device(),
+              ", got a ", t.scalar_type(), " tensor on ", t.device(), t.is_contiguous() ? "" : " (not contiguous)");
 }
 
 void check_inputs(const SplatInputs& in) {
   TORCH_CHECK(in.means.is_cuda(), "sfgs CUDA backend: means must be on a CUDA device, got ", in.means.device());
-  TORCH_CHECK(is_float_or_double(in.means),
-              "sfgs CUDA backend: tensors must be float32 or float64, got ", in.means.scalar_type());
+  TORCH_CHECK(is_float_or_double(in.means), "sfgs CUDA backend: tensors must be float32 or float64, got ",
+              in.means.scalar_type());
   TORCH_CHECK(in.means.is_contiguous(), "sfgs CUDA backend: means must be contiguous");
   TORCH_CHECK(in.uses_covariances() != (in.scales.defined() && in.rotations.defined()),
               "sfgs CUDA backend: exactly one of covariances or scales + rotations must be given");
@@ -90,8 +87,8 @@ kernels::BinStats read_bin_stats(const at::Tensor& device_stats, const at::Tenso
                                  const at::cuda::CUDAStream& stream) {
   static_assert(sizeof(kernels::BinStats) == 3 * sizeof(int64_t), "BinStats is read as three int64 values");
   const at::Tensor host = at::empty({3}, at::TensorOptions().dtype(at::kLong).pinned_memory(true));
-  C10_CUDA_CHECK(cudaMemcpyAsync(host.data_ptr<int64_t>(), device_stats.data_ptr<int64_t>(),
-                                 sizeof(kernels::BinStats), cudaMemcpyDeviceToHost, stream));
+  C10_CUDA_CHECK(cudaMemcpyAsync(host.data_ptr<int64_t>(), device_stats.data_ptr<int64_t>(), sizeof(kernels::BinStats),
+                                 cudaMemcpyDeviceToHost, stream));
   at::cuda::CUDAEvent copied;
   copied.record(stream);
   copied.synchronize();
@@ -184,20 +181,19 @@ InputGradients backward_typed(const SplatInputs& in, const CameraSpec& camera, c
   check_on_device(grad_depth, "the depth gradient", in.means);
   check_on_device(image, "the saved image", in.means);
 
-  const kernels::BackwardInputs<T> inputs{
-      c.projected.data_ptr<T>(),
-      reinterpret_cast<const kernels::TileRect*>(c.tile_rects.data_ptr<int16_t>()),
-      c.isect_gaussian.data_ptr<int32_t>(),
-      c.tile_offsets.data_ptr<int64_t>(),
-      c.tile_order.data_ptr<int32_t>(),
-      c.isect_gaussian.numel(),
-      image.data_ptr<T>(),
-      c.depth_sum.data_ptr<T>(),
-      c.final_transmittance.data_ptr<T>(),
-      c.contributors.data_ptr<int32_t>(),
-      data_or_null<T>(grad_image),
-      data_or_null<T>(grad_alpha),
-      data_or_null<T>(grad_depth)};
+  const kernels::BackwardInputs<T> inputs{c.projected.data_ptr<T>(),
+                                          reinterpret_cast<const kernels::TileRect*>(c.tile_rects.data_ptr<int16_t>()),
+                                          c.isect_gaussian.data_ptr<int32_t>(),
+                                          c.tile_offsets.data_ptr<int64_t>(),
+                                          c.tile_order.data_ptr<int32_t>(),
+                                          c.isect_gaussian.numel(),
+                                          image.data_ptr<T>(),
+                                          c.depth_sum.data_ptr<T>(),
+                                          c.final_transmittance.data_ptr<T>(),
+                                          c.contributors.data_ptr<int32_t>(),
+                                          data_or_null<T>(grad_image),
+                                          data_or_null<T>(grad_alpha),
+                                          data_or_null<T>(grad_depth)};
 
   InputGradients out;
   out.means = at::empty_like(in.means);
@@ -234,8 +230,7 @@ Forward forward(const SplatInputs& in, const CameraSpec& camera, const BackendSe
 InputGradients backward(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings,
                         const at::Tensor& image, const ForwardContext& context, const OutputGradients& grads) {
   check_inputs(in);
-  if (in.means.scalar_type() == at::kDouble)
-    return backward_typed<double>(in, camera, settings, image, context, grads);
+  if (in.means.scalar_type() == at::kDouble) return backward_typed<double>(in, camera, settings, image, context, grads);
   return backward_typed<float>(in, camera, settings, image, context, grads);
 }
 

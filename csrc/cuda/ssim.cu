@@ -24,15 +24,9 @@ constexpr int kHaloColumns = kTileColumns + 2 * kWindowRadius;
 constexpr int kMomentMaps = 5;  // mu_x, mu_y, xx, yy, xy
 
 // A float64 tile has half the rows, so its shared memory stays within the static 48 KiB.
-template <typename T>
-constexpr int tile_rows() {
-  return sizeof(T) > 4 ? kSsimTileRows / 2 : kSsimTileRows;
-}
+template <typename T> constexpr int tile_rows() { return sizeof(T) > 4 ? kSsimTileRows / 2 : kSsimTileRows; }
 
-template <typename T>
-constexpr int halo_rows() {
-  return tile_rows<T>() + 2 * kWindowRadius;
-}
+template <typename T> constexpr int halo_rows() { return tile_rows<T>() + 2 * kWindowRadius; }
 
 static_assert(kSsimTileRows % (2 * kThreadRows) == 0, "every thread takes whole rows of a tile in both dtypes");
 
@@ -74,8 +68,7 @@ __device__ __forceinline__ T filter_column(const T* taps, const T (*rows)[kTileC
   return sum;
 }
 
-template <typename T>
-__global__ void __launch_bounds__(kThreads) forward_kernel(const SsimArrays<T> a) {
+template <typename T> __global__ void __launch_bounds__(kThreads) forward_kernel(const SsimArrays<T> a) {
   constexpr int kRows = tile_rows<T>(), kHaloRows = halo_rows<T>();
   // The products x^2, y^2 and x y are formed from the halo of x and y in the horizontal pass.
   __shared__ T halo[2][kHaloRows][kHaloColumns];
@@ -139,8 +132,7 @@ __global__ void __launch_bounds__(kThreads) forward_kernel(const SsimArrays<T> a
   }
 }
 
-template <typename T>
-__global__ void __launch_bounds__(kThreads) backward_kernel(const SsimGradientArrays<T> a) {
+template <typename T> __global__ void __launch_bounds__(kThreads) backward_kernel(const SsimGradientArrays<T> a) {
   constexpr int kRows = tile_rows<T>(), kHaloRows = halo_rows<T>();
   __shared__ T halo[kDerivativeMaps][kHaloRows][kHaloColumns];
   __shared__ T rows[kDerivativeMaps][kHaloRows][kTileColumns];
@@ -172,8 +164,7 @@ __global__ void __launch_bounds__(kThreads) backward_kernel(const SsimGradientAr
 }
 
 // The grid of tiles over an image; CUDA bounds its y and z extents at 65535.
-template <typename T>
-dim3 tile_grid(int64_t height, int64_t width, int64_t channels) {
+template <typename T> dim3 tile_grid(int64_t height, int64_t width, int64_t channels) {
   const int64_t columns = (width + kTileColumns - 1) / kTileColumns,
                 rows = (height + tile_rows<T>() - 1) / tile_rows<T>();
   constexpr int64_t kMaxExtent = 65535;
@@ -187,20 +178,17 @@ dim3 tile_grid(int64_t height, int64_t width, int64_t channels) {
 
 }  // namespace
 
-template <typename T>
-int64_t tile_count(int64_t height, int64_t width, int64_t channels) {
+template <typename T> int64_t tile_count(int64_t height, int64_t width, int64_t channels) {
   const dim3 grid = tile_grid<T>(height, width, channels);
   return int64_t(grid.x) * grid.y * grid.z;
 }
 
-template <typename T>
-void forward(const SsimArrays<T>& a, cudaStream_t stream) {
+template <typename T> void forward(const SsimArrays<T>& a, cudaStream_t stream) {
   forward_kernel<T><<<tile_grid<T>(a.height, a.width, a.channels), dim3(kTileColumns, kThreadRows), 0, stream>>>(a);
   cuda_launch::check_launch("fused_ssim", "forward_kernel");
 }
 
-template <typename T>
-void backward(const SsimGradientArrays<T>& a, cudaStream_t stream) {
+template <typename T> void backward(const SsimGradientArrays<T>& a, cudaStream_t stream) {
   backward_kernel<T><<<tile_grid<T>(a.height, a.width, a.channels), dim3(kTileColumns, kThreadRows), 0, stream>>>(a);
   cuda_launch::check_launch("fused_ssim", "backward_kernel");
 }

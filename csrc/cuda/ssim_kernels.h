@@ -11,12 +11,9 @@
 namespace sfgs::ssim::cuda_kernels {
 
 // The forward's blocks for an image, each writing one partial sum of the SSIM map (the tile depends on the dtype).
-template <typename T>
-int64_t tile_count(int64_t height, int64_t width, int64_t channels);
+template <typename T> int64_t tile_count(int64_t height, int64_t width, int64_t channels);
 
-template <typename T>
-void forward(const SsimArrays<T>& arrays, cudaStream_t stream);
-template <typename T>
-void backward(const SsimGradientArrays<T>& arrays, cudaStream_t stream);
+template <typename T> void forward(const SsimArrays<T>& arrays, cudaStream_t stream);
+template <typename T> void backward(const SsimGradientArrays<T>& arrays, cudaStream_t stream);
 
 }  // namespace sfgs::ssim::cuda_kernels

@@ -40,7 +40,8 @@ std::map<int64_t, ColmapIntrinsics> read_colmap_cameras(const std::string& path)
       s >> c.fx >> c.cx >> c.cy;
       c.fy = c.fx;
     } else {
-      TORCH_CHECK(false, "'", path, "': camera model ", model, " has lens distortion; sfgs needs PINHOLE or "
+      TORCH_CHECK(false, "'", path, "': camera model ", model,
+                  " has lens distortion; sfgs needs PINHOLE or "
                   "SIMPLE_PINHOLE (undistort the images first)");
     }
     TORCH_CHECK(!s.fail() && c.fx > 0 && c.fy > 0 && c.width > 0 && c.height > 0, "'", path,
@@ -65,11 +66,26 @@ std::vector<ColmapImage> read_colmap_images(const std::string& path) {
     TORCH_CHECK(!s.fail(), "'", path, "': cannot parse image line '", lines[i], "'");
     const double norm = std::sqrt(qw * qw + qx * qx + qy * qy + qz * qz);
     TORCH_CHECK(norm > 0, "'", path, "': image '", image.name, "' has a zero quaternion");
-    qw /= norm; qx /= norm; qy /= norm; qz /= norm;
-    image.world_to_camera = {1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qw * qz), 2 * (qx * qz + qw * qy), tx,
-                             2 * (qx * qy + qw * qz), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qw * qx), ty,
-                             2 * (qx * qz - qw * qy), 2 * (qy * qz + qw * qx), 1 - 2 * (qx * qx + qy * qy), tz,
-                             0, 0, 0, 1};
+    qw /= norm;
+    qx /= norm;
+    qy /= norm;
+    qz /= norm;
+    image.world_to_camera = {1 - 2 * (qy * qy + qz * qz),
+                             2 * (qx * qy - qw * qz),
+                             2 * (qx * qz + qw * qy),
+                             tx,
+                             2 * (qx * qy + qw * qz),
+                             1 - 2 * (qx * qx + qz * qz),
+                             2 * (qy * qz - qw * qx),
+                             ty,
+                             2 * (qx * qz - qw * qy),
+                             2 * (qy * qz + qw * qx),
+                             1 - 2 * (qx * qx + qy * qy),
+                             tz,
+                             0,
+                             0,
+                             0,
+                             1};
     images.push_back(image);
     ++i;  // skip the points line
   }

@@ -26,14 +26,18 @@ namespace {
 // stb_image's terse failure reasons ("outofdata") in words, with the reason kept for a search.
 std::string why_unreadable(const std::string& path) {
   const std::string reason = stbi_failure_reason() ? stbi_failure_reason() : "unknown";
-  static const std::set<std::string> damaged = {"outofdata", "bad zlib header", "bad huffman code", "no IDAT",
-                                                "bad codelengths", "corrupt"};
+  static const std::set<std::string> damaged = {"outofdata", "bad zlib header", "bad huffman code",
+                                                "no IDAT",   "bad codelengths", "corrupt"};
   static const std::set<std::string> not_an_image = {"unknown image type", "bad png sig", "not PNG"};
   std::string words;
-  if (!std::filesystem::exists(path)) words = "no such file";
-  else if (damaged.count(reason)) words = "the file is cut short or damaged (truncated during a copy or a download?)";
-  else if (not_an_image.count(reason)) words = "not a PNG or JPEG image";
-  else if (reason == "can't fopen") words = "cannot open the file (permissions?)";
+  if (!std::filesystem::exists(path))
+    words = "no such file";
+  else if (damaged.count(reason))
+    words = "the file is cut short or damaged (truncated during a copy or a download?)";
+  else if (not_an_image.count(reason))
+    words = "not a PNG or JPEG image";
+  else if (reason == "can't fopen")
+    words = "cannot open the file (permissions?)";
   return words.empty() ? reason : words + " [" + reason + "]";
 }
 
@@ -50,8 +54,8 @@ at::Tensor read_8bit(const std::string& path, int channels) {
 
 std::pair<int64_t, int64_t> image_size(const std::string& path) {
   int w = 0, h = 0, channels = 0;
-  TORCH_CHECK(stbi_info(path.c_str(), &w, &h, &channels) != 0, "cannot read image '", path, "': ",
-              why_unreadable(path));
+  TORCH_CHECK(stbi_info(path.c_str(), &w, &h, &channels) != 0, "cannot read image '", path,
+              "': ", why_unreadable(path));
   return {w, h};
 }
 
@@ -72,7 +76,8 @@ void write_png(const std::string& path, const at::Tensor& image, bool overwrite)
               "write_png('", path, "'): expected an (H, W) or (H, W, 3) image, got ",
               image.defined() ? image.sizes() : at::IntArrayRef{});
   TORCH_CHECK(image.isfinite().all().item<bool>(), "write_png('", path, "'): the image has NaN or Inf values");
-  const at::Tensor bytes = image.detach().cpu().to(at::kFloat).clamp(0, 1).mul(kEightBitMax).round().to(at::kByte).contiguous();
+  const at::Tensor bytes =
+      image.detach().cpu().to(at::kFloat).clamp(0, 1).mul(kEightBitMax).round().to(at::kByte).contiguous();
   const int h = int(bytes.size(0)), w = int(bytes.size(1)), c = bytes.dim() == 3 ? int(bytes.size(2)) : 1;
   std::vector<unsigned char> encoded;
   const auto append = [](void* context, void* data, int size) {

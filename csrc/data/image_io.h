@@ -15,7 +15,7 @@ enum class MaskEncoding {
   kDepthForeground  // depth image, person where depth < its maximum (X-Humans)
 };
 
-at::Tensor read_image_rgb(const std::string& path);                    // (H, W, 3) float32 in [0, 1]
+at::Tensor read_image_rgb(const std::string& path);  // (H, W, 3) float32 in [0, 1]
 // Width and height from the file's header, without decoding the pixels.
 std::pair<int64_t, int64_t> image_size(const std::string& path);
 at::Tensor read_mask(const std::string& path, MaskEncoding encoding);  // (H, W) float32 in {0, 1}

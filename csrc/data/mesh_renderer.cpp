@@ -21,8 +21,8 @@ constexpr float kDefaultAlbedo = 0.7f;  // grey, for meshes with neither texture
 struct ScreenTriangle {
   int64_t face;
   double x[3], y[3], inv_z[3];
-  double area;  // positive after orientation is normalised
-  int order[3]; // corner k of this triangle is corner order[k] of the face
+  double area;   // positive after orientation is normalised
+  int order[3];  // corner k of this triangle is corner order[k] of the face
   int row0, row1, col0, col1;
 };
 
@@ -51,9 +51,9 @@ void check_mesh(const TexturedMesh& m, const at::Tensor& background) {
   TORCH_CHECK(m.vertices.defined() && m.vertices.dim() == 2 && m.vertices.size(1) == 3 &&
                   at::isFloatingType(m.vertices.scalar_type()),
               "render_mesh: vertices must be a floating (V, 3) tensor, got ", m.vertices.sizes());
-  TORCH_CHECK(m.faces.defined() && m.faces.dim() == 2 && m.faces.size(1) == 3 &&
-                  !at::isFloatingType(m.faces.scalar_type()),
-              "render_mesh: faces must be an integer (F, 3) tensor, got ", m.faces.sizes());
+  TORCH_CHECK(
+      m.faces.defined() && m.faces.dim() == 2 && m.faces.size(1) == 3 && !at::isFloatingType(m.faces.scalar_type()),
+      "render_mesh: faces must be an integer (F, 3) tensor, got ", m.faces.sizes());
   const int64_t v = m.vertices.size(0);
   if (m.faces.numel() > 0)
     TORCH_CHECK(m.faces.min().item<int64_t>() >= 0 && m.faces.max().item<int64_t>() < v,
@@ -271,7 +271,7 @@ Camera light_camera(const at::Tensor& world_vertices, const std::array<double, 3
   const at::Tensor z = -at::tensor(std::vector<double>(towards_light.begin(), towards_light.end()), at::kDouble);
   const at::Tensor forward = z / z.norm();
   const at::Tensor up = forward[1].abs().item<double>() > 0.99 ? at::tensor({1.0, 0.0, 0.0}, at::kDouble)
-                                                                 : at::tensor({0.0, 1.0, 0.0}, at::kDouble);
+                                                               : at::tensor({0.0, 1.0, 0.0}, at::kDouble);
   at::Tensor x = at::linalg_cross(forward, up);
   x = x / x.norm();
   const at::Tensor y = at::linalg_cross(forward, x);
@@ -291,7 +291,8 @@ KeyLight key_light_for(const TexturedMesh& mesh, const Camera& camera, const std
                        at::Tensor& depth) {
   double radius = 0;
   const Camera light = light_camera(mesh.vertices, towards_light, radius);
-  depth = rasterise(project_triangles(to_camera(mesh, light), light), kShadowMapSide, kShadowMapSide).depth.contiguous();
+  depth =
+      rasterise(project_triangles(to_camera(mesh, light), light), kShadowMapSide, kShadowMapSide).depth.contiguous();
   const at::Tensor camera_to_world = at::linalg_inv(matrix_of(camera.world_to_camera));
   const at::Tensor light_from_camera = matrix_of(light.world_to_camera).matmul(camera_to_world).contiguous();
   const at::Tensor l = at::tensor(std::vector<double>(towards_light.begin(), towards_light.end()), at::kDouble);
@@ -405,9 +406,9 @@ MeshImage render_mesh(const TexturedMesh& mesh, const Camera& camera, const at::
   const CameraSpaceMesh in_camera = to_camera(mesh, camera);
   const Fragments fragments = rasterise(project_triangles(in_camera, camera), h, w);
   const bool has_key_light = shading.key_light != std::array<double, 3>{0, 0, 0};
-  TORCH_CHECK(std::isfinite(shading.key_light[0]) && std::isfinite(shading.key_light[1]) &&
-                  std::isfinite(shading.key_light[2]),
-              "render_mesh: the key light direction must be finite");
+  TORCH_CHECK(
+      std::isfinite(shading.key_light[0]) && std::isfinite(shading.key_light[1]) && std::isfinite(shading.key_light[2]),
+      "render_mesh: the key light direction must be finite");
   at::Tensor shadow_depth;
   KeyLight key{};
   if (has_key_light) key = key_light_for(mesh, camera, shading.key_light, shadow_depth);

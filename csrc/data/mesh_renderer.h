@@ -11,17 +11,17 @@
 namespace sfgs::data {
 
 struct TexturedMesh {
-  at::Tensor vertices;       // (V, 3) world positions, float32 or float64
-  at::Tensor faces;          // (F, 3) int64 vertex indices
-  at::Tensor uvs;            // (T, 2) texture coordinates, v pointing up (OBJ convention); may be undefined
-  at::Tensor face_uvs;       // (F, 3) int64 indices into uvs (seams have their own uv rows); with uvs
-  at::Tensor texture;        // (Ht, Wt, 3) float in [0, 1]; with uvs
-  at::Tensor vertex_colours; // (V, 3) used when there is no texture; may be undefined (then grey)
+  at::Tensor vertices;        // (V, 3) world positions, float32 or float64
+  at::Tensor faces;           // (F, 3) int64 vertex indices
+  at::Tensor uvs;             // (T, 2) texture coordinates, v pointing up (OBJ convention); may be undefined
+  at::Tensor face_uvs;        // (F, 3) int64 indices into uvs (seams have their own uv rows); with uvs
+  at::Tensor texture;         // (Ht, Wt, 3) float in [0, 1]; with uvs
+  at::Tensor vertex_colours;  // (V, 3) used when there is no texture; may be undefined (then grey)
 };
 
 struct MeshShading {
-  double ambient = 0.35;           // share of light that reaches every surface
-  double diffuse = 0.65;           // share of the directional light, scaled by the cosine below
+  double ambient = 0.35;  // share of light that reaches every surface
+  double diffuse = 0.65;  // share of the directional light, scaled by the cosine below
   // Where the directional light comes from. Zero: a head light at the camera, scaled by |cos| of the normal to the
   // view ray (either side of the surface). Otherwise a key light fixed in the world (this direction towards the
   // light, world coordinates, any length): scaled by the cosine to the outward normal (0 facing away) and shadowed

@@ -23,8 +23,8 @@ namespace fs = std::filesystem;
 
 namespace {
 
-constexpr int64_t kAmassSmplxPoseSize = 165;  // root, 21 body joints, jaw, two eyes, 2 x 15 hand joints
-constexpr int64_t kAmassSmplhPoseSize = 156;  // root, 21 body joints, 2 x 15 hand joints
+constexpr int64_t kAmassSmplxPoseSize = 165;       // root, 21 body joints, jaw, two eyes, 2 x 15 hand joints
+constexpr int64_t kAmassSmplhPoseSize = 156;       // root, 21 body joints, 2 x 15 hand joints
 constexpr double kExavatarFramesPerSecond = 30.0;  // the frame rate of ExAvatar's (NeuMan's) videos
 // What a motion may hold, checked before any per-frame work: frame rates of capture systems and videos, and frame
 // counts that a render takes in seconds (a clip's poses cost about 7 kB a frame in memory).
@@ -73,9 +73,9 @@ int64_t frames_needed(int64_t frames, double frames_per_second, double seconds, 
   TORCH_CHECK(seconds > 0, "motion '", source, "': the seconds to read must be positive, got ", seconds);
   const double wanted = std::floor(seconds * frames_per_second) + 2;  // the interpolation's last neighbour too
   const int64_t keep = wanted < double(frames) ? int64_t(wanted) : frames;
-  TORCH_CHECK(keep <= kMaxMotionFrames, "motion '", source, "' holds ", frames, " frames; at most ",
-              kMaxMotionFrames, " are read at once (", double(kMaxMotionFrames) / frames_per_second,
-              " s at its ", frames_per_second, " frames/s): render fewer frames (--frames)");
+  TORCH_CHECK(keep <= kMaxMotionFrames, "motion '", source, "' holds ", frames, " frames; at most ", kMaxMotionFrames,
+              " are read at once (", double(kMaxMotionFrames) / frames_per_second, " s at its ", frames_per_second,
+              " frames/s): render fewer frames (--frames)");
   return keep;
 }
 
@@ -83,8 +83,10 @@ double frame_rate(const io::NpzArchive& npz) {
   const char* key = npz.contains("mocap_frame_rate")  ? "mocap_frame_rate"
                     : npz.contains("mocap_framerate") ? "mocap_framerate"
                                                       : nullptr;
-  TORCH_CHECK(key, "motion file '", npz.path(), "' lacks its frame rate: expected 'mocap_frame_rate' (AMASS SMPL-X) "
-              "or 'mocap_framerate' (AMASS SMPL-H); keys: ", key_list(npz));
+  TORCH_CHECK(key, "motion file '", npz.path(),
+              "' lacks its frame rate: expected 'mocap_frame_rate' (AMASS SMPL-X) "
+              "or 'mocap_framerate' (AMASS SMPL-H); keys: ",
+              key_list(npz));
   const at::Tensor rate = npz.read(key);
   const bool numeric = at::isFloatingType(rate.scalar_type()) || at::isIntegralType(rate.scalar_type(), false);
   TORCH_CHECK(rate.numel() == 1 && numeric, "motion file '", npz.path(), "': '", key, "' must be one number, got ",
@@ -115,8 +117,8 @@ body::SmplxPose blend(const body::SmplxPose& a, const body::SmplxPose& b, double
     if (!x.defined()) continue;
     const std::string name = f.name;
     const bool linear = name == "expression" || name == "transl";
-    out.*(f.member) = linear ? x * (1 - w) + y * w : rotation_between(x.reshape({-1, 3}), y.reshape({-1, 3}), w)
-                                                         .reshape(x.sizes());
+    out.*(f.member) =
+        linear ? x * (1 - w) + y * w : rotation_between(x.reshape({-1, 3}), y.reshape({-1, 3}), w).reshape(x.sizes());
   }
   return out;
 }
@@ -129,8 +131,10 @@ bool is_motion_file(const std::string& path) {
 
 MotionClip read_motion(const std::string& path, double seconds) {
   if (fs::path(path).extension() == ".npz") return read_amass(path, seconds);
-  TORCH_CHECK(fs::is_directory(fs::path(path) / kExavatarParams), "motion '", path, "' is neither an AMASS .npz nor "
-              "an ExAvatar motion folder (with ", kExavatarParams, "/)");
+  TORCH_CHECK(fs::is_directory(fs::path(path) / kExavatarParams), "motion '", path,
+              "' is neither an AMASS .npz nor "
+              "an ExAvatar motion folder (with ",
+              kExavatarParams, "/)");
   return read_exavatar_motion(path, seconds);
 }
 
@@ -277,8 +281,8 @@ MotionClip resample(const MotionClip& clip, double frames_per_second) {
   const int64_t n = static_cast<int64_t>(clip.poses.size());
   const double last = double(n - 1) / clip.frames_per_second;  // the time of the last source frame
   const double frames = std::floor(last * frames_per_second + 1e-9) + 1;
-  TORCH_CHECK(frames <= double(kMaxMotionFrames), "resample: '", clip.source, "' (", last, " s) at ",
-              frames_per_second, " frames/s gives ", frames, " frames; at most ", kMaxMotionFrames,
+  TORCH_CHECK(frames <= double(kMaxMotionFrames), "resample: '", clip.source, "' (", last, " s) at ", frames_per_second,
+              " frames/s gives ", frames, " frames; at most ", kMaxMotionFrames,
               " (render fewer seconds or at a lower --fps)");
   const auto count = static_cast<int64_t>(frames);
   for (int64_t k = 0; k < count; ++k) {

@@ -26,10 +26,10 @@ namespace sfgs::data {
 struct MotionClip {
   std::vector<body::SmplxPose> poses;  // one per frame, float64 on the CPU, in the avatar's Y-up frame
   double frames_per_second = 0;
-  std::string source;                  // the file
-  std::string format;                  // "amass-smplx", "amass-smplh" or "exavatar"
-  bool absolute_hands = true;          // hand poses relative to a flat hand (not to the model's mean hand)
-  std::string note;                    // what the reader filled in or left out, for the user; empty when nothing
+  std::string source;          // the file
+  std::string format;          // "amass-smplx", "amass-smplh" or "exavatar"
+  bool absolute_hands = true;  // hand poses relative to a flat hand (not to the model's mean hand)
+  std::string note;            // what the reader filled in or left out, for the user; empty when nothing
 
   double seconds() const { return poses.empty() ? 0 : double(poses.size()) / frames_per_second; }
 };
@@ -43,8 +43,7 @@ bool is_motion_file(const std::string& path);
 MotionClip read_amass(const std::string& path, double seconds = std::numeric_limits<double>::infinity());
 // Reads an ExAvatar/SFGS motion folder (its first `seconds`): consecutive frame files, cameras that are rotations.
 // Errors name the file and what was expected.
-MotionClip read_exavatar_motion(const std::string& folder,
-                                double seconds = std::numeric_limits<double>::infinity());
+MotionClip read_exavatar_motion(const std::string& folder, double seconds = std::numeric_limits<double>::infinity());
 // Either, by what `path` is (is_motion_file).
 MotionClip read_motion(const std::string& path, double seconds = std::numeric_limits<double>::infinity());
 

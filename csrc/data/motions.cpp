@@ -17,9 +17,23 @@ constexpr double kMotionHz = 0.5;  // every motion repeats every 2 s: a 60-frame
 // forward, -z / +z at the left / right shoulder lowers that arm, -y / +y at the left / right shoulder brings it
 // forward.
 enum Joint : int64_t {
-  kLeftHip = 1, kRightHip = 2, kSpine1 = 3, kLeftKnee = 4, kRightKnee = 5, kSpine2 = 6, kLeftAnkle = 7,
-  kRightAnkle = 8, kSpine3 = 9, kNeck = 12, kHead = 15, kLeftShoulder = 16, kRightShoulder = 17, kLeftElbow = 18,
-  kRightElbow = 19, kLeftWrist = 20, kRightWrist = 21
+  kLeftHip = 1,
+  kRightHip = 2,
+  kSpine1 = 3,
+  kLeftKnee = 4,
+  kRightKnee = 5,
+  kSpine2 = 6,
+  kLeftAnkle = 7,
+  kRightAnkle = 8,
+  kSpine3 = 9,
+  kNeck = 12,
+  kHead = 15,
+  kLeftShoulder = 16,
+  kRightShoulder = 17,
+  kLeftElbow = 18,
+  kRightElbow = 19,
+  kLeftWrist = 20,
+  kRightWrist = 21
 };
 
 struct Pose {
@@ -98,7 +112,7 @@ void wave(Pose& q, double t) {
   const double w = kTwoPi * kMotionHz, s = std::sin(w * t), fast = std::sin(3 * w * t);
   q.set(kLeftShoulder, 0, -0.1, -1.3);
   q.set(kLeftElbow, 0, -0.3, 0);
-  q.set(kRightShoulder, 0, 0.2, -0.35);  // raised a little above the horizontal
+  q.set(kRightShoulder, 0, 0.2, -0.35);          // raised a little above the horizontal
   q.set(kRightElbow, 0, 0, -1.3 + 0.45 * fast);  // forearm up, waving
   q.set(kRightWrist, 0, 0, 0.3 * fast);
   q.spine(0, 0, -0.15 * s);
@@ -122,8 +136,8 @@ void overhead(Pose& q, double t) {
 void bend(Pose& q, double t) {
   const double w = kTwoPi * kMotionHz;
   const double depth = 0.65 - 0.35 * std::cos(w * t);  // 0.3 .. 1.0 of the full bend
-  q.root(0.6 * depth, 0, 0);                            // the pelvis tips forward ...
-  q.set(kLeftHip, -0.6 * depth, 0, 0);                  // ... over legs that stay upright
+  q.root(0.6 * depth, 0, 0);                           // the pelvis tips forward ...
+  q.set(kLeftHip, -0.6 * depth, 0, 0);                 // ... over legs that stay upright
   q.set(kRightHip, -0.6 * depth, 0, 0);
   q.set(kLeftKnee, 0.12 * depth, 0, 0);
   q.set(kRightKnee, 0.12 * depth, 0, 0);
@@ -168,8 +182,8 @@ void turn(Pose& q, double t) {
 void sit(Pose& q, double t) {
   const double w = kTwoPi * kMotionHz;
   const double depth = 0.5 - 0.5 * std::cos(w * t);  // standing at t = 0, deepest at 1 s
-  q.root(0.5 * depth, 0, 0);                          // the torso leans forward
-  q.set(kLeftHip, -2.0 * depth, 0, 0.1 * depth);      // thighs near horizontal
+  q.root(0.5 * depth, 0, 0);                         // the torso leans forward
+  q.set(kLeftHip, -2.0 * depth, 0, 0.1 * depth);     // thighs near horizontal
   q.set(kRightHip, -2.0 * depth, 0, -0.1 * depth);
   q.set(kLeftKnee, 2.0 * depth, 0, 0);
   q.set(kRightKnee, 2.0 * depth, 0, 0);

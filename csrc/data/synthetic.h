@@ -20,7 +20,7 @@
 namespace sfgs::data {
 
 enum class DatasetLayout {
-  kSfgs,    // dataset.json, images/%06d.png, masks/, meshes/ (docs/dataset_format.md)
+  kSfgs,  // dataset.json, images/%06d.png, masks/, meshes/ (docs/dataset_format.md)
   // images/%05d.png, masks/%d.png, sparse/, train_split.txt, test_split.txt, smplx_optimized/ (the fits, in camera
   // coordinates) and ground_truth/ (the exact fits, same files): what read_neuman and `sfgs fit` read
   kNeuman,
@@ -42,7 +42,7 @@ struct SyntheticVideoOptions {
   bool key_light = true;   // false: a head light at the camera (shading that follows the view, never the pose)
   bool overwrite = false;  // replace files of an existing dataset in the folder
   DatasetLayout layout = DatasetLayout::kSfgs;
-  PoseNoiseLevel pose_noise;   // corruption of the written fits (and betas); none by default
+  PoseNoiseLevel pose_noise;     // corruption of the written fits (and betas); none by default
   DetectorNoise keypoint_noise;  // of the keypoint files
   // Called after each frame is written with (frames written, frames in all): a long synthesis reports as it goes.
   std::function<void(int64_t, int64_t)> progress;

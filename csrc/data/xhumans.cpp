@@ -49,10 +49,11 @@ SmplxPose read_xhumans_pose(const fs::path& take, int64_t number) {
   const fs::path json_path = take / "SMPLX" / numbered("mesh-f%05lld_smplx.json", number);
   if (!fs::exists(json_path)) {
     const fs::path pkl = take / "SMPLX" / numbered("mesh-f%05lld_smplx.pkl", number);
-    TORCH_CHECK(!fs::exists(pkl), "X-Humans SMPL-X parameters '", pkl.string(), "' are pickles; convert them once with `",
-                kConverter, " ", take.parent_path().parent_path().string(), "`");
-    TORCH_CHECK(false, "X-Humans take '", take.string(), "' has no SMPL-X parameters for frame ", number, " (expected '",
-                json_path.string(), "')");
+    TORCH_CHECK(!fs::exists(pkl), "X-Humans SMPL-X parameters '", pkl.string(),
+                "' are pickles; convert them once with `", kConverter, " ", take.parent_path().parent_path().string(),
+                "`");
+    TORCH_CHECK(false, "X-Humans take '", take.string(), "' has no SMPL-X parameters for frame ", number,
+                " (expected '", json_path.string(), "')");
   }
   const nlohmann::json j = read_json_file(json_path.string());
   const std::string where = json_path.string();
@@ -89,7 +90,8 @@ Dataset read_xhumans(const std::string& subject_folder) {
   d.source = subject_folder;
   d.format = "xhumans";
   at::Tensor fallback_betas;
-  for (const auto& [split_name, split] : std::vector<std::pair<std::string, Split>>{{"train", Split::kTrain}, {"test", Split::kTest}}) {
+  for (const auto& [split_name, split] :
+       std::vector<std::pair<std::string, Split>>{{"train", Split::kTrain}, {"test", Split::kTest}}) {
     for (const fs::path& take : sorted_entries(root / split_name, "Take", "")) {
       const fs::path render = take / "render";
       const std::vector<fs::path> images = sorted_entries(render / "image", "color_", ".png");
@@ -123,7 +125,8 @@ Dataset read_xhumans(const std::string& subject_folder) {
         // Extrinsics are world-to-camera [R | t] (rows of the 4 x 4 matrix beyond the third are implied).
         const at::Tensor e = extrinsic[int64_t(i)];
         for (int row = 0; row < 3; ++row)
-          for (int col = 0; col < 4; ++col) r.camera.world_to_camera[size_t(row * 4 + col)] = e[row][col].item<double>();
+          for (int col = 0; col < 4; ++col)
+            r.camera.world_to_camera[size_t(row * 4 + col)] = e[row][col].item<double>();
         r.camera.world_to_camera[12] = r.camera.world_to_camera[13] = r.camera.world_to_camera[14] = 0;
         r.camera.world_to_camera[15] = 1;
         r.image_path = images[i].string();
@@ -131,7 +134,8 @@ Dataset read_xhumans(const std::string& subject_folder) {
         r.mask_encoding = MaskEncoding::kDepthForeground;
         r.pose = read_xhumans_pose(take, number);
         if (!fallback_betas.defined()) {
-          const nlohmann::json j = read_json_file((take / "SMPLX" / numbered("mesh-f%05lld_smplx.json", number)).string());
+          const nlohmann::json j =
+              read_json_file((take / "SMPLX" / numbered("mesh-f%05lld_smplx.json", number)).string());
           if (j.contains("betas")) fallback_betas = json_numbers(j.at("betas"), {-1}, "betas");
         }
         d.splits[split].push_back(d.size());
@@ -145,7 +149,8 @@ Dataset read_xhumans(const std::string& subject_folder) {
   if (fs::exists(shape)) {
     d.betas = json_numbers(read_json_file(shape.string()), {-1}, shape.string());
   } else {
-    TORCH_CHECK(fallback_betas.defined(), "'", subject_folder, "': no smplx_optimized/shape_param.json and no betas in "
+    TORCH_CHECK(fallback_betas.defined(), "'", subject_folder,
+                "': no smplx_optimized/shape_param.json and no betas in "
                 "the SMPL-X files");
     d.betas = fallback_betas;
   }

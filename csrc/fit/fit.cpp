@@ -75,8 +75,10 @@ bool link_video_beside_fits(const std::string& data, const std::string& out) {
     if (name == kFitsFolder || name == kLogFile || name == kReportFile) continue;
     const fs::path link = fs::path(out) / name;
     if (fs::exists(fs::symlink_status(link))) continue;
-    if (e.is_directory()) fs::create_directory_symlink(e.path(), link);
-    else fs::create_symlink(e.path(), link);
+    if (e.is_directory())
+      fs::create_directory_symlink(e.path(), link);
+    else
+      fs::create_symlink(e.path(), link);
   }
   return true;
 }
@@ -111,9 +113,8 @@ FitReport run_fit(const FitOptions& options) {
   if (reference) {
     int64_t shared = 0;
     for (const FitFrame& f : input.frames) shared += int64_t(reference->poses.count(f.number));
-    TORCH_CHECK(shared > 0, options.truth.empty() ? "the exact fits '" : "--truth: the exact fits '",
-                reference->source, "' share no frame with the ", input.frames.size(), " frames of '", options.data,
-                "'");
+    TORCH_CHECK(shared > 0, options.truth.empty() ? "the exact fits '" : "--truth: the exact fits '", reference->source,
+                "' share no frame with the ", input.frames.size(), " frames of '", options.data, "'");
   }
   const body::SmplxModelData model = body::smplx_model_or_procedural(options.body_model);
   const body::WholeBodyKeypointMap keypoint_map = body::wholebody_keypoint_map(model, options.body_model);

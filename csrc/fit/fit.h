@@ -38,7 +38,7 @@ struct FitOptions {
   bool betas_from_data = false;  // keep the dataset's shape (smplx_optimized/shape_param.json, dataset.json)
   // Start from the folder's own fits (smplx_optimized/, e.g. a pose estimator's) instead of the closed-form start.
   bool start_from_data = false;
-  bool use_masks = true;         // the silhouette stage, where masks exist
+  bool use_masks = true;  // the silhouette stage, where masks exist
   FitStageLengths iterations;
   int64_t log_every = kFitLogEvery;
   bool overwrite = false;  // replace an existing <out>/smplx_optimized

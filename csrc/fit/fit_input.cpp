@@ -24,7 +24,6 @@ namespace {
 constexpr int64_t kMinPlacingKeypoints = 4;
 constexpr int64_t kFramesNamedInErrors = 8;
 
-
 std::string padded(int64_t number, int digits) {
   char name[32];
   std::snprintf(name, sizeof(name), "%0*lld", digits, static_cast<long long>(number));

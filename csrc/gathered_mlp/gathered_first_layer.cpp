@@ -72,8 +72,7 @@ class GatheredFirstLayerFunction : public torch::autograd::Function<GatheredFirs
     const at::Tensor& out = saved[0];
     const at::Tensor& groups = saved[1];
     const int64_t group_count = ctx->saved_data["group_count"].toInt(), rows = out.size(0), width = out.size(1);
-    if (out.numel() == 0)
-      return {at::zeros_like(out), at::zeros({group_count, width}, out.options()), at::Tensor()};
+    if (out.numel() == 0) return {at::zeros_like(out), at::zeros({group_count, width}, out.options()), at::Tensor()};
     const at::Tensor grad_out = grads[0].contiguous();
     const at::Tensor grad_rows = at::empty_like(out);
     const int64_t partial_rows =

@@ -34,9 +34,9 @@ std::pair<int64_t, int64_t> check_inputs(const at::Tensor& row_inputs, const at:
   check(w.hidden_bias, "hidden_bias", {h});
   check(w.output_weight, "output_weight", {o, h});
   check(w.output_bias, "output_bias", {o});
-  TORCH_CHECK(group_inputs.defined() && group_inputs.dim() == 2 && group_inputs.size(1) == h &&
-                  group_inputs.size(0) > 0,
-              "gathered_mlp: group_inputs must be a (G, ", h, ") tensor with G >= 1, got ", describe(group_inputs));
+  TORCH_CHECK(
+      group_inputs.defined() && group_inputs.dim() == 2 && group_inputs.size(1) == h && group_inputs.size(0) > 0,
+      "gathered_mlp: group_inputs must be a (G, ", h, ") tensor with G >= 1, got ", describe(group_inputs));
   check(group_inputs, "group_inputs", {group_inputs.size(0), h});
   TORCH_CHECK(groups.defined() && groups.dim() == 1 && groups.size(0) == n &&
                   (groups.scalar_type() == at::kInt || groups.scalar_type() == at::kLong) && groups.device() == device,
@@ -71,8 +71,9 @@ at::Tensor gathered_mlp(const at::Tensor& row_inputs, const at::Tensor& group_in
   bool needs_gradient = at::GradMode::is_enabled() && (row_inputs.requires_grad() || group_inputs.requires_grad());
   for (const at::Tensor* t : {&w.hidden_weight, &w.hidden_bias, &w.output_weight, &w.output_bias})
     needs_gradient = needs_gradient || (at::GradMode::is_enabled() && t->requires_grad());
-  TORCH_CHECK(!needs_gradient, "gathered_mlp: inference only; use gathered_mlp_reference where a gradient is needed "
-                               "(or run under torch::NoGradGuard)");
+  TORCH_CHECK(!needs_gradient,
+              "gathered_mlp: inference only; use gathered_mlp_reference where a gradient is needed "
+              "(or run under torch::NoGradGuard)");
   if (!fuses(row_inputs, w)) return gathered_mlp_reference(row_inputs, group_inputs, groups, w);
 
   const at::Tensor rows = row_inputs.to(at::kHalf).contiguous();

@@ -43,10 +43,10 @@ at::Tensor gathered_mlp(const at::Tensor& row_inputs, const at::Tensor& group_in
 // backward and ReLU's threshold backward: about 0.45 ms of a 16 ms training step at 216k points on an H200. Here it is
 // one kernel forward and one backward (a CPU backend and CUDA kernels of gathered_first_layer_math.h, one autograd
 // node). The backward sums the groups' gradient per block of rows in shared memory and over the blocks in a fixed
-// order (linear::column_sum): no global atomic adds piling N rows onto G. Within a block the CUDA table takes its warps'
-// adds in the order they come, so the groups' gradient may differ in its last bits between runs (the CPU's does not).
-// row_inputs (N, H) float or double; group_inputs (G, H), G >= 1, and groups (N) int64, on row_inputs' device (and
-// group_inputs of its dtype). Differentiable in row_inputs and group_inputs (once). A group outside [0, G) is an
+// order (linear::column_sum): no global atomic adds piling N rows onto G. Within a block the CUDA table takes its
+// warps' adds in the order they come, so the groups' gradient may differ in its last bits between runs (the CPU's does
+// not). row_inputs (N, H) float or double; group_inputs (G, H), G >= 1, and groups (N) int64, on row_inputs' device
+// (and group_inputs of its dtype). Differentiable in row_inputs and group_inputs (once). A group outside [0, G) is an
 // error on the CPU; on CUDA, where checking would read the indices on the host (and break CUDA graph capture), its
 // row gets NaN outputs and passes no gradient on, as gathered_mlp does.
 at::Tensor gathered_first_layer(const at::Tensor& row_inputs, const at::Tensor& group_inputs, const at::Tensor& groups);

@@ -10,17 +10,17 @@ constexpr int kFusedWidth = 128;
 constexpr int kFusedMaxOutputs = 8;
 
 struct GatheredMlpArrays {
-  const uint16_t* row_inputs;     // (rows, kFusedWidth) half: each row's share of the first layer, bias included
-  const float* group_inputs;      // (groups, kFusedWidth): each group's share of the first layer
-  const int32_t* groups;          // (rows); a row whose group is outside [0, group_count) gets NaN outputs
+  const uint16_t* row_inputs;  // (rows, kFusedWidth) half: each row's share of the first layer, bias included
+  const float* group_inputs;   // (groups, kFusedWidth): each group's share of the first layer
+  const int32_t* groups;       // (rows); a row whose group is outside [0, group_count) gets NaN outputs
   int32_t group_count;
   const uint16_t* hidden_weight;  // (kFusedWidth, kFusedWidth) half, row-major (out, in)
   const float* hidden_bias;       // (kFusedWidth)
   const float* output_weight;     // (outputs, kFusedWidth)
   const float* output_bias;       // (outputs)
   int64_t rows;
-  int outputs;                    // 1 .. kFusedMaxOutputs
-  float* out;                     // (rows, outputs)
+  int outputs;  // 1 .. kFusedMaxOutputs
+  float* out;   // (rows, outputs)
 };
 
 }  // namespace sfgs::gathered_mlp

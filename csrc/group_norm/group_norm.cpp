@@ -22,13 +22,9 @@ struct SavedForward {
   static SavedForward from(const variable_list& v) { return {v[0], v[1], v[2], v[3], v[4], v[5]}; }
 };
 
-template <typename T>
-const T* data_or_null(const at::Tensor& t) {
-  return t.numel() > 0 ? t.data_ptr<T>() : nullptr;
-}
+template <typename T> const T* data_or_null(const at::Tensor& t) { return t.numel() > 0 ? t.data_ptr<T>() : nullptr; }
 
-template <typename T>
-void forward_as(const SavedForward& s, const at::Tensor& out, int64_t groups, double epsilon) {
+template <typename T> void forward_as(const SavedForward& s, const at::Tensor& out, int64_t groups, double epsilon) {
   const GroupNormArrays<T> a{s.pre.data_ptr<T>(),
                              data_or_null<T>(s.bias),
                              s.gamma.data_ptr<T>(),
@@ -63,15 +59,18 @@ void backward_as(const SavedForward& s, const at::Tensor& grad_out, const at::Te
 // The forward of a saved context whose mean and rstd are allocated: out, with the moments filled in.
 at::Tensor run_forward(const SavedForward& s, int64_t groups, double epsilon) {
   at::Tensor out = at::empty_like(s.pre);
-  if (s.pre.scalar_type() == at::kDouble) forward_as<double>(s, out, groups, epsilon);
-  else forward_as<float>(s, out, groups, epsilon);
+  if (s.pre.scalar_type() == at::kDouble)
+    forward_as<double>(s, out, groups, epsilon);
+  else
+    forward_as<float>(s, out, groups, epsilon);
   return out;
 }
 
 SavedForward new_context(const at::Tensor& pre, const at::Tensor& bias_or_empty, const at::Tensor& gamma,
                          const at::Tensor& beta, int64_t groups) {
   const int64_t n = pre.size(0);
-  return {pre, bias_or_empty, gamma, beta, at::empty({n, groups}, pre.options()), at::empty({n, groups}, pre.options())};
+  return {
+      pre, bias_or_empty, gamma, beta, at::empty({n, groups}, pre.options()), at::empty({n, groups}, pre.options())};
 }
 
 struct ActivationGradients {
@@ -84,8 +83,10 @@ ActivationGradients run_backward(const SavedForward& s, const at::Tensor& grad) 
   const at::Tensor grad_pre = at::empty_like(s.pre);
   const int64_t partial_rows = s.pre.is_cuda() ? cuda::partial_rows(n, s.pre.device()) : cpu::partial_rows(n);
   const at::Tensor partials = at::empty({partial_rows, 3 * c}, s.pre.options());
-  if (s.pre.scalar_type() == at::kDouble) backward_as<double>(s, grad_out, grad_pre, partials);
-  else backward_as<float>(s, grad_out, grad_pre, partials);
+  if (s.pre.scalar_type() == at::kDouble)
+    backward_as<double>(s, grad_out, grad_pre, partials);
+  else
+    backward_as<float>(s, grad_out, grad_pre, partials);
   const at::Tensor columns = linear::column_sum(partials).view({3, c});
   return {grad_pre, s.bias.numel() > 0 ? columns[2] : at::Tensor(), columns[0], columns[1]};
 }

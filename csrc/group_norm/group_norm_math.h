@@ -16,8 +16,7 @@
 namespace sfgs::group_norm {
 
 // The forward's inputs and outputs; bias may be null (none). Rows are contiguous (rows, channels).
-template <typename T>
-struct GroupNormArrays {
+template <typename T> struct GroupNormArrays {
   const T* pre;    // (rows, channels)
   const T* bias;   // (channels) or null
   const T* gamma;  // (channels)
@@ -32,8 +31,7 @@ struct GroupNormArrays {
 
 // The backward's: column_partials holds, per partial row p, the sums over the rows the backend gave p of gamma's,
 // beta's and the bias's gradients (3 x channels, in that order); the op sums the partial rows.
-template <typename T>
-struct GroupNormGradientArrays {
+template <typename T> struct GroupNormGradientArrays {
   const T* pre;
   const T* bias;  // or null
   const T* gamma;
@@ -48,39 +46,33 @@ struct GroupNormGradientArrays {
   int64_t partial_rows;
 };
 
-template <typename T>
-SFGS_HD T biased(const T* bias, int channel, T value) {
+template <typename T> SFGS_HD T biased(const T* bias, int channel, T value) {
   return bias ? value + bias[channel] : value;
 }
 
-template <typename T>
-SFGS_HD T inverse_deviation(T variance, T epsilon) {
+template <typename T> SFGS_HD T inverse_deviation(T variance, T epsilon) {
   using std::sqrt;  // the host's, or CUDA's device overloads
   return T(1) / sqrt(variance + epsilon);
 }
 
 // The output of one element from its normalised value.
-template <typename T>
-SFGS_HD T activated(T xhat, T gamma, T beta) {
+template <typename T> SFGS_HD T activated(T xhat, T gamma, T beta) {
   const T y = gamma * xhat + beta;
   return y > T(0) ? y : T(0);
 }
 
 // The gradient reaching the affine output y (ReLU's mask): zero where the output was clamped.
-template <typename T>
-SFGS_HD T affine_gradient(T grad_out, T xhat, T gamma, T beta) {
+template <typename T> SFGS_HD T affine_gradient(T grad_out, T xhat, T gamma, T beta) {
   return gamma * xhat + beta > T(0) ? grad_out : T(0);
 }
 
 // h's gradient from gxhat and the group's means of gxhat (m1) and gxhat * xhat (m2).
-template <typename T>
-SFGS_HD T normalised_gradient(T gxhat, T xhat, T rstd, T m1, T m2) {
+template <typename T> SFGS_HD T normalised_gradient(T gxhat, T xhat, T rstd, T m1, T m2) {
   return rstd * (gxhat - m1 - xhat * m2);
 }
 
 // One row on the CPU (the CUDA kernels spread a row over a warp instead), with the two-pass variance.
-template <typename T>
-void forward_row(const GroupNormArrays<T>& a, int64_t row) {
+template <typename T> void forward_row(const GroupNormArrays<T>& a, int64_t row) {
   const int size = a.channels / a.groups;
   const T* pre = a.pre + row * a.channels;
   T* out = a.out + row * a.channels;
@@ -103,8 +95,7 @@ void forward_row(const GroupNormArrays<T>& a, int64_t row) {
 }
 
 // One row's backward on the CPU, adding its column sums to `columns` (3 x channels).
-template <typename T>
-void backward_row(const GroupNormGradientArrays<T>& a, int64_t row, T* columns) {
+template <typename T> void backward_row(const GroupNormGradientArrays<T>& a, int64_t row, T* columns) {
   const int size = a.channels / a.groups;
   const T* pre = a.pre + row * a.channels;
   const T* grad_out = a.grad_out + row * a.channels;

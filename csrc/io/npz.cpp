@@ -251,8 +251,7 @@ class HeaderParser {
   size_t pos_ = 0;
 };
 
-template <typename T>
-T read_little_endian(const unsigned char* bytes, int64_t size) {
+template <typename T> T read_little_endian(const unsigned char* bytes, int64_t size) {
   T value = 0;
   for (int64_t b = size - 1; b >= 0; --b) value = static_cast<T>((value << 8) | bytes[b]);
   return value;

@@ -35,8 +35,10 @@ template <typename T> at::Tensor propagate_as(const at::Tensor& values, const Pl
   a.filled = filled.data_ptr<T>();
   a.scratch = scratch.data_ptr<T>();
   a.out = out.data_ptr<T>();
-  if (values.is_cuda()) cuda::propagate(a, plan.ring_offsets, passes, values.device());
-  else cpu::propagate(a, plan.ring_offsets, passes);
+  if (values.is_cuda())
+    cuda::propagate(a, plan.ring_offsets, passes, values.device());
+  else
+    cpu::propagate(a, plan.ring_offsets, passes);
   return out;
 }
 
@@ -80,8 +82,10 @@ Plan plan(const at::Tensor& trust, const body::VertexNeighbours& neighbours, at:
   const double* t = host_trust.data_ptr<double>();
   std::vector<int32_t> ring_of(size_t(n), kUnreached), pending, free_points;
   for (int64_t p = 0; p < n; ++p) {
-    if (t[p] >= 1.0) ring_of[size_t(p)] = 0;
-    else free_points.push_back(int32_t(p)), pending.push_back(int32_t(p));
+    if (t[p] >= 1.0)
+      ring_of[size_t(p)] = 0;
+    else
+      free_points.push_back(int32_t(p)), pending.push_back(int32_t(p));
   }
   plan.any_trusted = pending.size() < size_t(n);
   if (!plan.any_trusted) return plan;
@@ -124,8 +128,8 @@ Plan plan(const at::Tensor& trust, const body::VertexNeighbours& neighbours, at:
 
 at::Tensor propagate(const at::Tensor& values, const Plan& plan, int64_t smoothing_passes) {
   TORCH_CHECK(values.defined() && values.dim() == 2 && values.size(0) == plan.point_count && values.size(1) >= 1,
-              "mesh_propagation::propagate: values (N, C) for the plan's ", plan.point_count,
-              " points expected, got ", describe(values));
+              "mesh_propagation::propagate: values (N, C) for the plan's ", plan.point_count, " points expected, got ",
+              describe(values));
   TORCH_CHECK(smoothing_passes >= 0, "mesh_propagation::propagate: smoothing passes must be >= 0, got ",
               smoothing_passes);
   if (!plan.any_trusted) return values;

@@ -17,14 +17,14 @@ namespace sfgs::mesh_propagation {
 // values after (no host read: a CUDA graph records the application).
 struct Plan {
   int64_t point_count = 0;
-  bool any_trusted = false;       // false: nothing to propagate from, values pass unchanged
-  at::Tensor neighbours;          // (N, K) int32
-  at::Tensor counts;              // (N) int32: valid neighbour slots
-  at::Tensor ring_points;         // (M) int32: every ring's points, ring after ring
-  at::Tensor ring_sources;        // (M, K) int32: a ring point's neighbours filled before its ring, first
-  at::Tensor ring_source_counts;  // (M) int32: how many
-  at::Tensor free_points;         // int32: the points whose trust is below 1
-  at::Tensor trust;               // (N) in the plan's dtype
+  bool any_trusted = false;              // false: nothing to propagate from, values pass unchanged
+  at::Tensor neighbours;                 // (N, K) int32
+  at::Tensor counts;                     // (N) int32: valid neighbour slots
+  at::Tensor ring_points;                // (M) int32: every ring's points, ring after ring
+  at::Tensor ring_sources;               // (M, K) int32: a ring point's neighbours filled before its ring, first
+  at::Tensor ring_source_counts;         // (M) int32: how many
+  at::Tensor free_points;                // int32: the points whose trust is below 1
+  at::Tensor trust;                      // (N) in the plan's dtype
   std::vector<int64_t> ring_offsets{0};  // ring r fills ring_points[ring_offsets[r] .. ring_offsets[r + 1])
 
   int64_t ring_count() const { return int64_t(ring_offsets.size()) - 1; }

@@ -19,8 +19,8 @@ template <typename T> struct PropagationArrays {
   const int32_t* ring_source_counts;  // (M)
   const int32_t* free_points;         // the points that are not trusted (the smoothing moves them alone)
   int64_t point_count, free_count;
-  int slots;     // K
-  int channels;  // C of the values
+  int slots;        // K
+  int channels;     // C of the values
   const T* values;  // (N, C)
   const T* trust;   // (N) in [0, 1]
   T* filled;        // (N, C): the values, then the rings' means, then the smoothing's first buffer

@@ -13,7 +13,6 @@
 namespace sfgs::metrics {
 namespace {
 
-
 std::string format_number(const char* format, double value) {
   char text[64];
   std::snprintf(text, sizeof(text), format, value);
@@ -80,8 +79,8 @@ void ImageEvaluator::begin_sequence() {
 }
 
 std::pair<at::Tensor, at::Tensor> ImageEvaluator::compared_images(const at::Tensor& prediction,
-                                                                   const at::Tensor& target,
-                                                                   const at::Tensor& mask) const {
+                                                                  const at::Tensor& target,
+                                                                  const at::Tensor& mask) const {
   TORCH_CHECK(!options_.composite_on_white || mask.defined(),
               "ImageEvaluator::add_frame: a ground-truth mask is required when composite_on_white is set");
   at::Tensor p = prediction.detach(), t = target.detach();

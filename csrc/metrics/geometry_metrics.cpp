@@ -18,7 +18,6 @@
 namespace sfgs::metrics {
 namespace {
 
-
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 // Points per k-d tree leaf: small enough to prune well, large enough to keep the tree shallow.
 constexpr int64_t kLeafSize = 16;

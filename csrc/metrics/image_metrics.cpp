@@ -40,8 +40,7 @@ void check_image_pair(const char* metric, const at::Tensor& prediction, const at
   // Channels last: a (B, C, H, W) batch would be read as images C rows high with W channels.
   TORCH_CHECK(prediction.size(-1) <= kMaxImageChannels, metric,
               ": images must be channels-last (H, W, C) or (B, H, W, C) with at most ", kMaxImageChannels,
-              " channels, got ", describe(prediction),
-              "; a (B, C, H, W) batch takes .permute(0, 2, 3, 1)");
+              " channels, got ", describe(prediction), "; a (B, C, H, W) batch takes .permute(0, 2, 3, 1)");
 }
 
 at::Tensor to_batch_nchw(const at::Tensor& image) {

@@ -77,7 +77,7 @@ class Lpips {
   LpipsNet net_;
   std::map<std::string, at::Tensor> weights_;
   std::optional<at::ScalarType> trunk_dtype_;  // the backbone's dtype; unset: the images' (with_trunk_dtype)
-  at::Tensor shift_, scale_;  // (1, 3, 1, 1) the scaling layer's, in the weights' dtype and device
+  at::Tensor shift_, scale_;                   // (1, 3, 1, 1) the scaling layer's, in the weights' dtype and device
 };
 
 }  // namespace sfgs::metrics

@@ -15,9 +15,9 @@ namespace {
 
 // Checks every shape, dtype and device; returns the hidden width H.
 int64_t check_network(const std::vector<at::Tensor>& inputs, const at::Tensor& base, const Network& n) {
-  TORCH_CHECK(!n.input_weights.empty() && inputs.size() == n.input_weights.size(), "mlp_inference: ",
-              n.input_weights.size(), " input weight blocks need as many input blocks (at least one), got ",
-              inputs.size());
+  TORCH_CHECK(!n.input_weights.empty() && inputs.size() == n.input_weights.size(),
+              "mlp_inference: ", n.input_weights.size(),
+              " input weight blocks need as many input blocks (at least one), got ", inputs.size());
   TORCH_CHECK(n.input_weights[0].defined() && n.input_weights[0].dim() == 2 &&
                   at::isFloatingType(n.input_weights[0].scalar_type()),
               "mlp_inference: input weight 0 must be a floating (H, I) tensor, got ", describe(n.input_weights[0]));
@@ -34,8 +34,8 @@ int64_t check_network(const std::vector<at::Tensor>& inputs, const at::Tensor& b
   const int64_t rows = inputs[0].size(0);
   for (size_t b = 0; b < inputs.size(); ++b) {
     const std::string block = std::to_string(b);
-    TORCH_CHECK(n.input_weights[b].defined() && n.input_weights[b].dim() == 2,
-                "mlp_inference: input weight ", block, " must be an (H, I) tensor, got ", describe(n.input_weights[b]));
+    TORCH_CHECK(n.input_weights[b].defined() && n.input_weights[b].dim() == 2, "mlp_inference: input weight ", block,
+                " must be an (H, I) tensor, got ", describe(n.input_weights[b]));
     check(n.input_weights[b], "input weight " + block, {h, n.input_weights[b].size(1)});
     check(inputs[b], "input " + block, {rows, n.input_weights[b].size(1)});
   }
@@ -109,8 +109,9 @@ at::Tensor run(const std::vector<at::Tensor>& inputs, const at::Tensor& base, co
       for (const at::Tensor& t : *list) needs_gradient = needs_gradient || t.requires_grad();
     for (const at::Tensor* t : {&n.first_bias, &n.output_weight, &n.output_bias})
       needs_gradient = needs_gradient || t->requires_grad();
-    TORCH_CHECK(!needs_gradient, "mlp_inference: inference only; use mlp_inference::reference where a gradient is "
-                                 "needed (or run under torch::NoGradGuard)");
+    TORCH_CHECK(!needs_gradient,
+                "mlp_inference: inference only; use mlp_inference::reference where a gradient is "
+                "needed (or run under torch::NoGradGuard)");
   }
   if (!fuses(inputs, n)) return reference(inputs, base, n);
 

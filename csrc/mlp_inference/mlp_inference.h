@@ -20,14 +20,14 @@
 namespace sfgs::mlp_inference {
 
 struct Network {
-  std::vector<at::Tensor> input_weights;  // per input block (H, I_b): the first layer's columns for that block
-  at::Tensor first_bias;                  // (H), added before the first GroupNorm
+  std::vector<at::Tensor> input_weights;   // per input block (H, I_b): the first layer's columns for that block
+  at::Tensor first_bias;                   // (H), added before the first GroupNorm
   std::vector<at::Tensor> hidden_weights;  // per hidden layer after the first (H, H), row-major (out, in)
   std::vector<at::Tensor> hidden_biases;   // (H) each
   std::vector<at::Tensor> norm_weights;    // GroupNorm's gamma per hidden layer (H)
   std::vector<at::Tensor> norm_biases;     // and its beta
-  at::Tensor output_weight;               // (O, H)
-  at::Tensor output_bias;                 // (O)
+  at::Tensor output_weight;                // (O, H)
+  at::Tensor output_bias;                  // (O)
   int64_t groups = 0;
   double epsilon = 0.0;
 };

@@ -200,10 +200,10 @@ class AvatarImpl : public torch::nn::Module {
   Shading shading_{nullptr};
   HandResidual hand_residual_{nullptr};
   at::Tensor opacities_;
-  at::Tensor observed_fraction_, confidence_;  // (N) and (N, 1) on the module's device, or undefined
-  body::VertexNeighbours neighbours_;          // of the mesh points, for the observation prior
+  at::Tensor observed_fraction_, confidence_;            // (N) and (N, 1) on the module's device, or undefined
+  body::VertexNeighbours neighbours_;                    // of the mesh points, for the observation prior
   std::unique_ptr<mesh_propagation::Plan> propagation_;  // of confidence_, on its device; null until planned
-  body::VertexFaces faces_around_;             // of the mesh points on the CUDA device, for their normals
+  body::VertexFaces faces_around_;                       // of the mesh points on the CUDA device, for their normals
   std::unique_ptr<InferenceCache> cache_;
   int64_t cache_generation_ = 0;
 };

@@ -78,7 +78,8 @@ HandResidualImpl::Hand HandResidualImpl::make_hand(const char* name, body::Side 
   options.flat_hand_mean = true;  // the poses come with the mean already added, as SMPL-X applied them
   hand.mano = register_module(prefix + "_mano", body::Mano(mano, options));
   hand.refine = register_module(prefix + "_refine", Mlp(shape()));
-  hand.vertex_ids = register_buffer(prefix + "_vertex_ids", ids.clone());  // never the caller's tensor: to() moves buffers
+  hand.vertex_ids =
+      register_buffer(prefix + "_vertex_ids", ids.clone());  // never the caller's tensor: to() moves buffers
   hand.mano_betas = register_buffer(prefix + "_mano_betas", betas.reshape({1, shape_count}).to(at::kFloat));
   hand.smplx_hand = register_buffer(prefix + "_smplx_hand", target.to(at::kFloat));
   if (smplx.posedirs.defined()) {
@@ -115,9 +116,8 @@ at::Tensor HandResidualImpl::linear_residual(const Hand& hand, const at::Tensor&
   }
   if (!hand.used_pose_directions.defined()) return hand.used_constant;
   const at::Tensor rotations =
-      joint_rotations.defined()
-          ? joint_rotations.narrow(0, body::smplx_hand_joint(hand.side, 1), body::kHandJointCount)
-          : body::axis_angle_to_matrix(pose);
+      joint_rotations.defined() ? joint_rotations.narrow(0, body::smplx_hand_joint(hand.side, 1), body::kHandJointCount)
+                                : body::axis_angle_to_matrix(pose);
   const at::Tensor feature = (rotations - at::eye(3, options)).reshape({1, kHandPoseFeatureSize});
   return at::addmm(hand.used_constant.view({1, -1}), feature, hand.used_pose_directions).view_as(hand.used_constant);
 }

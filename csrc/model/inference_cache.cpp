@@ -14,8 +14,8 @@ const CanonicalAttributes* InferenceCache::attributes(FrameTime time) const {
 
 void InferenceCache::keep(const CanonicalAttributes& attributes, FrameTime time) {
   CanonicalAttributes kept = attributes;
-  for (at::Tensor* t : {&kept.mean_offset, &kept.log_scales, &kept.colour_logits, &kept.structure_projection,
-                        &kept.colour_projection})
+  for (at::Tensor* t :
+       {&kept.mean_offset, &kept.log_scales, &kept.colour_logits, &kept.structure_projection, &kept.colour_projection})
     if (t->defined()) *t = t->detach();
   if (kept.structure_projection.defined() && kept.structure_projection.is_cuda())
     kept.structure_projection_half = kept.structure_projection.to(at::kHalf);

@@ -121,10 +121,10 @@ at::Tensor MlpImpl::finish_activated(const at::Tensor& first_activation) const {
   at::Tensor x = first_activation;
   for (size_t k = 1; k < shape_.hidden_widths.size(); ++k) {
     // With GroupNorm the fused layer adds the bias (its gradient summed in the same pass) and keeps no product.
-    x = shape_.group_norm ? group_norm::linear_group_norm_relu(x, hidden_weights_[k - 1], hidden_biases_[k - 1],
-                                                               norm_weights_[k], norm_biases_[k], kMlpGroupNormGroups,
-                                                               kMlpGroupNormEpsilon)
-                          : activate(k, linear::linear(x, hidden_weights_[k - 1], hidden_biases_[k - 1]));
+    x = shape_.group_norm
+            ? group_norm::linear_group_norm_relu(x, hidden_weights_[k - 1], hidden_biases_[k - 1], norm_weights_[k],
+                                                 norm_biases_[k], kMlpGroupNormGroups, kMlpGroupNormEpsilon)
+            : activate(k, linear::linear(x, hidden_weights_[k - 1], hidden_biases_[k - 1]));
   }
   return linear::linear(x, output_weight_, output_bias_);
 }

@@ -33,8 +33,8 @@ at::Tensor frame_observation(const at::Tensor& means, const at::Tensor& normals,
   const at::Tensor safe_z = z.clamp_min(camera.near_plane);
   const at::Tensor u = camera.fx * p.select(1, 0) / safe_z + camera.cx;
   const at::Tensor v = camera.fy * p.select(1, 1) / safe_z + camera.cy;
-  const at::Tensor inside = (z > camera.near_plane) & (u >= 0) & (u < double(camera.width)) & (v >= 0) &
-                            (v < double(camera.height));
+  const at::Tensor inside =
+      (z > camera.near_plane) & (u >= 0) & (u < double(camera.width)) & (v >= 0) & (v < double(camera.height));
   // Non-finite positions (a diverging run) are not inside; their pixel index must still be valid.
   const at::Tensor column = at::nan_to_num(u.floor(), 0, 0, 0).clamp(0, double(camera.width - 1)).to(at::kLong);
   const at::Tensor row = at::nan_to_num(v.floor(), 0, 0, 0).clamp(0, double(camera.height - 1)).to(at::kLong);
@@ -61,8 +61,8 @@ at::Tensor propagate_from_observed(const at::Tensor& values, const at::Tensor& c
   TORCH_CHECK(values.dim() == 2 && confidence.dim() == 1 && confidence.size(0) == values.size(0),
               "propagate_from_observed: values (N, C), confidence (N) and neighbours of N points expected, got ",
               describe(values), " and ", describe(confidence), " for ", neighbours.counts.size(0), " points");
-  return propagate_from_observed(values, plan_propagation(confidence.to(values.device()), neighbours,
-                                                          values.scalar_type()));
+  return propagate_from_observed(values,
+                                 plan_propagation(confidence.to(values.device()), neighbours, values.scalar_type()));
 }
 
 }  // namespace sfgs::model

@@ -29,10 +29,12 @@ template <typename T> at::Tensor forward_as(const at::Tensor& prediction, const 
   const int height = int(prediction.size(0)), width = int(prediction.size(1));
   const int64_t partials = prediction.is_cuda() ? cuda::partials(height, width) : cpu::partials(height);
   const at::Tensor sums = at::empty({partials, kSums}, prediction.options());
-  const PixelLossArrays<T> a{prediction.data_ptr<T>(), target.data_ptr<T>(), sums.data_ptr<T>(), partials, height,
-                             width};
-  if (prediction.is_cuda()) cuda::forward(a, prediction.device());
-  else cpu::forward(a);
+  const PixelLossArrays<T> a{
+      prediction.data_ptr<T>(), target.data_ptr<T>(), sums.data_ptr<T>(), partials, height, width};
+  if (prediction.is_cuda())
+    cuda::forward(a, prediction.device());
+  else
+    cpu::forward(a);
   return sums.sum(0);
 }
 
@@ -40,10 +42,12 @@ template <typename T>
 at::Tensor backward_as(const at::Tensor& prediction, const at::Tensor& target, const at::Tensor& weights) {
   const at::Tensor grad = at::empty_like(prediction);
   const at::Tensor w = weights.contiguous();  // stays on the device: no host read in the backward
-  const PixelLossGradientArrays<T> a{prediction.data_ptr<T>(), target.data_ptr<T>(), w.data_ptr<T>(),
-                                     grad.data_ptr<T>(), int(prediction.size(0)), int(prediction.size(1))};
-  if (prediction.is_cuda()) cuda::backward(a, prediction.device());
-  else cpu::backward(a);
+  const PixelLossGradientArrays<T> a{prediction.data_ptr<T>(), target.data_ptr<T>(),    w.data_ptr<T>(),
+                                     grad.data_ptr<T>(),       int(prediction.size(0)), int(prediction.size(1))};
+  if (prediction.is_cuda())
+    cuda::backward(a, prediction.device());
+  else
+    cpu::backward(a);
   return grad;
 }
 
@@ -94,8 +98,7 @@ at::Tensor pixel_losses_reference(const at::Tensor& prediction, const at::Tensor
   check_inputs(prediction, target);
   const auto dx = [](const at::Tensor& t) { return t.slice(1, 1) - t.slice(1, 0, -1); };
   const auto dy = [](const at::Tensor& t) { return t.slice(0, 1) - t.slice(0, 0, -1); };
-  return at::stack({(prediction - target).abs().mean(),
-                    (rgb_to_lab(prediction) - rgb_to_lab(target)).abs().mean(),
+  return at::stack({(prediction - target).abs().mean(), (rgb_to_lab(prediction) - rgb_to_lab(target)).abs().mean(),
                     (dx(prediction) - dx(target)).abs().mean(), (dy(prediction) - dy(target)).abs().mean()});
 }
 

@@ -28,16 +28,14 @@ template <typename T> struct PixelLossArrays {
 template <typename T> struct PixelLossGradientArrays {
   const T* prediction;
   const T* target;
-  const T* weight;  // (kSums) on the arrays' device: d(objective) / d(mean of each term)
+  const T* weight;     // (kSums) on the arrays' device: d(objective) / d(mean of each term)
   T* grad_prediction;  // (H, W, 3)
   int height, width;
 };
 
 template <typename T> SFGS_HD T sign_of(T v) { return v > T(0) ? T(1) : (v < T(0) ? T(-1) : T(0)); }
 
-template <typename T> struct Lab {
-  T l, a, b;
-};
+template <typename T> struct Lab { T l, a, b; };
 
 // sRGB -> linear, clamped into [0, 1]; `slope` is its derivative (0 where clamped).
 template <typename T> SFGS_HD T srgb_to_linear(T c, T* slope) {

@@ -27,9 +27,8 @@ at::Tensor pixel_position(const at::Tensor& coordinate, int64_t size) {
 }
 
 void check_planes(const at::Tensor& planes, const char* what) {
-  TORCH_CHECK(planes.defined() && planes.dim() == 4 &&
-                  is_float_or_double(planes),
-              what, ": planes must be a float32 or float64 (P, C, H, W) tensor, got ", describe(planes));
+  TORCH_CHECK(planes.defined() && planes.dim() == 4 && is_float_or_double(planes), what,
+              ": planes must be a float32 or float64 (P, C, H, W) tensor, got ", describe(planes));
 }
 
 template <typename T>
@@ -138,8 +137,7 @@ at::Tensor time_grid(const at::Tensor& positions, const at::Tensor& time) {
 }
 
 PlaneReads plane_reads(const at::Tensor& grid, int64_t height, int64_t width) {
-  TORCH_CHECK(grid.defined() && grid.dim() == 3 && grid.size(2) == 2 &&
-                  is_float_or_double(grid),
+  TORCH_CHECK(grid.defined() && grid.dim() == 3 && grid.size(2) == 2 && is_float_or_double(grid),
               "plane_reads: the grid must be a float32 or float64 (P, N, 2) tensor, got ", describe(grid));
   TORCH_CHECK(height >= 1 && width >= 1, "plane_reads: planes must be at least 1 x 1, got ", height, " x ", width);
   const int64_t p = grid.size(0), n = grid.size(1), texels = height * width;

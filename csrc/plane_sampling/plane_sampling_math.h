@@ -8,8 +8,7 @@
 
 namespace sfgs::plane_sampling {
 
-template <typename T>
-struct PlaneGradientArrays {
+template <typename T> struct PlaneGradientArrays {
   const T* grad_features;       // (N, P C): the incoming gradient of the sampled features, plane-major columns
   const int32_t* chunk_rows;    // (K) the texel of each chunk: plane * texels + y * width + x
   const int32_t* chunk_begins;  // (K) its first read
@@ -22,8 +21,7 @@ struct PlaneGradientArrays {
 
 // Chunk k's share of the gradient of channel c of its texel: the weighted sum of the incoming gradients of its
 // reads, in the order listed (fixed when the reads were made).
-template <typename T>
-SFGS_HD T chunk_gradient(const PlaneGradientArrays<T>& a, int64_t k, int64_t c) {
+template <typename T> SFGS_HD T chunk_gradient(const PlaneGradientArrays<T>& a, int64_t k, int64_t c) {
   const int64_t plane = a.chunk_rows[k] / a.texels, row_width = a.planes * a.channels;
   T sum = 0;
   for (int32_t e = a.chunk_begins[k]; e < a.chunk_ends[k]; ++e)
@@ -32,8 +30,7 @@ SFGS_HD T chunk_gradient(const PlaneGradientArrays<T>& a, int64_t k, int64_t c) 
 }
 
 // Where chunk k's share for channel c goes in grad_planes.
-template <typename T>
-SFGS_HD int64_t gradient_index(const PlaneGradientArrays<T>& a, int64_t k, int64_t c) {
+template <typename T> SFGS_HD int64_t gradient_index(const PlaneGradientArrays<T>& a, int64_t k, int64_t c) {
   const int64_t plane = a.chunk_rows[k] / a.texels, texel = a.chunk_rows[k] % a.texels;
   return (plane * a.channels + c) * a.texels + texel;
 }

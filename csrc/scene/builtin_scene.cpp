@@ -40,8 +40,7 @@ GaussianScene demo_scene(int64_t count, int64_t width, int64_t height, uint64_t 
   TORCH_CHECK(count >= 0, "demo_scene: the Gaussian count must be >= 0, got ", count);
   TORCH_CHECK(width >= 1 && width <= kMaxImageSide && height >= 1 && height <= kMaxImageSide,
               "demo_scene: the image must be 1 to ", kMaxImageSide, " pixels a side, got ", width, " x ", height);
-  TORCH_CHECK(dtype == at::kFloat || dtype == at::kDouble, "demo_scene: dtype must be float32 or float64, got ",
-              dtype);
+  TORCH_CHECK(dtype == at::kFloat || dtype == at::kDouble, "demo_scene: dtype must be float32 or float64, got ", dtype);
   at::Generator gen = at::make_generator<at::CPUGeneratorImpl>(seed);
   const int64_t floor_count = count / 4;
   const int64_t knot_count = count - floor_count;
@@ -50,9 +49,10 @@ GaussianScene demo_scene(int64_t count, int64_t width, int64_t height, uint64_t 
   const at::Tensor t = at::empty({knot_count}, at::kDouble).uniform_(0.0, 2.0 * kPi, gen);
   const at::Tensor r = 0.35 + 0.15 * at::cos(3.0 * t);
   const at::Tensor tube = at::empty({knot_count, 3}, at::kDouble).normal_(0.0, 0.03, gen);
-  const at::Tensor knot = at::stack({r * at::cos(2.0 * t), r * at::sin(2.0 * t) - 0.05, 3.0 - 0.15 * at::sin(3.0 * t)}, 1) + tube;
-  const at::Tensor knot_colour =
-      at::stack({0.5 + 0.5 * at::cos(t), 0.5 + 0.5 * at::cos(t + 2.0 * kPi / 3.0), 0.5 + 0.5 * at::cos(t + 4.0 * kPi / 3.0)}, 1);
+  const at::Tensor knot =
+      at::stack({r * at::cos(2.0 * t), r * at::sin(2.0 * t) - 0.05, 3.0 - 0.15 * at::sin(3.0 * t)}, 1) + tube;
+  const at::Tensor knot_colour = at::stack(
+      {0.5 + 0.5 * at::cos(t), 0.5 + 0.5 * at::cos(t + 2.0 * kPi / 3.0), 0.5 + 0.5 * at::cos(t + 4.0 * kPi / 3.0)}, 1);
 
   // Checkered floor disc below the knot.
   const at::Tensor radius = 0.9 * at::sqrt(at::empty({floor_count}, at::kDouble).uniform_(0.0, 1.0, gen));
@@ -64,8 +64,9 @@ GaussianScene demo_scene(int64_t count, int64_t width, int64_t height, uint64_t 
 
   const at::Tensor means = at::cat({knot, floor});
   const at::Tensor colours = at::cat({knot_colour, floor_colour});
-  const at::Tensor scales = at::cat({log_uniform(knot_count, 3, 0.006, 0.02, gen),
-                                     log_uniform(floor_count, 3, 0.01, 0.03, gen) * at::tensor({1.0, 0.15, 1.0}, at::kDouble)});
+  const at::Tensor scales =
+      at::cat({log_uniform(knot_count, 3, 0.006, 0.02, gen),
+               log_uniform(floor_count, 3, 0.01, 0.03, gen) * at::tensor({1.0, 0.15, 1.0}, at::kDouble)});
   const at::Tensor opacities = at::empty({count}, at::kDouble).uniform_(0.6, 1.0, gen);
   const double focal = 1.2 * double(std::max(width, height));
   Camera camera = Camera::looking_forward(focal, width, height);

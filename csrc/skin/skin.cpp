@@ -15,33 +15,42 @@ using torch::autograd::AutogradContext;
 using torch::autograd::variable_list;
 
 void check_matrix(const at::Tensor& t, const char* name, int64_t rows, int64_t columns, const at::Tensor& like) {
-  TORCH_CHECK(t.defined() && t.dim() == 2 && t.size(0) == rows && t.size(1) == columns,
-              "skin_gaussians: ", name, " must have shape (", rows, ", ", columns, "), got ", describe(t));
+  TORCH_CHECK(t.defined() && t.dim() == 2 && t.size(0) == rows && t.size(1) == columns, "skin_gaussians: ", name,
+              " must have shape (", rows, ", ", columns, "), got ", describe(t));
   TORCH_CHECK(t.scalar_type() == like.scalar_type() && t.device() == like.device(), "skin_gaussians: ", name,
               " must be ", like.scalar_type(), " on ", like.device(), " like the weights, got ", describe(t));
 }
 
 template <typename T> void forward_as(const ForwardTensors& t) {
   const SkinArrays<T> arrays = arrays_of<T>(t);
-  if (t.means.is_cuda()) cuda::forward(arrays, t.means.device());
-  else cpu::forward(arrays);
+  if (t.means.is_cuda())
+    cuda::forward(arrays, t.means.device());
+  else
+    cpu::forward(arrays);
 }
 
 template <typename T> void backward_as(const BackwardTensors& t) {
   const SkinGradientArrays<T> arrays = arrays_of<T>(t);
-  if (t.grad_canonical_means.is_cuda()) cuda::backward(arrays, t.grad_canonical_means.device());
-  else cpu::backward(arrays);
+  if (t.grad_canonical_means.is_cuda())
+    cuda::backward(arrays, t.grad_canonical_means.device());
+  else
+    cpu::backward(arrays);
 }
 
 void dispatch_forward(const ForwardTensors& t) {
-  if (t.means.scalar_type() == at::kDouble) forward_as<double>(t);
-  else if (t.means.scalar_type() == at::kFloat) forward_as<float>(t);
-  else TORCH_CHECK(false, "skin_gaussians: tensors must be float32 or float64, got ", t.means.scalar_type());
+  if (t.means.scalar_type() == at::kDouble)
+    forward_as<double>(t);
+  else if (t.means.scalar_type() == at::kFloat)
+    forward_as<float>(t);
+  else
+    TORCH_CHECK(false, "skin_gaussians: tensors must be float32 or float64, got ", t.means.scalar_type());
 }
 
 void dispatch_backward(const BackwardTensors& t) {
-  if (t.covariances.scalar_type() == at::kDouble) backward_as<double>(t);
-  else backward_as<float>(t);
+  if (t.covariances.scalar_type() == at::kDouble)
+    backward_as<double>(t);
+  else
+    backward_as<float>(t);
 }
 
 // One node: canonical means, log-scales and (when given, as a non-empty tensor) rest points in; means,
@@ -141,8 +150,10 @@ SkinnedGaussians skin_gaussians(const SkinningWeights& w, const at::Tensor& tran
   TORCH_CHECK(w.weights.defined() && w.weights.dim() == 2 && at::isFloatingType(w.weights.scalar_type()),
               "skin_gaussians: weights must be a floating (N, K) tensor, got ", describe(w.weights));
   const int64_t n = w.weights.size(0), k = w.weights.size(1), j = w.joint_count;
-  TORCH_CHECK(w.weights.is_cpu() || w.weights.is_cuda(), "skin_gaussians: tensors must be on the CPU or a CUDA "
-              "device, got ", describe(w.weights));
+  TORCH_CHECK(w.weights.is_cpu() || w.weights.is_cuda(),
+              "skin_gaussians: tensors must be on the CPU or a CUDA "
+              "device, got ",
+              describe(w.weights));
   TORCH_CHECK(!w.weights.is_cuda() || cuda::available(),
               "skin_gaussians: got CUDA tensors but this build of sfgs has no CUDA backend");
   TORCH_CHECK(w.joints.defined() && w.joints.sizes() == w.weights.sizes() && w.joints.scalar_type() == at::kInt &&

@@ -10,8 +10,8 @@ namespace sfgs::skin {
 
 // Skinning weights as each row's influences: the joints with a non-zero weight, padded with weight 0.
 struct SkinningWeights {
-  at::Tensor joints;   // (N, K) int32
-  at::Tensor weights;  // (N, K) floating
+  at::Tensor joints;        // (N, K) int32
+  at::Tensor weights;       // (N, K) floating
   int64_t joint_count = 0;  // J of the dense weights they came from
 
   // From dense (N, J) weights (any floating dtype, device); K is the largest number of non-zero weights of a row.
@@ -38,8 +38,8 @@ SkinnedGaussians skin_gaussians(const SkinningWeights& weights, const at::Tensor
 
 // The same result composed of LibTorch operations on the dense weights (what the op is tested against).
 SkinnedGaussians skinning_reference(const at::Tensor& dense_weights, const at::Tensor& transforms,
-                                   const at::Tensor& canonical_means, const at::Tensor& log_scales,
-                                   const at::Tensor& rest = {});
+                                    const at::Tensor& canonical_means, const at::Tensor& log_scales,
+                                    const at::Tensor& rest = {});
 
 // Whether this build has the CUDA kernel.
 bool cuda_available();

@@ -98,20 +98,19 @@ template <typename T> struct SkinGradientArrays {
   int influences;
   int64_t count;
   const T* transforms;
-  const T* covariances;          // (N, 6) the forward's output
-  const T* grad_means;           // (N, 3) or null
-  const T* grad_covariances;     // (N, 6) or null
-  const T* grad_posed_rest;      // (N, 3) or null
-  T* grad_canonical_means;       // (N, 3)
-  T* grad_log_scales;            // (N)
-  T* grad_rest;                  // (N, 3), written when grad_posed_rest is given
+  const T* covariances;       // (N, 6) the forward's output
+  const T* grad_means;        // (N, 3) or null
+  const T* grad_covariances;  // (N, 6) or null
+  const T* grad_posed_rest;   // (N, 3) or null
+  T* grad_canonical_means;    // (N, 3)
+  T* grad_log_scales;         // (N)
+  T* grad_rest;               // (N, 3), written when grad_posed_rest is given
 };
 
 template <typename T> SFGS_HD void skin_one_backward(const SkinGradientArrays<T>& g, int64_t i) {
   Vec3<T> dx(T(0));
   if (g.grad_means != nullptr || g.grad_posed_rest != nullptr) {
-    const Blended<T> b =
-        blend(g.joints + i * g.influences, g.weights + i * g.influences, g.influences, g.transforms);
+    const Blended<T> b = blend(g.joints + i * g.influences, g.weights + i * g.influences, g.influences, g.transforms);
     if (g.grad_means != nullptr) {
       const T* gm = g.grad_means + 3 * i;
       dx = mean_vjp(b, Vec3<T>(gm[0], gm[1], gm[2]));

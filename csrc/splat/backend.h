@@ -37,9 +37,14 @@ template <typename T> PinholeCamera<T> to_pinhole(const CameraSpec& c) {
     for (int col = 0; col < 3; ++col) cam.rotation[col][row] = T(c.world_to_camera[row * 4 + col]);
     cam.translation[row] = T(c.world_to_camera[row * 4 + 3]);
   }
-  cam.fx = T(c.fx); cam.fy = T(c.fy); cam.cx = T(c.cx); cam.cy = T(c.cy);
-  cam.width = c.width; cam.height = c.height;
-  cam.near_plane = T(c.near_plane); cam.far_plane = T(c.far_plane);
+  cam.fx = T(c.fx);
+  cam.fy = T(c.fy);
+  cam.cx = T(c.cx);
+  cam.cy = T(c.cy);
+  cam.width = c.width;
+  cam.height = c.height;
+  cam.near_plane = T(c.near_plane);
+  cam.far_plane = T(c.far_plane);
   return cam;
 }
 
@@ -55,12 +60,9 @@ struct BackendSettings {
 template <typename T>
 SplatScene<T> make_scene(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings) {
   const auto data = [](const at::Tensor& t) { return t.defined() ? t.data_ptr<T>() : nullptr; };
-  return SplatScene<T>{to_pinhole<T>(camera),         settings.projection,
-                       data(in.means),                data(in.scales),
-                       data(in.rotations),            data(in.covariances),
-                       data(in.opacities),            data(in.features),
-                       data(in.background),           in.means.size(0),
-                       int(in.features.size(1))};
+  return SplatScene<T>{to_pinhole<T>(camera), settings.projection,  data(in.means),          data(in.scales),
+                       data(in.rotations),    data(in.covariances), data(in.opacities),      data(in.features),
+                       data(in.background),   in.means.size(0),     int(in.features.size(1))};
 }
 
 // The op's outputs.

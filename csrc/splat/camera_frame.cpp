@@ -35,9 +35,9 @@ CameraFrame::CameraFrame(const at::Tensor& values) {
               describe(values));
   rotation = values.narrow(0, 0, kCameraFrameRotationValues).view({3, 3});
   translation = values.narrow(0, kCameraFrameRotationValues, kCameraFrameTranslationValues);
-  covariance_map = values.narrow(0, kCameraFrameRotationValues + kCameraFrameTranslationValues,
-                                 kCameraFrameCovarianceValues)
-                       .view({6, 6});
+  covariance_map =
+      values.narrow(0, kCameraFrameRotationValues + kCameraFrameTranslationValues, kCameraFrameCovarianceValues)
+          .view({6, 6});
 }
 
 at::Tensor CameraFrame::points(const at::Tensor& points) const {

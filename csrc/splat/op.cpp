@@ -29,13 +29,13 @@ using torch::autograd::variable_list;
 using OptionalTensor = c10::optional<at::Tensor>;
 
 // Every kernel of the op has the schema's parameters, in its order.
-#define SFGS_OP_PARAMETERS                                                                                          \
-  const at::Tensor &means, const OptionalTensor &scales, const OptionalTensor &rotations,                         \
-      const OptionalTensor &covariances, const at::Tensor &opacities, const at::Tensor &features,                 \
-      const at::Tensor &background, c10::ArrayRef<double> world_to_camera, double fx, double fy, double cx,       \
-      double cy, int64_t width, int64_t height, double near_plane, double far_plane, double low_pass_variance,     \
-      bool antialiased, bool deterministic
-#define SFGS_OP_NON_TENSOR_ARGUMENTS                                                                                \
+#define SFGS_OP_PARAMETERS                                                                                             \
+  const at::Tensor &means, const OptionalTensor &scales, const OptionalTensor &rotations,                              \
+      const OptionalTensor &covariances, const at::Tensor &opacities, const at::Tensor &features,                      \
+      const at::Tensor &background, c10::ArrayRef<double> world_to_camera, double fx, double fy, double cx, double cy, \
+      int64_t width, int64_t height, double near_plane, double far_plane, double low_pass_variance, bool antialiased,  \
+      bool deterministic
+#define SFGS_OP_NON_TENSOR_ARGUMENTS \
   world_to_camera, fx, fy, cx, cy, width, height, near_plane, far_plane, low_pass_variance, antialiased, deterministic
 
 constexpr const char* kSchema =
@@ -52,13 +52,18 @@ struct Arguments {
 };
 
 Arguments checked_arguments(SFGS_OP_PARAMETERS, bool on_backend_device) {
-  TORCH_CHECK(world_to_camera.size() == 16, "sfgs::render: world_to_camera must have 16 entries (row-major 4 x 4), got ",
-              world_to_camera.size());
+  TORCH_CHECK(world_to_camera.size() == 16,
+              "sfgs::render: world_to_camera must have 16 entries (row-major 4 x 4), got ", world_to_camera.size());
   Camera camera;
   std::copy(world_to_camera.begin(), world_to_camera.end(), camera.world_to_camera.begin());
-  camera.fx = fx; camera.fy = fy; camera.cx = cx; camera.cy = cy;
-  camera.width = width; camera.height = height;
-  camera.near_plane = near_plane; camera.far_plane = far_plane;
+  camera.fx = fx;
+  camera.fy = fy;
+  camera.cx = cx;
+  camera.cy = cy;
+  camera.width = width;
+  camera.height = height;
+  camera.near_plane = near_plane;
+  camera.far_plane = far_plane;
   Arguments a;
   a.camera = validated_camera(camera);
   a.inputs = validated_inputs(SplatInputs{means, scales.value_or(at::Tensor()), rotations.value_or(at::Tensor()),
@@ -152,8 +157,16 @@ struct SavedTensors {
   at::Tensor image, alpha, depth;
 
   variable_list list() const {
-    return {inputs.means,    inputs.scales,   inputs.rotations, inputs.covariances, inputs.opacities,
-            inputs.features, inputs.background, image,          alpha,              depth};
+    return {inputs.means,
+            inputs.scales,
+            inputs.rotations,
+            inputs.covariances,
+            inputs.opacities,
+            inputs.features,
+            inputs.background,
+            image,
+            alpha,
+            depth};
   }
   static SavedTensors from(const variable_list& v) {
     return SavedTensors{SplatInputs{v[0], v[1], v[2], v[3], v[4], v[5], v[6]}, v[7], v[8], v[9]};
@@ -201,8 +214,8 @@ class SplatFunction : public torch::autograd::Function<SplatFunction> {
     OutputGradients grads{grad_outputs[0], grad_outputs[1], at::Tensor()};
     if (grad_outputs[2].defined()) {
       // depth = depth_sum / alpha where alpha > 0: d/d depth_sum = 1 / alpha, d/d alpha = -depth / alpha.
-      const at::Tensor per_alpha = at::where(saved.alpha > 0, grad_outputs[2] / saved.alpha.clamp_min(kMinAlpha),
-                                             at::zeros_like(saved.alpha));
+      const at::Tensor per_alpha =
+          at::where(saved.alpha > 0, grad_outputs[2] / saved.alpha.clamp_min(kMinAlpha), at::zeros_like(saved.alpha));
       grads.depth_sum = per_alpha;
       grads.alpha = grads.alpha.defined() ? grads.alpha - per_alpha * saved.depth : -per_alpha * saved.depth;
     }
@@ -215,16 +228,16 @@ class SplatFunction : public torch::autograd::Function<SplatFunction> {
         },
         state.backend);
     // Opacities may have come as (N, 1).
-    return {g.means,    g.scales,   g.rotations, g.covariances, g.opacities.view(saved.inputs.opacities.sizes()),
+    return {g.means,    g.scales,     g.rotations, g.covariances, g.opacities.view(saved.inputs.opacities.sizes()),
             g.features, g.background, at::Tensor()};
   }
 };
 
 RenderOutputs autograd_kernel(SFGS_OP_PARAMETERS) {
-  const variable_list out = SplatFunction::apply(
-      means, scales, rotations, covariances, opacities, features, background,
-      NonTensorArguments{world_to_camera.vec(), fx, fy, cx, cy, width, height, near_plane, far_plane,
-                         low_pass_variance, antialiased, deterministic});
+  const variable_list out =
+      SplatFunction::apply(means, scales, rotations, covariances, opacities, features, background,
+                           NonTensorArguments{world_to_camera.vec(), fx, fy, cx, cy, width, height, near_plane,
+                                              far_plane, low_pass_variance, antialiased, deterministic});
   return {out[0], out[1], out[2], out[3]};
 }
 
@@ -240,13 +253,12 @@ TORCH_LIBRARY_IMPL(sfgs, CUDA, m) { m.impl("render_gaussians", TORCH_FN(cuda_ker
 TORCH_LIBRARY_IMPL(sfgs, Meta, m) { m.impl("render_gaussians", TORCH_FN(meta_kernel)); }
 TORCH_LIBRARY_IMPL(sfgs, Autograd, m) { m.impl("render_gaussians", TORCH_FN(autograd_kernel)); }
 
-RenderOutputs render_gaussians(const SplatInputs& t, const Camera& camera, double low_pass_variance,
-                               bool antialiased, bool deterministic) {
+RenderOutputs render_gaussians(const SplatInputs& t, const Camera& camera, double low_pass_variance, bool antialiased,
+                               bool deterministic) {
   const auto optional = [](const at::Tensor& x) { return x.defined() ? OptionalTensor(x) : c10::nullopt; };
-  return op().call(t.means, optional(t.scales), optional(t.rotations), optional(t.covariances), t.opacities,
-                   t.features, t.background, camera.world_to_camera, camera.fx, camera.fy, camera.cx, camera.cy,
-                   camera.width, camera.height, camera.near_plane, camera.far_plane, low_pass_variance, antialiased,
-                   deterministic);
+  return op().call(t.means, optional(t.scales), optional(t.rotations), optional(t.covariances), t.opacities, t.features,
+                   t.background, camera.world_to_camera, camera.fx, camera.fy, camera.cx, camera.cy, camera.width,
+                   camera.height, camera.near_plane, camera.far_plane, low_pass_variance, antialiased, deterministic);
 }
 
 }  // namespace sfgs::splat

@@ -36,11 +36,11 @@ struct ProjectionSettings {
 
 // What blending needs of one projected Gaussian.
 template <typename T> struct ProjectedGaussian {
-  Vec2<T> mean;    // pixel coordinates
-  Vec3<T> conic;   // inverse 2D covariance (a, b, c) = [[a, b], [b, c]]
-  T opacity;       // after antialiasing compensation
-  T depth;         // camera-space z
-  T level;         // sigma = 0.5 d^T conic d above which alpha < kMinAlpha: ln(opacity / kMinAlpha)
+  Vec2<T> mean;   // pixel coordinates
+  Vec3<T> conic;  // inverse 2D covariance (a, b, c) = [[a, b], [b, c]]
+  T opacity;      // after antialiasing compensation
+  T depth;        // camera-space z
+  T level;        // sigma = 0.5 d^T conic d above which alpha < kMinAlpha: ln(opacity / kMinAlpha)
 };
 
 // How both backends store a projected Gaussian between projection and blending: kProjectedWidth values per row.
@@ -98,9 +98,15 @@ SFGS_HD float exp_of(float v) {
 // Packed symmetric 3x3 layout shared by inputs and gradients: (xx, xy, xz, yy, yz, zz).
 template <typename T> SFGS_HD Mat3<T> unpack_covariance(const T* c) {
   Mat3<T> m;
-  m[0][0] = c[0]; m[1][0] = c[1]; m[2][0] = c[2];
-  m[0][1] = c[1]; m[1][1] = c[3]; m[2][1] = c[4];
-  m[0][2] = c[2]; m[1][2] = c[4]; m[2][2] = c[5];
+  m[0][0] = c[0];
+  m[1][0] = c[1];
+  m[2][0] = c[2];
+  m[0][1] = c[1];
+  m[1][1] = c[3];
+  m[2][1] = c[4];
+  m[0][2] = c[2];
+  m[1][2] = c[4];
+  m[2][2] = c[5];
   return m;
 }
 
@@ -127,9 +133,15 @@ template <typename T> SFGS_HD bool covariance_usable(const Mat3<T>& m) {
 template <typename T> SFGS_HD Mat3<T> rotation_from_unit_quaternion(const Vec4<T>& q) {
   const T w = q[0], x = q[1], y = q[2], z = q[3];
   Mat3<T> r;
-  r[0][0] = T(1) - T(2) * (y * y + z * z); r[1][0] = T(2) * (x * y - w * z); r[2][0] = T(2) * (x * z + w * y);
-  r[0][1] = T(2) * (x * y + w * z); r[1][1] = T(1) - T(2) * (x * x + z * z); r[2][1] = T(2) * (y * z - w * x);
-  r[0][2] = T(2) * (x * z - w * y); r[1][2] = T(2) * (y * z + w * x); r[2][2] = T(1) - T(2) * (x * x + y * y);
+  r[0][0] = T(1) - T(2) * (y * y + z * z);
+  r[1][0] = T(2) * (x * y - w * z);
+  r[2][0] = T(2) * (x * z + w * y);
+  r[0][1] = T(2) * (x * y + w * z);
+  r[1][1] = T(1) - T(2) * (x * x + z * z);
+  r[2][1] = T(2) * (y * z - w * x);
+  r[0][2] = T(2) * (x * z - w * y);
+  r[1][2] = T(2) * (y * z + w * x);
+  r[2][2] = T(1) - T(2) * (x * x + y * y);
   return r;
 }
 
@@ -181,15 +193,15 @@ SFGS_HD void covariance_from_scale_rotation_vjp(const Vec3<T>& scale, const Vec4
 
 // Intermediates shared by the forward projection and its vector-Jacobian product.
 template <typename T> struct ProjectionTerms {
-  Vec3<T> camera_point;   // mean in camera space
-  Mat3<T> camera_cov;     // covariance in camera space
-  Vec2<T> tangent;        // x/z, y/z clamped to the FOV guard (used in J)
+  Vec3<T> camera_point;  // mean in camera space
+  Mat3<T> camera_cov;    // covariance in camera space
+  Vec2<T> tangent;       // x/z, y/z clamped to the FOV guard (used in J)
   bool clamped_x, clamped_y;
   Mat2x3<T> jacobian;
-  T a0, b, c0;            // projected 2D covariance before the low-pass
-  T a, c;                 // diagonal after the low-pass
-  T det_original, det;    // determinants before and after the low-pass
-  T compensation_ratio;   // det_original / det (before the floor), only meaningful when antialiased
+  T a0, b, c0;           // projected 2D covariance before the low-pass
+  T a, c;                // diagonal after the low-pass
+  T det_original, det;   // determinants before and after the low-pass
+  T compensation_ratio;  // det_original / det (before the floor), only meaningful when antialiased
   T compensation;
 };
 
@@ -300,10 +312,10 @@ SFGS_HD bool project_gaussian(const PinholeCamera<T>& cam, const ProjectionSetti
 // Gradient of the projection, given gradients w.r.t. the projected mean, conic, (compensated) opacity and depth.
 // Recomputes the forward intermediates; call only for Gaussians project_gaussian accepted.
 template <typename T>
-SFGS_HD void project_gaussian_vjp(const PinholeCamera<T>& cam, const ProjectionSettings& settings,
-                                  const Vec3<T>& mean, const Mat3<T>& covariance, T opacity,
-                                  const Vec2<T>& grad_mean2d, const Vec3<T>& grad_conic, T grad_opacity_out,
-                                  T grad_depth, Vec3<T>& grad_mean, Mat3<T>& grad_covariance, T& grad_opacity) {
+SFGS_HD void project_gaussian_vjp(const PinholeCamera<T>& cam, const ProjectionSettings& settings, const Vec3<T>& mean,
+                                  const Mat3<T>& covariance, T opacity, const Vec2<T>& grad_mean2d,
+                                  const Vec3<T>& grad_conic, T grad_opacity_out, T grad_depth, Vec3<T>& grad_mean,
+                                  Mat3<T>& grad_covariance, T& grad_opacity) {
   ProjectionTerms<T> t{};  // projection_terms fills every field for the accepted Gaussians this is called for
   projection_terms(cam, settings, mean, covariance, t);
   const T inv_det = T(1) / t.det;

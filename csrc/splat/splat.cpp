@@ -16,17 +16,22 @@
 
 namespace sfgs {
 
-Camera Camera::from_tensor(const at::Tensor& world_to_camera, double fx, double fy, double cx, double cy,
-                           int64_t width, int64_t height, double near_plane, double far_plane) {
+Camera Camera::from_tensor(const at::Tensor& world_to_camera, double fx, double fy, double cx, double cy, int64_t width,
+                           int64_t height, double near_plane, double far_plane) {
   TORCH_CHECK(world_to_camera.defined() && world_to_camera.dim() == 2 && world_to_camera.size(0) == 4 &&
                   world_to_camera.size(1) == 4 && at::isFloatingType(world_to_camera.scalar_type()),
               "sfgs::Camera: world_to_camera must be a floating (4, 4) tensor, got ", describe(world_to_camera));
   const at::Tensor host = world_to_camera.detach().to(at::kCPU, at::kDouble).contiguous();
   Camera c;
   std::copy(host.data_ptr<double>(), host.data_ptr<double>() + 16, c.world_to_camera.begin());
-  c.fx = fx; c.fy = fy; c.cx = cx; c.cy = cy;
-  c.width = width; c.height = height;
-  c.near_plane = near_plane; c.far_plane = far_plane;
+  c.fx = fx;
+  c.fy = fy;
+  c.cx = cx;
+  c.cy = cy;
+  c.width = width;
+  c.height = height;
+  c.near_plane = near_plane;
+  c.far_plane = far_plane;
   return c;
 }
 
@@ -88,8 +93,8 @@ std::string world_to_camera_problem(const std::array<double, 16>& m) {
       for (int k = 0; k < 3; ++k) dot += m[size_t(4 * i + k)] * m[size_t(4 * j + k)];
       deviation = std::max(deviation, std::abs(dot - (i == j ? 1.0 : 0.0)));
     }
-  const double det = m[0] * (m[5] * m[10] - m[6] * m[9]) - m[1] * (m[4] * m[10] - m[6] * m[8]) +
-                     m[2] * (m[4] * m[9] - m[5] * m[8]);
+  const double det =
+      m[0] * (m[5] * m[10] - m[6] * m[9]) - m[1] * (m[4] * m[10] - m[6] * m[8]) + m[2] * (m[4] * m[9] - m[5] * m[8]);
   if (deviation > kCameraRotationTolerance || det <= 0) {
     why << "the rotation part of world_to_camera must be orthonormal with determinant +1 (max |R R^T - I| <= "
         << kCameraRotationTolerance << "), got max |R R^T - I| = " << deviation << " and det R = " << det;
@@ -130,7 +135,8 @@ namespace {
 thread_local const BinningBudget* installed_budget = nullptr;
 }  // namespace
 
-ScopedBinningBudget::ScopedBinningBudget(BinningBudget budget) : budget_(std::move(budget)), previous_(installed_budget) {
+ScopedBinningBudget::ScopedBinningBudget(BinningBudget budget)
+    : budget_(std::move(budget)), previous_(installed_budget) {
   TORCH_CHECK(budget_.intersections >= 0 && budget_.longest_tile >= 0,
               "ScopedBinningBudget: the budget must be non-negative, got ", budget_.intersections,
               " intersections and a longest tile of ", budget_.longest_tile);

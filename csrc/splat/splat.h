@@ -52,10 +52,10 @@ struct Gaussians {
 };
 
 struct RenderOptions {
-  bool low_pass = true;         // add kLowPassVariancePx2 to every 2D covariance
-  bool antialiased = false;     // opacity compensation as in mip-splatting (implies the low-pass)
-  bool check_background = false; // also check a CUDA background is finite (a device-to-host read; CPU: always)
-  bool deterministic = false;   // CUDA: bit-identical gradients across runs (the CPU backend always is)
+  bool low_pass = true;           // add kLowPassVariancePx2 to every 2D covariance
+  bool antialiased = false;       // opacity compensation as in mip-splatting (implies the low-pass)
+  bool check_background = false;  // also check a CUDA background is finite (a device-to-host read; CPU: always)
+  bool deterministic = false;     // CUDA: bit-identical gradients across runs (the CPU backend always is)
 };
 
 struct RenderResult {

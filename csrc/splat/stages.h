@@ -49,7 +49,14 @@ SFGS_HD int64_t tile_count(const TileGrid& grid) { return int64_t(grid.tiles_x) 
 // Gradient w.r.t. one projected Gaussian (the ProjectedField values blending reads), summed over the pixels it was
 // blended into; a backend's per-intersection gradient slot holds these, followed by the C feature gradients.
 enum ProjectedGradField : int {
-  kGradMeanX, kGradMeanY, kGradConicA, kGradConicB, kGradConicC, kGradOpacity, kGradDepth, kProjectedGradWidth
+  kGradMeanX,
+  kGradMeanY,
+  kGradConicA,
+  kGradConicB,
+  kGradConicC,
+  kGradOpacity,
+  kGradDepth,
+  kProjectedGradWidth
 };
 
 // ---- reading a Gaussian -----------------------------------------------------------------------------------------

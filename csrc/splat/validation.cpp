@@ -25,8 +25,7 @@ void check_means(const at::Tensor& means, bool on_backend_device) {
   TORCH_CHECK(means.defined(), "sfgs::render: means must be given as an (N, 3) tensor");
   TORCH_CHECK(means.dim() == 2 && means.size(1) == 3, "sfgs::render: means must have shape (N, 3), got ",
               describe(means));
-  TORCH_CHECK(is_float_or_double(means),
-              "sfgs::render: tensors must be float32 or float64, got ", describe(means));
+  TORCH_CHECK(is_float_or_double(means), "sfgs::render: tensors must be float32 or float64, got ", describe(means));
   if (on_backend_device) check_backend_device(means);
   TORCH_CHECK(means.size(0) <= std::numeric_limits<int32_t>::max(), "sfgs::render: at most 2^31 - 1 Gaussians, got ",
               means.size(0));
@@ -94,8 +93,7 @@ SplatInputs validated_inputs(const SplatInputs& g, bool on_backend_device) {
 CameraSpec validated_camera(const Camera& c) {
   const std::string problem = camera_problem(c);
   TORCH_CHECK(problem.empty(), "sfgs::render: ", problem);
-  return CameraSpec{c.world_to_camera, c.fx, c.fy, c.cx, c.cy, int(c.width), int(c.height), c.near_plane,
-                    c.far_plane};
+  return CameraSpec{c.world_to_camera, c.fx, c.fy, c.cx, c.cy, int(c.width), int(c.height), c.near_plane, c.far_plane};
 }
 
 void check_background_finite(const at::Tensor& background) {
@@ -111,8 +109,10 @@ std::string opacity_problem(int64_t invalid, int64_t count, int64_t first_index,
 }
 
 void check_opacities(const at::Tensor& opacities) {
-  if (opacities.scalar_type() == at::kDouble) check_opacity_values(opacities.data_ptr<double>(), opacities.numel());
-  else check_opacity_values(opacities.data_ptr<float>(), opacities.numel());
+  if (opacities.scalar_type() == at::kDouble)
+    check_opacity_values(opacities.data_ptr<double>(), opacities.numel());
+  else
+    check_opacity_values(opacities.data_ptr<float>(), opacities.numel());
 }
 
 }  // namespace sfgs::splat

@@ -29,8 +29,7 @@ struct SavedForward {
   static SavedForward from(const variable_list& v) { return {v[0], v[1], v[2]}; }
 };
 
-template <typename T>
-void fill_window(T (&taps)[kSsimWindowSize]) {
+template <typename T> void fill_window(T (&taps)[kSsimWindowSize]) {
   const auto window = gaussian_window();
   for (int k = 0; k < kSsimWindowSize; ++k) taps[k] = T(window[k]);
 }
@@ -115,8 +114,8 @@ class FusedSsimFunction : public torch::autograd::Function<FusedSsimFunction> {
 void check_inputs(const at::Tensor& prediction, const at::Tensor& target) {
   for (const auto* image : {&prediction, &target}) {
     const char* name = image == &prediction ? "prediction" : "target";
-    TORCH_CHECK(image->defined() && image->dim() == 3 && is_float_or_double(*image),
-                "fused_ssim: ", name, " must be a float32 or float64 image (H, W, C), got ", describe(*image));
+    TORCH_CHECK(image->defined() && image->dim() == 3 && is_float_or_double(*image), "fused_ssim: ", name,
+                " must be a float32 or float64 image (H, W, C), got ", describe(*image));
     TORCH_CHECK(image->numel() > 0, "fused_ssim: ", name, " must not be empty, got ", describe(*image));
     TORCH_CHECK(image->is_cpu() || image->is_cuda(), "fused_ssim: ", name, " must be on the CPU or a CUDA device, got ",
                 describe(*image));

@@ -27,8 +27,7 @@ inline constexpr int kDerivativeMaps = 3;
 
 // The forward's inputs and outputs. Images are (H, W, C) contiguous; partial_sums holds sums of S over the pixels
 // the backend gave each entry (the op adds them up); derivative_maps is null when no gradient is wanted.
-template <typename T>
-struct SsimArrays {
+template <typename T> struct SsimArrays {
   const T* prediction;
   const T* target;
   T* partial_sums;
@@ -40,8 +39,7 @@ struct SsimArrays {
 
 // The backward's: the gradient of the op's scalar value (a device scalar: no host read) scaled by 1 / N, the
 // forward's derivative maps filtered again and combined with the images into the prediction's gradient.
-template <typename T>
-struct SsimGradientArrays {
+template <typename T> struct SsimGradientArrays {
   const T* prediction;
   const T* target;
   const T* derivative_maps;  // (3, C, H, W)
@@ -71,28 +69,20 @@ inline double ssim_c1() { return (kSsimK1 * kImageDataRange) * (kSsimK1 * kImage
 inline double ssim_c2() { return (kSsimK2 * kImageDataRange) * (kSsimK2 * kImageDataRange); }
 
 // The five filtered moments of one pixel and channel.
-template <typename T>
-struct Moments {
-  T mu_x, mu_y, xx, yy, xy;
-};
+template <typename T> struct Moments { T mu_x, mu_y, xx, yy, xy; };
 
 // The map's value and its derivatives in the moments the prediction moves.
-template <typename T>
-struct PixelSsim {
-  T value, d_mu_x, d_xx, d_xy;
-};
+template <typename T> struct PixelSsim { T value, d_mu_x, d_xx, d_xy; };
 
 // S of one pixel, grouped as metrics::ssim_map writes it so that the two agree to rounding.
-template <typename T>
-SFGS_HD T ssim_value(const Moments<T>& m, T c1, T c2) {
+template <typename T> SFGS_HD T ssim_value(const Moments<T>& m, T c1, T c2) {
   const T mu_x2 = m.mu_x * m.mu_x, mu_y2 = m.mu_y * m.mu_y, mu_xy = m.mu_x * m.mu_y;
   const T var_x = m.xx - mu_x2, var_y = m.yy - mu_y2, cov_xy = m.xy - mu_xy;
   return (T(2) * mu_xy + c1) * (T(2) * cov_xy + c2) / ((mu_x2 + mu_y2 + c1) * (var_x + var_y + c2));
 }
 
 // S of one pixel with its derivatives in mu_x, xx and xy.
-template <typename T>
-SFGS_HD PixelSsim<T> ssim_with_derivatives(const Moments<T>& m, T c1, T c2) {
+template <typename T> SFGS_HD PixelSsim<T> ssim_with_derivatives(const Moments<T>& m, T c1, T c2) {
   const T mu_x2 = m.mu_x * m.mu_x, mu_y2 = m.mu_y * m.mu_y, mu_xy = m.mu_x * m.mu_y;
   const T a1 = T(2) * mu_xy + c1, a2 = T(2) * (m.xy - mu_xy) + c2;
   const T b1 = mu_x2 + mu_y2 + c1, b2 = (m.xx - mu_x2) + (m.yy - mu_y2) + c2;

@@ -39,8 +39,7 @@ bool AdamStepper::fusable() const {
     if (adam_options(group).amsgrad()) return false;
     for (const at::Tensor& p : group.params()) {
       if (!p.grad().defined()) continue;
-      if (!p.is_cuda() || p.scalar_type() != at::kFloat || p.grad().is_sparse() ||
-          p.grad().scalar_type() != at::kFloat)
+      if (!p.is_cuda() || p.scalar_type() != at::kFloat || p.grad().is_sparse() || p.grad().scalar_type() != at::kFloat)
         return false;
     }
   }
@@ -94,8 +93,8 @@ void AdamStepper::step(const at::Tensor& skip) {
     at::_foreach_add_(steps, 1);
     at::_fused_adam_(params, grads, averages, squares, /*max_exp_avg_sqs=*/{}, steps, options.lr(), beta1, beta2,
                      options.weight_decay(), options.eps(), /*amsgrad=*/false, /*maximize=*/false,
-                     /*grad_scale=*/c10::nullopt, /*found_inf=*/skip.defined() ? c10::optional<at::Tensor>(skip)
-                                                                                : c10::optional<at::Tensor>());
+                     /*grad_scale=*/c10::nullopt,
+                     /*found_inf=*/skip.defined() ? c10::optional<at::Tensor>(skip) : c10::optional<at::Tensor>());
   }
 }
 

@@ -161,14 +161,17 @@ void CheckpointReader::load_avatar(model::Avatar& avatar) {
   try {
     avatar->load(nested);
   } catch (const c10::Error& e) {
-    TORCH_CHECK(false, "checkpoint '", path_, "' does not hold the avatar its config describes (damaged, or written by "
-                "another version of sfgs): ", e.what_without_backtrace());
+    TORCH_CHECK(false, "checkpoint '", path_,
+                "' does not hold the avatar its config describes (damaged, or written by "
+                "another version of sfgs): ",
+                e.what_without_backtrace());
   }
   if (info_.version >= 2) {
     for (const auto& [name, t] : avatar_tensors(avatar)) {
       const std::string key = "avatar." + name;
       TORCH_CHECK(checksums_.contains(key) && checksums_[key].get<uint32_t>() == crc32_of(t), "checkpoint '", path_,
-                  "' is damaged: tensor '", name, "' does not match the checksum written with it (use an earlier copy "
+                  "' is damaged: tensor '", name,
+                  "' does not match the checksum written with it (use an earlier copy "
                   "of the run or train it again)");
     }
   }
@@ -176,8 +179,7 @@ void CheckpointReader::load_avatar(model::Avatar& avatar) {
   TORCH_CHECK(bad.empty(), "checkpoint '", path_, "' holds non-finite values in ", bad,
               ": the run diverged before it was written, or the file is damaged; it cannot be used");
   // The observation record (checkpoints of runs trained before it existed have none: every Gaussian is trusted).
-  if (info_.observation_sum.defined())
-    avatar->set_observation(info_.observation_sum / double(info_.observation_steps));
+  if (info_.observation_sum.defined()) avatar->set_observation(info_.observation_sum / double(info_.observation_steps));
 }
 
 void CheckpointReader::load_optimizer(torch::optim::Optimizer& optimizer) {
@@ -190,8 +192,8 @@ void CheckpointReader::load_optimizer(torch::optim::Optimizer& optimizer) {
   at::Tensor state;
   TORCH_CHECK(archive_.try_read("optimizer_state", state), "checkpoint '", path_, "' lacks the optimiser's state");
   const std::string bytes = tensor_string(state);
-  TORCH_CHECK(checksums_.value("optimizer", uint32_t(0)) == crc32_of(bytes.data(), bytes.size()), "checkpoint '",
-              path_, "' is damaged: the optimiser state does not match the checksum written with it");
+  TORCH_CHECK(checksums_.value("optimizer", uint32_t(0)) == crc32_of(bytes.data(), bytes.size()), "checkpoint '", path_,
+              "' is damaged: the optimiser state does not match the checksum written with it");
   torch::serialize::InputArchive nested;
   nested.load_from(bytes.data(), bytes.size());
   optimizer.load(nested);

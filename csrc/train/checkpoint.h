@@ -16,14 +16,14 @@
 namespace sfgs::train {
 
 struct CheckpointInfo {
-  int64_t version = 0;            // of the file format
-  int64_t iteration = 0;          // training steps done
-  double training_seconds = 0;    // time spent in those steps (validation and checkpoints excluded)
-  std::string rng_state;          // the trainer's frame and background sampler
-  TrainConfig config;             // the configuration the run was trained with
-  std::string dataset;            // the dataset folder (absolute from version 2 on)
+  int64_t version = 0;              // of the file format
+  int64_t iteration = 0;            // training steps done
+  double training_seconds = 0;      // time spent in those steps (validation and checkpoints excluded)
+  std::string rng_state;            // the trainer's frame and background sampler
+  TrainConfig config;               // the configuration the run was trained with
+  std::string dataset;              // the dataset folder (absolute from version 2 on)
   std::string dataset_fingerprint;  // Dataset::fingerprint() of it; empty in version 1
-  at::Tensor betas;               // the subject's shape, float32 (B)
+  at::Tensor betas;                 // the subject's shape, float32 (B)
   // The avatar's observation record as training keeps it: per Gaussian, the sum over `observation_steps` training
   // steps of how squarely each saw it (float32 (N); undefined: no record, as in runs trained before it existed).
   at::Tensor observation_sum;

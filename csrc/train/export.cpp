@@ -31,8 +31,8 @@ ExportedGaussians exported_gaussians(model::Avatar& avatar, const data::Dataset*
   at::NoGradGuard no_grad;
   TORCH_CHECK(frame < 0 || (dataset != nullptr && frame < dataset->size()), "export: frame ", frame,
               " is not in the dataset");
-  const model::AvatarOutput out = frame >= 0 ? pose_avatar(avatar, *dataset, frame)
-                                             : avatar->forward(body::SmplxPose::zeros(0), std::nullopt);
+  const model::AvatarOutput out =
+      frame >= 0 ? pose_avatar(avatar, *dataset, frame) : avatar->forward(body::SmplxPose::zeros(0), std::nullopt);
   at::Tensor means, cov6;
   if (frame >= 0) {
     means = out.means;
@@ -47,7 +47,7 @@ ExportedGaussians exported_gaussians(model::Avatar& avatar, const data::Dataset*
   const at::Tensor full = at::stack({c.select(1, 0), c.select(1, 1), c.select(1, 2), c.select(1, 1), c.select(1, 3),
                                      c.select(1, 4), c.select(1, 2), c.select(1, 4), c.select(1, 5)},
                                     1)
-                               .view({-1, 3, 3});
+                              .view({-1, 3, 3});
   const auto [eigenvalues, eigenvectors] = at::linalg_eigh(full);
   // Columns are the axes; flip one where needed so the rotation is proper.
   const at::Tensor det_sign = at::sign(at::linalg_det(eigenvectors)).unsqueeze(1).unsqueeze(2);
@@ -70,8 +70,8 @@ void write_ply(const ExportedGaussians& g, const std::string& path, bool overwri
   const at::Tensor f_dc = (g.colours - 0.5) / kShC0;
   const at::Tensor o = g.opacities.clamp(kOpacityClamp, 1 - kOpacityClamp);
   const at::Tensor opacity_logit = at::log(o / (1 - o)).unsqueeze(1);
-  const at::Tensor rows = at::cat({g.means, at::zeros_like(g.means), f_dc, opacity_logit, g.log_scales, g.rotations}, 1)
-                              .contiguous();
+  const at::Tensor rows =
+      at::cat({g.means, at::zeros_like(g.means), f_dc, opacity_logit, g.log_scales, g.rotations}, 1).contiguous();
   std::string header = "ply\nformat binary_little_endian 1.0\nelement vertex " + std::to_string(rows.size(0)) + "\n";
   for (const char* name : {"x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0",
                            "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"})
@@ -94,8 +94,8 @@ void write_splat(const ExportedGaussians& g, const std::string& path, bool overw
   const at::Tensor rotation_bytes =
       (unit / unit.norm(2, 1, true).clamp_min(kMinQuaternionNorm) * 128 + 128).round().clamp(0, 255).to(at::kByte);
   // One record per Gaussian: the 24 float bytes, then the 8 colour and rotation bytes.
-  const at::Tensor records = at::cat({floats.view(at::kByte).view({n, 24}), colour_bytes, rotation_bytes}, 1)
-                                 .contiguous();
+  const at::Tensor records =
+      at::cat({floats.view(at::kByte).view({n, 24}), colour_bytes, rotation_bytes}, 1).contiguous();
   TORCH_CHECK(records.size(1) == kSplatRecordBytes, "export: a .splat record must be 32 bytes");
   write_file_atomically(path, bytes_of(records), overwrite);
 }
@@ -106,11 +106,15 @@ void export_gaussians(model::Avatar& avatar, const data::Dataset* dataset, int64
   std::string extension = std::filesystem::path(path).extension().string();
   std::transform(extension.begin(), extension.end(), extension.begin(),
                  [](unsigned char c) { return char(std::tolower(c)); });
-  TORCH_CHECK(extension == ".ply" || extension == ".splat", "export: the file must end in .ply (3DGS) or .splat "
-              "(web viewers), got '", path, "'");
+  TORCH_CHECK(extension == ".ply" || extension == ".splat",
+              "export: the file must end in .ply (3DGS) or .splat "
+              "(web viewers), got '",
+              path, "'");
   const ExportedGaussians g = exported_gaussians(avatar, dataset, frame);
-  if (extension == ".ply") write_ply(g, path, overwrite);
-  else write_splat(g, path, overwrite);
+  if (extension == ".ply")
+    write_ply(g, path, overwrite);
+  else
+    write_splat(g, path, overwrite);
 }
 
 }  // namespace sfgs::train

@@ -37,7 +37,9 @@ std::map<std::string, double> LossWatch::read() {
     for (size_t t = 0; t < checked_; ++t)
       if (!std::isfinite(values[r * k + t]))
         bad << (bad.tellp() > 0 ? ", " : "") << "'" << names_[t] << "' = "
-            << (std::isnan(values[r * k + t]) ? "nan" : values[r * k + t] > 0 ? "inf" : "-inf");
+            << (std::isnan(values[r * k + t]) ? "nan"
+                : values[r * k + t] > 0       ? "inf"
+                                              : "-inf");
     if (bad.tellp() > 0)
       throw DivergenceError(iterations[r], "training diverged at iteration " + std::to_string(iterations[r]) +
                                                ": loss " + bad.str() + " is not finite");

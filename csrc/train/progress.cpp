@@ -18,14 +18,19 @@ constexpr int kBarWidth = 30;
 std::string format_duration(double seconds) {
   const int64_t s = int64_t(seconds + 0.5);
   char buffer[32];
-  if (s >= 3600) std::snprintf(buffer, sizeof(buffer), "%lldh%02lldm", (long long)(s / 3600), (long long)(s % 3600 / 60));
-  else if (s >= 60) std::snprintf(buffer, sizeof(buffer), "%lldm%02llds", (long long)(s / 60), (long long)(s % 60));
-  else std::snprintf(buffer, sizeof(buffer), "%llds", (long long)s);
+  if (s >= 3600)
+    std::snprintf(buffer, sizeof(buffer), "%lldh%02lldm", (long long)(s / 3600), (long long)(s % 3600 / 60));
+  else if (s >= 60)
+    std::snprintf(buffer, sizeof(buffer), "%lldm%02llds", (long long)(s / 60), (long long)(s % 60));
+  else
+    std::snprintf(buffer, sizeof(buffer), "%llds", (long long)s);
   return buffer;
 }
 
 ProgressBar::ProgressBar(int64_t total, bool enabled)
-    : total_(std::max<int64_t>(total, 1)), enabled_(enabled), terminal_(::isatty(2) != 0),
+    : total_(std::max<int64_t>(total, 1)),
+      enabled_(enabled),
+      terminal_(::isatty(2) != 0),
       start_(std::chrono::steady_clock::now()) {}
 
 double ProgressBar::elapsed_seconds() const {

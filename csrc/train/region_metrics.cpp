@@ -34,18 +34,19 @@ std::optional<RegionTruth> read_region_truth(const data::Dataset& dataset) {
     if (!fs::exists(folder / file)) return std::nullopt;
   RegionTruth truth;
   truth.faces = io::read_npy((folder / "faces.npy").string());
-  TORCH_CHECK(truth.faces.scalar_type() == at::kLong && truth.faces.dim() == 2 && truth.faces.size(1) == 3,
-              "'", (folder / "faces.npy").string(), "': expected int64 (F, 3) triangles, got ", describe(truth.faces));
+  TORCH_CHECK(truth.faces.scalar_type() == at::kLong && truth.faces.dim() == 2 && truth.faces.size(1) == 3, "'",
+              (folder / "faces.npy").string(), "': expected int64 (F, 3) triangles, got ", describe(truth.faces));
   const at::Tensor regions = read_checked(folder / "regions.npy", at::kLong, -1, "a body region per vertex");
   const int64_t vertices = regions.size(0);
-  const at::Tensor observation = read_checked(folder / "observation.npy", at::kFloat, vertices, "an observation share per vertex");
+  const at::Tensor observation =
+      read_checked(folder / "observation.npy", at::kFloat, vertices, "an observation share per vertex");
   TORCH_CHECK(truth.faces.numel() == 0 || truth.faces.max().item<int64_t>() < vertices, "'",
               (folder / "faces.npy").string(), "' names vertices beyond the ", vertices, " of regions.npy");
   const at::Tensor corner = regions.clamp_max(kHandsRegion).index_select(0, truth.faces.flatten()).view({-1, 3});
   const at::Tensor a = corner.select(1, 0), b = corner.select(1, 1), c = corner.select(1, 2);
   truth.face_region = at::where((b == c) & (b != a), b, a);  // the majority, or the first corner's
-  truth.face_seen = std::get<0>(observation.index_select(0, truth.faces.flatten()).view({-1, 3}).min(1)) >=
-                    kWellObservedFraction;
+  truth.face_seen =
+      std::get<0>(observation.index_select(0, truth.faces.flatten()).view({-1, 3}).min(1)) >= kWellObservedFraction;
   return truth;
 }
 

@@ -22,9 +22,12 @@ constexpr size_t kDigestChunkBytes = size_t(1) << 20;
 
 std::string split_name(data::Split split) {
   switch (split) {
-    case data::Split::kTrain: return "train";
-    case data::Split::kVal: return "val";
-    case data::Split::kTest: return "test";
+    case data::Split::kTrain:
+      return "train";
+    case data::Split::kVal:
+      return "val";
+    case data::Split::kTest:
+      return "test";
   }
   return "test";
 }
@@ -155,8 +158,10 @@ void remove_derived_outputs(const RunFolder& run) {
       found.push_back(e.path());
   }
   for (const fs::path& p : found) {
-    if (fs::is_directory(p)) remove_images(p);
-    else fs::remove(p);
+    if (fs::is_directory(p))
+      remove_images(p);
+    else
+      fs::remove(p);
   }
 }
 

@@ -21,8 +21,8 @@ struct ResultOrigin {
   std::string dataset_fingerprint;  // data::Dataset::fingerprint()
   bool own_dataset = true;          // the dataset the run trained on (its fingerprint, as read_run_dataset gives it)
   int64_t checkpoint_iteration = 0;
-  std::string checkpoint_crc32;     // checkpoint_digest() of the checkpoint evaluated
-  std::string command;              // the command line that wrote the result
+  std::string checkpoint_crc32;  // checkpoint_digest() of the checkpoint evaluated
+  std::string command;           // the command line that wrote the result
 };
 
 // "metrics_test.json", "metrics_test_fitted_poses.json", and for another dataset than the run's own

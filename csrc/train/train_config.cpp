@@ -22,8 +22,7 @@ struct Field {
   std::function<void(YAML::Emitter&)> write;
 };
 
-template <typename T>
-Field field(T& target) {
+template <typename T> Field field(T& target) {
   return Field{[&target](const YAML::Node& n) { target = n.as<T>(); }, [&target](YAML::Emitter& e) { e << target; }};
 }
 

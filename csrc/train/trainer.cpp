@@ -37,7 +37,8 @@ struct RunPlan {
 void refuse_unsafe_changes(const TrainConfig& trained, const TrainConfig& requested, const RunFolder& run) {
   std::string refused;
   for (const ConfigChange& c : config_changes(trained, requested))
-    if (!change_allowed_on_resume(c.key)) refused += (refused.empty() ? "" : ", ") + c.key + " (" + c.before + " -> " + c.after + ")";
+    if (!change_allowed_on_resume(c.key))
+      refused += (refused.empty() ? "" : ", ") + c.key + " (" + c.before + " -> " + c.after + ")";
   TORCH_CHECK(refused.empty(), "cannot resume run '", run.path, "': the config asked for differs from the one it was ",
               "trained with in keys that change the model, its objective or its data: ", refused, ". On resume only ",
               "schedule.* and run.log_every, run.validate_every, run.checkpoint_every, run.validation_frames and ",

@@ -27,15 +27,15 @@ struct TrainOptions {
 };
 
 struct TrainSummary {
-  int64_t first_iteration = 0;   // the iteration this call started from (0, or the checkpoint's when resuming)
-  int64_t iterations = 0;        // the iteration the run stopped at
-  int64_t steps = 0;             // steps this call ran (0: the run had already reached its end)
-  bool finished = false;         // the run has done every iteration of its schedule
-  double seconds = 0;            // wall time of this call
-  double training_seconds = 0;   // time spent in training steps over the whole run (resumes included)
-  double step_seconds = 0;       // time spent in this call's training steps
-  double final_loss = 0;         // the last logged total loss of this call (when steps > 0)
-  double validation_psnr = 0;    // last validation of this call (white background, evaluation mask); NaN if none
+  int64_t first_iteration = 0;  // the iteration this call started from (0, or the checkpoint's when resuming)
+  int64_t iterations = 0;       // the iteration the run stopped at
+  int64_t steps = 0;            // steps this call ran (0: the run had already reached its end)
+  bool finished = false;        // the run has done every iteration of its schedule
+  double seconds = 0;           // wall time of this call
+  double training_seconds = 0;  // time spent in training steps over the whole run (resumes included)
+  double step_seconds = 0;      // time spent in this call's training steps
+  double final_loss = 0;        // the last logged total loss of this call (when steps > 0)
+  double validation_psnr = 0;   // last validation of this call (white background, evaluation mask); NaN if none
   bool has_validation_frames = false;
   int64_t round = 1, rounds = 1;  // the round this call ended in, of the run's pose_refinement.rounds
   std::string folder;             // that round's run folder (RunFolder::round_folder; the run's own for the last)

@@ -205,8 +205,7 @@ TrainSummary TrainingSession::run(int64_t start, int64_t end) {
       const StageScope stage("train: step");
       step(it);
     }
-    const double step_seconds =
-        std::chrono::duration<double>(std::chrono::steady_clock::now() - step_started).count();
+    const double step_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - step_started).count();
     training_seconds_ += step_seconds;
     if (it == start) warn_if_long(step_seconds, config_.schedule.iterations - start);
     finish_step(it + 1, end);

@@ -57,7 +57,7 @@ class TrainingSession {
   const TrainOptions& options_;
   at::Device device_;
   Tf32MatmulScope tf32_;
-  at::Tensor last_lpips_;  // the last step's LPIPS that measured it (loss.lpips_every), detached
+  at::Tensor last_lpips_;           // the last step's LPIPS that measured it (loss.lpips_every), detached
   data::ReplayClock replay_clock_;  // each training frame's time, asked every step
   model::Avatar avatar_{nullptr};
   std::unique_ptr<torch::optim::Adam> optimizer_;

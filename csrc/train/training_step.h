@@ -47,12 +47,12 @@ class StepInputs {
   at::Tensor directions_to_camera(const at::Tensor& directions) const;
   at::Tensor covariances_to_camera(const at::Tensor& covariances) const;
 
-  at::Tensor frame;       // (H, W, 4) uint8
-  at::Tensor background;  // (3) float32
+  at::Tensor frame;          // (H, W, 4) uint8
+  at::Tensor background;     // (3) float32
   CameraFrame camera_frame;  // a camera away from the origin: its placement (else undefined)
-  at::Tensor time;       // () float32; undefined when the kind has no time
-  body::SmplxPose pose;  // float32 views of one buffer, in the kind's layout
-  Camera camera;         // the kind's camera at the origin (the intrinsics and image size of its steps)
+  at::Tensor time;           // () float32; undefined when the kind has no time
+  body::SmplxPose pose;      // float32 views of one buffer, in the kind's layout
+  Camera camera;             // the kind's camera at the origin (the intrinsics and image size of its steps)
 
  private:
   std::string kind_;   // step_kind of the steps these buffers take

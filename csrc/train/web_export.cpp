@@ -89,11 +89,16 @@ Quantised quantise(const at::Tensor& values, int64_t levels, at::ScalarType type
 
 const char* type_name(at::ScalarType type) {
   switch (type) {
-    case at::kFloat: return "float32";
-    case at::kInt: return "uint32";  // vertex indices, never negative
-    case at::kChar: return "int8";
-    case at::kByte: return "uint8";
-    default: TORCH_CHECK(false, "no web viewer type for ", type);
+    case at::kFloat:
+      return "float32";
+    case at::kInt:
+      return "uint32";  // vertex indices, never negative
+    case at::kChar:
+      return "int8";
+    case at::kByte:
+      return "uint8";
+    default:
+      TORCH_CHECK(false, "no web viewer type for ", type);
   }
 }
 
@@ -187,7 +192,8 @@ std::set<std::string> files_of_export(const fs::path& folder) {
       if (name.is_string()) files.insert(name.get<std::string>());
   };
   add(manifest.value("files", nlohmann::json()));
-  if (manifest.contains("written")) add(manifest.at("written"));
+  if (manifest.contains("written"))
+    add(manifest.at("written"));
   else
     for (const WebAsset& asset : web_assets()) files.insert(asset.name);
   return files;

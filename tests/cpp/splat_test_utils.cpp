@@ -15,18 +15,22 @@ at::Tensor uniform(std::vector<int64_t> shape, double lo, double hi, at::Generat
 
 // Rotation about x, then y, then z (radians), as a 3x3 double tensor.
 at::Tensor rotation_xyz(double ax, double ay, double az) {
-  const at::Tensor rx = at::tensor({1.0, 0.0, 0.0, 0.0, std::cos(ax), -std::sin(ax), 0.0, std::sin(ax), std::cos(ax)}).view({3, 3});
-  const at::Tensor ry = at::tensor({std::cos(ay), 0.0, std::sin(ay), 0.0, 1.0, 0.0, -std::sin(ay), 0.0, std::cos(ay)}).view({3, 3});
-  const at::Tensor rz = at::tensor({std::cos(az), -std::sin(az), 0.0, std::sin(az), std::cos(az), 0.0, 0.0, 0.0, 1.0}).view({3, 3});
+  const at::Tensor rx =
+      at::tensor({1.0, 0.0, 0.0, 0.0, std::cos(ax), -std::sin(ax), 0.0, std::sin(ax), std::cos(ax)}).view({3, 3});
+  const at::Tensor ry =
+      at::tensor({std::cos(ay), 0.0, std::sin(ay), 0.0, 1.0, 0.0, -std::sin(ay), 0.0, std::cos(ay)}).view({3, 3});
+  const at::Tensor rz =
+      at::tensor({std::cos(az), -std::sin(az), 0.0, std::sin(az), std::cos(az), 0.0, 0.0, 0.0, 1.0}).view({3, 3});
   return rz.matmul(ry).matmul(rx);
 }
 
 at::Tensor rotation_from_quaternions(const at::Tensor& quaternions) {
   const at::Tensor q = quaternions / quaternions.norm(2, 1, true);
   const at::Tensor w = q.select(1, 0), x = q.select(1, 1), y = q.select(1, 2), z = q.select(1, 3);
-  return at::stack({1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-                    2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-                    2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)}, 1)
+  return at::stack({1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y), 2 * (x * y + w * z),
+                    1 - 2 * (x * x + z * z), 2 * (y * z - w * x), 2 * (x * z - w * y), 2 * (y * z + w * x),
+                    1 - 2 * (x * x + y * y)},
+                   1)
       .view({-1, 3, 3});
 }
 
@@ -34,7 +38,8 @@ at::Tensor covariance_matrices(const Gaussians& g) {
   if (g.covariances.defined()) {
     const at::Tensor c = g.covariances;
     return at::stack({c.select(1, 0), c.select(1, 1), c.select(1, 2), c.select(1, 1), c.select(1, 3), c.select(1, 4),
-                      c.select(1, 2), c.select(1, 4), c.select(1, 5)}, 1)
+                      c.select(1, 2), c.select(1, 4), c.select(1, 5)},
+                     1)
         .view({-1, 3, 3});
   }
   const at::Tensor m = rotation_from_quaternions(g.rotations) * g.scales.unsqueeze(1);
@@ -78,9 +83,10 @@ TestScene random_scene(const SceneSpec& spec, uint64_t seed, at::ScalarType dtyp
     tmp.scales = scales;
     tmp.rotations = rotations;
     const at::Tensor c = covariance_matrices(tmp);
-    s.gaussians.covariances = at::stack({c.select(1, 0).select(1, 0), c.select(1, 0).select(1, 1),
-                                         c.select(1, 0).select(1, 2), c.select(1, 1).select(1, 1),
-                                         c.select(1, 1).select(1, 2), c.select(1, 2).select(1, 2)}, 1);
+    s.gaussians.covariances =
+        at::stack({c.select(1, 0).select(1, 0), c.select(1, 0).select(1, 1), c.select(1, 0).select(1, 2),
+                   c.select(1, 1).select(1, 1), c.select(1, 1).select(1, 2), c.select(1, 2).select(1, 2)},
+                  1);
   } else {
     s.gaussians.scales = scales;
     s.gaussians.rotations = rotations;
@@ -97,8 +103,8 @@ TestScene random_scene(const SceneSpec& spec, uint64_t seed, at::ScalarType dtyp
 ReferenceImage reference_render(const Gaussians& g, const at::Tensor& background, const Camera& cam,
                                 const RenderOptions& options) {
   const auto opts = g.means.options();
-  const at::Tensor view = at::tensor(std::vector<double>(cam.world_to_camera.begin(), cam.world_to_camera.end()))
-                              .view({4, 4}).to(opts);
+  const at::Tensor view =
+      at::tensor(std::vector<double>(cam.world_to_camera.begin(), cam.world_to_camera.end())).view({4, 4}).to(opts);
   const at::Tensor rotation = view.slice(0, 0, 3).slice(1, 0, 3);
   const at::Tensor translation = view.slice(0, 0, 3).select(1, 3);
   const at::Tensor p = g.means.matmul(rotation.t()) + translation;
@@ -110,7 +116,8 @@ ReferenceImage reference_render(const Gaussians& g, const at::Tensor& background
   const at::Tensor tx = (x / z).clamp(-cam.cx / cam.fx - guard_x, (double(cam.width) - cam.cx) / cam.fx + guard_x);
   const at::Tensor ty = (y / z).clamp(-cam.cy / cam.fy - guard_y, (double(cam.height) - cam.cy) / cam.fy + guard_y);
   const at::Tensor zero = at::zeros_like(z);
-  const at::Tensor jac = at::stack({cam.fx / z, zero, -cam.fx * tx / z, zero, cam.fy / z, -cam.fy * ty / z}, 1).view({-1, 2, 3});
+  const at::Tensor jac =
+      at::stack({cam.fx / z, zero, -cam.fx * tx / z, zero, cam.fy / z, -cam.fy * ty / z}, 1).view({-1, 2, 3});
   const at::Tensor cov2d = jac.matmul(camera_cov).matmul(jac.transpose(1, 2));
   const bool dilate = options.low_pass || options.antialiased;
   const double blur = dilate ? kLowPassVariancePx2 : 0.0;
@@ -136,7 +143,8 @@ ReferenceImage reference_render(const Gaussians& g, const at::Tensor& background
 
   const at::Tensor order = std::get<1>(z.detach().sort(/*stable=*/true, 0, false));
   alpha = alpha.index_select(1, order);
-  const at::Tensor before = at::cat({at::ones_like(alpha.narrow(1, 0, 1)), at::cumprod(1 - alpha, 1).narrow(1, 0, alpha.size(1) - 1)}, 1);
+  const at::Tensor before =
+      at::cat({at::ones_like(alpha.narrow(1, 0, 1)), at::cumprod(1 - alpha, 1).narrow(1, 0, alpha.size(1) - 1)}, 1);
   const at::Tensor stop = ((before * (1 - alpha)) < kMinTransmittance) & (alpha > 0);
   const at::Tensor stopped = stop.to(at::kInt).cumsum(1) > 0;
   const at::Tensor used = at::where(stopped, at::zeros_like(alpha), alpha);
@@ -156,8 +164,10 @@ ReferenceImage reference_render(const Gaussians& g, const at::Tensor& background
   const at::Tensor to_min = ((raw_kept - kMinAlpha).abs() / kMinAlpha).masked_fill(~active, 1e9);
   const at::Tensor to_max = ((raw_kept - kMaxAlpha).abs() / kMaxAlpha).masked_fill(~active, 1e9);
   const at::Tensor next_t = (before.detach() * (1 - alpha.detach()));
-  const at::Tensor to_stop = ((next_t - kMinTransmittance).abs() / kMinTransmittance).masked_fill(alpha.detach() <= 0, 1e9);
-  r.threshold_margin = std::min({to_min.min().item<double>(), to_max.min().item<double>(), to_stop.min().item<double>()});
+  const at::Tensor to_stop =
+      ((next_t - kMinTransmittance).abs() / kMinTransmittance).masked_fill(alpha.detach() <= 0, 1e9);
+  r.threshold_margin =
+      std::min({to_min.min().item<double>(), to_max.min().item<double>(), to_stop.min().item<double>()});
   return r;
 }
 
@@ -207,10 +217,13 @@ double relative_error(const at::Tensor& a, const at::Tensor& b) {
 std::vector<std::pair<std::string, at::Tensor*>> differentiable_inputs(TestScene& s) {
   std::vector<std::pair<std::string, at::Tensor*>> out;
   Gaussians& g = s.gaussians;
-  for (auto& [name, t] : std::vector<std::pair<std::string, at::Tensor*>>{
-           {"means", &g.means}, {"scales", &g.scales}, {"rotations", &g.rotations},
-           {"covariances", &g.covariances}, {"opacities", &g.opacities}, {"features", &g.features},
-           {"background", &s.background}})
+  for (auto& [name, t] : std::vector<std::pair<std::string, at::Tensor*>>{{"means", &g.means},
+                                                                          {"scales", &g.scales},
+                                                                          {"rotations", &g.rotations},
+                                                                          {"covariances", &g.covariances},
+                                                                          {"opacities", &g.opacities},
+                                                                          {"features", &g.features},
+                                                                          {"background", &s.background}})
     if (t->defined()) out.emplace_back(name, t);
   return out;
 }

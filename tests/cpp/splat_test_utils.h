@@ -21,7 +21,7 @@ struct SceneSpec {
   int64_t width = 37;
   int64_t height = 29;
   int64_t channels = 3;
-  bool covariances = false;    // covariances (N,6) instead of scales + rotations
+  bool covariances = false;  // covariances (N,6) instead of scales + rotations
   double min_opacity = 0.15;
   double max_opacity = 0.7;
   double min_footprint_px = 1.5;  // projected standard deviation range

@@ -41,8 +41,8 @@ TEST(Animator, CpuFrameEqualsTheAvatarPosedAndRenderedDirectly) {
   const at::Tensor image = animator.render(pose);
 
   at::NoGradGuard no_grad;
-  const at::Tensor direct = render(model::to_gaussians(avatar->forward(pose, std::nullopt)), background,
-                                   front_camera()).image;
+  const at::Tensor direct =
+      render(model::to_gaussians(avatar->forward(pose, std::nullopt)), background, front_camera()).image;
   // The Animator splats in the camera's frame (a graph's camera is an input): equal up to float rounding.
   EXPECT_LT((image - direct).abs().max().item<double>(), 1e-5);
   EXPECT_GT((image - 0.25).abs().max().item<double>(), 0.1) << "the body is in view";
@@ -92,10 +92,10 @@ TEST(Animator, GaussiansMovedIntoTheCameraFrameRenderAsSeenByTheCamera) {
   g.means = at::randn({n, 3}, at::kDouble) * 0.3;
   const at::Tensor a = at::randn({n, 3, 3}, at::kDouble) * 0.05;
   const at::Tensor full = at::matmul(a, a.transpose(1, 2)) + 1e-4 * at::eye(3, at::kDouble);
-  g.covariances = at::stack({full.select(1, 0).select(1, 0), full.select(1, 0).select(1, 1),
-                             full.select(1, 0).select(1, 2), full.select(1, 1).select(1, 1),
-                             full.select(1, 1).select(1, 2), full.select(1, 2).select(1, 2)},
-                            1);
+  g.covariances =
+      at::stack({full.select(1, 0).select(1, 0), full.select(1, 0).select(1, 1), full.select(1, 0).select(1, 2),
+                 full.select(1, 1).select(1, 1), full.select(1, 1).select(1, 2), full.select(1, 2).select(1, 2)},
+                1);
   g.opacities = at::rand({n}, at::kDouble) * 0.9;
   g.features = at::rand({n, 3}, at::kDouble);
   Camera camera = Camera::looking_forward(80, 64, 48);
@@ -187,8 +187,9 @@ TEST(Animator, RefusesNonFinitePosesAndBadBackgroundsOrCameras) {
     }
     return std::string("no error");
   };
-  EXPECT_NE(message([&] { animate::Animator(avatar, front_camera(), at::zeros({4})); })
-                .find("background must be a floating (3) tensor"),
+  EXPECT_NE(message([&] {
+              animate::Animator(avatar, front_camera(), at::zeros({4}));
+            }).find("background must be a floating (3) tensor"),
             std::string::npos);
   Camera bad = front_camera();
   bad.fx = -1;

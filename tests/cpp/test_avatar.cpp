@@ -183,7 +183,8 @@ TEST(Avatar, CachedInferenceEqualsUncached) {
     // a and b share a time, c is a's pose at another time.
     const body::SmplxPose a = test_pose(4, 0.4, true), b = test_pose(5, 0.4, true), c = a;
     const double ab_time = 0.3, c_time = -0.7;
-    const AvatarOutput ua = avatar->forward(a, ab_time), ub = avatar->forward(b, ab_time), uc = avatar->forward(c, c_time);
+    const AvatarOutput ua = avatar->forward(a, ab_time), ub = avatar->forward(b, ab_time),
+                       uc = avatar->forward(c, c_time);
     avatar->cache_static_features();
     for (int repeat = 0; repeat < 2; ++repeat) {  // first fills the time-dependent part, then reuses it
       expect_identical(avatar->forward(a, ab_time), ua);
@@ -203,12 +204,20 @@ TEST(Avatar, OwnsItsBuffersAndLeavesTheCallersBodyAlone) {
   const model::AvatarBody& body = procedural_avatar_body();
   const auto& x = body.smplx;
   const std::vector<std::pair<const char*, at::Tensor>> callers = {
-      {"smplx.v_template", x.v_template}, {"smplx.faces", x.faces},       {"smplx.weights", x.weights},
-      {"smplx.j_regressor", x.j_regressor}, {"smplx.shapedirs", x.shapedirs}, {"smplx.exprdirs", x.exprdirs},
-      {"smplx.posedirs", x.posedirs},     {"smplx.part_labels", x.part_labels},
-      {"smplx.hands_mean_left", x.hands_mean_left}, {"mano_left.v_template", body.mano_left.v_template},
-      {"mano_right.faces", body.mano_right.faces}, {"hand_vertex_ids.left", body.hand_vertex_ids.left},
-      {"hand_vertex_ids.right", body.hand_vertex_ids.right}, {"face_vertex_ids", body.face_vertex_ids}};
+      {"smplx.v_template", x.v_template},
+      {"smplx.faces", x.faces},
+      {"smplx.weights", x.weights},
+      {"smplx.j_regressor", x.j_regressor},
+      {"smplx.shapedirs", x.shapedirs},
+      {"smplx.exprdirs", x.exprdirs},
+      {"smplx.posedirs", x.posedirs},
+      {"smplx.part_labels", x.part_labels},
+      {"smplx.hands_mean_left", x.hands_mean_left},
+      {"mano_left.v_template", body.mano_left.v_template},
+      {"mano_right.faces", body.mano_right.faces},
+      {"hand_vertex_ids.left", body.hand_vertex_ids.left},
+      {"hand_vertex_ids.right", body.hand_vertex_ids.right},
+      {"face_vertex_ids", body.face_vertex_ids}};
   std::vector<std::pair<std::string, at::ScalarType>> before;
   for (const auto& [name, t] : callers) before.emplace_back(name, t.defined() ? t.scalar_type() : at::kByte);
   Avatar avatar(body, subject_betas(), small_config());

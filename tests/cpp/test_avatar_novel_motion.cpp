@@ -1,6 +1,7 @@
 // What makes an avatar hold up on motions it never saw: the time branch and the colour offset can be left out (and
-// then truly are), the observation record of training reaches the avatar, and the observation prior replaces the learned colour and
-// offsets of poorly observed Gaussians only, with colours propagated over the mesh from the observed surface.
+// then truly are), the observation record of training reaches the avatar, and the observation prior replaces the
+// learned colour and offsets of poorly observed Gaussians only, with colours propagated over the mesh from the observed
+// surface.
 #include <cmath>
 
 #include <ATen/ATen.h>
@@ -59,8 +60,10 @@ TEST(AvatarObservation, PropagationKeepsObservedValuesAndFillsTheRestFromThem) {
 TEST(AvatarObservation, FrameObservationCountsFrontFacingUnoccludedPointsInView) {
   Camera camera = Camera::looking_forward(100.0, 100, 100);  // at the origin, looking along +z
   // Facing the camera in view; occluded (behind the rendered surface); facing away; outside the image.
-  const at::Tensor means = at::tensor({0.0, 0.0, 2.0, 0.1, 0.0, 2.5, -0.1, 0.0, 2.0, 3.0, 0.0, 2.0}, at::kFloat).view({4, 3});
-  const at::Tensor normals = at::tensor({0.0, 0.0, -1.0, 0.0, 0.0, -1.0, 0.0, 0.0, 1.0, 0.0, 0.0, -1.0}, at::kFloat).view({4, 3});
+  const at::Tensor means =
+      at::tensor({0.0, 0.0, 2.0, 0.1, 0.0, 2.5, -0.1, 0.0, 2.0, 3.0, 0.0, 2.0}, at::kFloat).view({4, 3});
+  const at::Tensor normals =
+      at::tensor({0.0, 0.0, -1.0, 0.0, 0.0, -1.0, 0.0, 0.0, 1.0, 0.0, 0.0, -1.0}, at::kFloat).view({4, 3});
   const at::Tensor depth = at::full({100, 100}, 2.0f);
   const at::Tensor seen = model::frame_observation(means, normals, depth, camera);
   EXPECT_NEAR(seen[0].item<float>(), 1.0f, 1e-6f);

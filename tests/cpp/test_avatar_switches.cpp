@@ -24,8 +24,7 @@ struct Pair {
 };
 
 // A full avatar with random parameters, and one with `ablate` applied to its config sharing them.
-template <typename Ablate>
-Pair full_and_ablated(const Ablate& ablate) {
+template <typename Ablate> Pair full_and_ablated(const Ablate& ablate) {
   Pair p;
   p.full = Avatar(procedural_avatar_body(), subject_betas(), small_config());
   randomise_parameters(*p.full, 0.1, 21);

@@ -226,7 +226,8 @@ TEST(BodySmplx, HandPcaIsTheComponentsTimesTheCoefficientsPlusTheMean) {
   as_full.pose.right_hand_pose = in.pose.right_hand_pose.matmul(d.hands_components_right.narrow(0, 0, 6));
   const auto a = pca->forward(in), b = full->forward(as_full);
   EXPECT_LT(max_error(a.vertices, b.vertices), 1e-12);
-  EXPECT_LT(max_error(a.full_pose.narrow(1, 25, 15).flatten(1), as_full.pose.left_hand_pose + d.hands_mean_left), 1e-14);
+  EXPECT_LT(max_error(a.full_pose.narrow(1, 25, 15).flatten(1), as_full.pose.left_hand_pose + d.hands_mean_left),
+            1e-14);
 }
 
 TEST(BodySmplx, AnnyHandPcaWithIdentityComponentsEqualsTheFullPose) {
@@ -291,7 +292,8 @@ TEST(BodySmplx, ConvertingAModuleLeavesTheModelDataAndOtherModulesAlone) {
                                                               {&in.pose.expression, &as_float.pose.expression}}) {
     *target = source->to(at::kFloat);
   }
-  in.pose.global_orient = in.pose.jaw_pose = in.pose.leye_pose = in.pose.reye_pose = in.pose.right_hand_pose = in.pose.transl = at::Tensor();
+  in.pose.global_orient = in.pose.jaw_pose = in.pose.leye_pose = in.pose.reye_pose = in.pose.right_hand_pose =
+      in.pose.transl = at::Tensor();
   EXPECT_LT(max_error(converted->forward(as_float).vertices.to(at::kDouble), untouched->forward(in).vertices), 1e-5);
 }
 

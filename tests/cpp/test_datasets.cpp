@@ -143,8 +143,9 @@ TEST(SfgsDataset, BadCamerasAndPoseValuesInTheIndexAreNamed) {
   j["frames"][1]["camera"]["world_to_camera"] = {0, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
   write_text(index, j.dump());
   expect_error_mentioning([&] { read_dataset(dir.str()); },
-                          "frame '" + d.frames[1].name + "' camera: the rotation part of world_to_camera must be "
-                          "orthonormal with determinant +1");
+                          "frame '" + d.frames[1].name +
+                              "' camera: the rotation part of world_to_camera must be "
+                              "orthonormal with determinant +1");
   j = nlohmann::json::parse(std::ifstream(index));
   j["frames"][1]["camera"]["world_to_camera"] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
   j["frames"][0]["smplx"]["transl"] = {0, 12345.5, 0};
@@ -161,9 +162,10 @@ TEST(SfgsDataset, IndexPathsStayInsideTheDatasetFolder) {
   write_sfgs_dataset(d, dir.str(), true);
   const std::string index = dir.str() + "/dataset.json";
   const nlohmann::json written = nlohmann::json::parse(std::ifstream(index));
-  for (const auto& [field, path] : std::vector<std::pair<std::string, std::string>>{
-           {"image", "../other/frame0.png"}, {"image", "/etc/passwd"}, {"mask", "masks/../../m.png"},
-           {"keypoints", "/tmp/k.json"}}) {
+  for (const auto& [field, path] : std::vector<std::pair<std::string, std::string>>{{"image", "../other/frame0.png"},
+                                                                                    {"image", "/etc/passwd"},
+                                                                                    {"mask", "masks/../../m.png"},
+                                                                                    {"keypoints", "/tmp/k.json"}}) {
     nlohmann::json j = written;
     j["frames"][1][field] = path;
     write_text(index, j.dump());

@@ -36,9 +36,9 @@ TEST(MeshPropagation, EqualsItsDefinitionOnABodyWithADetachedPart) {
   const mesh_propagation::Plan single = mesh_propagation::plan(c.trust, c.neighbours, at::kCPU, at::kFloat);
   const at::Tensor values = at::randn({n, 3}, g, at::TensorOptions(at::kDouble));
   const at::Tensor expected = propagation_by_definition(values, c.trust, c.neighbours, kObservationSmoothingPasses);
-  EXPECT_LT(max_difference(mesh_propagation::propagate(values.to(at::kFloat), single, kObservationSmoothingPasses),
-                           expected),
-            1e-5);
+  EXPECT_LT(
+      max_difference(mesh_propagation::propagate(values.to(at::kFloat), single, kObservationSmoothingPasses), expected),
+      1e-5);
 }
 
 TEST(MeshPropagation, TrustedPointsAndUnreachedPartsKeepTheirValues) {

@@ -16,7 +16,9 @@ at::Tensor uv_texture() {
   const at::Tensor u = (at::arange(kTexels, at::kFloat) + 0.5f) / kTexels;
   const at::Tensor v = 1.0f - (at::arange(kTexels, at::kFloat) + 0.5f) / kTexels;
   return at::stack({u.unsqueeze(0).expand({kTexels, kTexels}), v.unsqueeze(1).expand({kTexels, kTexels}),
-                    at::full({kTexels, kTexels}, 0.5f)}, 2).contiguous();
+                    at::full({kTexels, kTexels}, 0.5f)},
+                   2)
+      .contiguous();
 }
 
 // Unit square in the plane through `centre`, spanned by `right` and `down`, textured u along right, v against down.
@@ -40,8 +42,9 @@ MeshShading flat() {
 
 TEST(MeshRenderer, SquareCoversExactlyItsPixelCentres) {
   const Camera camera = Camera::looking_forward(40.0, 41, 41);  // the square spans x, y in [10.5, 30.5]
-  const TexturedMesh square = textured_square(at::tensor({0.0, 0.0, 2.0}, at::kDouble), at::tensor({1.0, 0.0, 0.0}, at::kDouble),
-                                              at::tensor({0.0, 1.0, 0.0}, at::kDouble));
+  const TexturedMesh square =
+      textured_square(at::tensor({0.0, 0.0, 2.0}, at::kDouble), at::tensor({1.0, 0.0, 0.0}, at::kDouble),
+                      at::tensor({0.0, 1.0, 0.0}, at::kDouble));
   const MeshImage r = render_mesh(square, camera, at::zeros({3}), flat());
   // Centres 10.5 .. 29.5 in each axis: the left/top edges through centres are included, right/bottom excluded, and
   // the diagonal shared by both triangles is covered once (no gap, no double count shows as face -1).
@@ -86,11 +89,15 @@ TEST(MeshRenderer, CubeSilhouetteIsItsFrontFace) {
   // Axis-aligned unit cube centred 4 m ahead: the silhouette is the front face, 100 * 0.5 / 3.5 px half-wide, whose
   // pixel centres 86.5 .. 113.5 give 28 x 28 covered pixels.
   const at::Tensor corners = at::tensor({-0.5, -0.5, 3.5, 0.5, -0.5, 3.5, 0.5, 0.5, 3.5, -0.5, 0.5, 3.5,
-                                         -0.5, -0.5, 4.5, 0.5, -0.5, 4.5, 0.5, 0.5, 4.5, -0.5, 0.5, 4.5}, at::kDouble).view({8, 3});
+                                         -0.5, -0.5, 4.5, 0.5, -0.5, 4.5, 0.5, 0.5, 4.5, -0.5, 0.5, 4.5},
+                                        at::kDouble)
+                                 .view({8, 3});
   TexturedMesh cube;
   cube.vertices = corners;
   cube.faces = at::tensor({0, 1, 2, 0, 2, 3, 4, 6, 5, 4, 7, 6, 0, 4, 5, 0, 5, 1,
-                           1, 5, 6, 1, 6, 2, 2, 6, 7, 2, 7, 3, 3, 7, 4, 3, 4, 0}, at::kLong).view({12, 3});
+                           1, 5, 6, 1, 6, 2, 2, 6, 7, 2, 7, 3, 3, 7, 4, 3, 4, 0},
+                          at::kLong)
+                   .view({12, 3});
   const MeshImage r = render_mesh(cube, Camera::looking_forward(100.0, 200, 200), at::ones({3}));
   EXPECT_EQ(r.mask.sum().item<double>(), 28.0 * 28.0);
   EXPECT_LE((r.depth.masked_select(r.mask > 0) - 3.5).abs().max().item<float>(), 1e-5f);

@@ -64,8 +64,8 @@ TEST(MetricsRegions, RegionPsnrIsThePsnrOfTheRegionsPixelsAndTinyRegionsDoNotCou
 // Two triangles making a square in front of the camera, split along its diagonal: the first is body and seen, the
 // second face and unseen.
 struct TwoTriangles {
-  at::Tensor vertices = at::tensor({-1.0, -1.0, 0.0, 1.0, -1.0, 0.0, 1.0, 1.0, 0.0, -1.0, 1.0, 0.0}, at::kDouble)
-                            .view({4, 3});
+  at::Tensor vertices =
+      at::tensor({-1.0, -1.0, 0.0, 1.0, -1.0, 0.0, 1.0, 1.0, 0.0, -1.0, 1.0, 0.0}, at::kDouble).view({4, 3});
   train::RegionTruth truth;
   Camera camera = Camera::looking_forward(40.0, 64, 64);
   TwoTriangles() {
@@ -92,8 +92,7 @@ TEST(MetricsRegions, MasksLabelEachPixelByItsVisibleTriangle) {
   EXPECT_TRUE(mask("face").equal(mask("unseen")));
   EXPECT_EQ(mask("hands").sum().item<int64_t>(), 0);
   EXPECT_EQ((mask("body") & mask("face")).sum().item<int64_t>(), 0) << "a pixel belongs to one triangle";
-  EXPECT_EQ(mask("body").slice(0, 0, 32).sum().item<int64_t>() + mask("face").slice(0, 0, 32).sum().item<int64_t>(),
-            0)
+  EXPECT_EQ(mask("body").slice(0, 0, 32).sum().item<int64_t>() + mask("face").slice(0, 0, 32).sum().item<int64_t>(), 0)
       << "outside the evaluation mask nothing counts";
   // The square covers the 16 x 16 pixel centres around the image centre (x, y in [-1, 1] at distance 5, focal 40:
   // column = 8x + 32, row = 32 - 8y); the first triangle is where x > y. Row 38, column 38 (x = 0.81, y = -0.81) is

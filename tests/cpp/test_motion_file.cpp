@@ -233,8 +233,8 @@ TEST(MotionFile, ExavatarFolderTurnsTheCameraFrameIntoTheAvatars) {
   EXPECT_FALSE(clip.absolute_hands);
   EXPECT_EQ(clip.frames_per_second, 30.0);
   // Upright and facing +z in the avatar's frame: the identity; in front of the camera: -z.
-  EXPECT_TRUE(at::allclose(body::axis_angle_to_matrix(clip.poses[0].global_orient), at::eye(3, at::kDouble), 1e-5,
-                           1e-5));
+  EXPECT_TRUE(
+      at::allclose(body::axis_angle_to_matrix(clip.poses[0].global_orient), at::eye(3, at::kDouble), 1e-5, 1e-5));
   EXPECT_TRUE(at::allclose(clip.poses[0].transl, at::tensor({0.0, 0.0, -3.0}, at::kDouble), 1e-5, 1e-5));
 }
 
@@ -280,13 +280,16 @@ TEST(MotionFile, BoundsWhatAMotionMayHoldBeforeAnyWork) {
   // Poses and translations that are not a body's.
   at::Tensor huge = at::zeros({2, 165});
   huge[1][9] = 1e30;
-  expect_error_mentioning([&] { data::read_amass(write("huge.npz", {{"poses", huge}, {"mocap_frame_rate", rate}})); },
-                          "joint rotations beyond 100 rad are not a body's motion");
   expect_error_mentioning(
       [&] {
-        data::read_amass(write("far.npz", {{"poses", at::zeros({2, 165})},
-                                           {"trans", at::full({2, 3}, 1e30)},
-                                           {"mocap_frame_rate", rate}}));
+        data::read_amass(write("huge.npz", {{"poses", huge}, {"mocap_frame_rate", rate}}));
+      },
+      "joint rotations beyond 100 rad are not a body's motion");
+  expect_error_mentioning(
+      [&] {
+        data::read_amass(
+            write("far.npz",
+                  {{"poses", at::zeros({2, 165})}, {"trans", at::full({2, 3}, 1e30)}, {"mocap_frame_rate", rate}}));
       },
       "translations beyond 10000 m");
   // A long capture: only the seconds asked for are built (and the next frame, which they interpolate towards).
@@ -310,8 +313,8 @@ TEST(MotionFile, ExavatarFoldersMustHoldConsecutiveFramesAndRotations) {
   fs::remove(fs::path(gap) / "smplx_optimized" / "smplx_params_smoothed" / "8.json");
   expect_error_mentioning([&] { data::read_motion(gap); }, "jumps from frame 7 to 9 (8.json is missing)");
   for (const double scale : {0.0, 2.0}) {  // R = 0 and R = 2 I
-    const std::string folder = exavatar_folder(
-        "exavatar_bad_camera", {pose}, {{at::eye(3, at::kDouble) * scale, at::zeros({3}, at::kDouble)}});
+    const std::string folder = exavatar_folder("exavatar_bad_camera", {pose},
+                                               {{at::eye(3, at::kDouble) * scale, at::zeros({3}, at::kDouble)}});
     expect_error_mentioning([&] { data::read_motion(folder); },
                             "the rotation part of world_to_camera must be orthonormal with determinant +1");
   }

@@ -20,7 +20,8 @@ ProjectedGaussian<double> random_projected(std::mt19937& rng) {
   // Random SPD 2x2 covariance with axes up to 30 px and any orientation.
   const double s1 = 0.5 + 30 * u(rng), s2 = 0.5 + 30 * u(rng), t = 3.14159 * u(rng);
   const double c = std::cos(t), s = std::sin(t);
-  const double a = c * c * s1 * s1 + s * s * s2 * s2, b = c * s * (s1 * s1 - s2 * s2), d = s * s * s1 * s1 + c * c * s2 * s2;
+  const double a = c * c * s1 * s1 + s * s * s2 * s2, b = c * s * (s1 * s1 - s2 * s2),
+               d = s * s * s1 * s1 + c * c * s2 * s2;
   const double det = a * d - b * b;
   ProjectedGaussian<double> g;
   g.mean = Vec2<double>(-20 + 140 * u(rng), -20 + 120 * u(rng));

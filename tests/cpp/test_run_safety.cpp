@@ -255,8 +255,10 @@ TEST(TrainerResume, RewindsTheLogAndRemovesWhatAKilledRunLeft) {
   const train::RunFolder run = paused_run(folder, dataset);
   {
     std::ofstream log(run.log_file(), std::ios::app);
-    log << R"({"event":"step","iteration":4,"loss":{"total":1}})" << "\n"
-        << R"({"event":"step","iteration":5,"loss":{"total":1}})" << "\n"
+    log << R"({"event":"step","iteration":4,"loss":{"total":1}})"
+        << "\n"
+        << R"({"event":"step","iteration":5,"loss":{"total":1}})"
+        << "\n"
         << R"({"event":"step","itera)";
   }
   const std::string stale = run.checkpoint_file() + ".tmp-999999999";  // above any pid the kernel hands out

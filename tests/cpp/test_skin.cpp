@@ -39,8 +39,8 @@ double max_difference(const at::Tensor& a, const at::Tensor& b) { return (a - b)
 TEST(SkinOp, MatchesTheLibTorchReferenceInFloat64AndFloat32) {
   for (const auto dtype : {at::kDouble, at::kFloat}) {
     const Scene s = random_scene(300, 9, dtype, 1);
-    const skin::SkinnedGaussians fused = skin::skin_gaussians(skin::SkinningWeights::from_dense(s.dense),
-                                                              s.transforms, s.means, s.log_scales, s.rest);
+    const skin::SkinnedGaussians fused =
+        skin::skin_gaussians(skin::SkinningWeights::from_dense(s.dense), s.transforms, s.means, s.log_scales, s.rest);
     const skin::SkinnedGaussians reference =
         skin::skinning_reference(s.dense, s.transforms, s.means, s.log_scales, s.rest);
     const double bound = dtype == at::kDouble ? 1e-12 : 1e-5;
@@ -64,9 +64,8 @@ TEST(SkinOp, GradientsMatchTheReferenceAndFiniteDifferences) {
     const at::Tensor means = s.means.clone().requires_grad_(true);
     const at::Tensor log_scales = s.log_scales.clone().requires_grad_(true);
     const at::Tensor rest = s.rest.clone().requires_grad_(true);
-    const skin::SkinnedGaussians out =
-        fused ? skin::skin_gaussians(weights, s.transforms, means, log_scales, rest)
-              : skin::skinning_reference(s.dense, s.transforms, means, log_scales, rest);
+    const skin::SkinnedGaussians out = fused ? skin::skin_gaussians(weights, s.transforms, means, log_scales, rest)
+                                             : skin::skinning_reference(s.dense, s.transforms, means, log_scales, rest);
     return torch::autograd::grad({loss_of(out)}, {means, log_scales, rest});
   };
   const auto fused = gradients(true), reference = gradients(false);
@@ -99,8 +98,8 @@ TEST(SkinOp, GradientsMatchTheReferenceAndFiniteDifferences) {
 TEST(SkinOp, TransformsThatNeedAGradientGetOneThroughTheReference) {
   const Scene s = random_scene(30, 5, at::kDouble, 3);
   const at::Tensor transforms = s.transforms.clone().requires_grad_(true);
-  const skin::SkinnedGaussians out = skin::skin_gaussians(skin::SkinningWeights::from_dense(s.dense), transforms,
-                                                          s.means, s.log_scales, s.rest);
+  const skin::SkinnedGaussians out =
+      skin::skin_gaussians(skin::SkinningWeights::from_dense(s.dense), transforms, s.means, s.log_scales, s.rest);
   const at::Tensor grad = torch::autograd::grad({out.means.sum() + out.posed_rest.sum()}, {transforms})[0];
   EXPECT_GT(grad.abs().sum().item<double>(), 0);
   // Rows 0-2 of every used joint receive a gradient; the unread last row none.
@@ -126,14 +125,17 @@ TEST(SkinOp, RefusesBadInputsWithClearErrors) {
     }
     return std::string("no error");
   };
-  EXPECT_NE(message([&] { skin::skin_gaussians(weights, s.transforms.narrow(0, 0, 3), s.means, s.log_scales); })
-                .find("transforms must have shape (4, 4, 4)"),
+  EXPECT_NE(message([&] {
+              skin::skin_gaussians(weights, s.transforms.narrow(0, 0, 3), s.means, s.log_scales);
+            }).find("transforms must have shape (4, 4, 4)"),
             std::string::npos);
-  EXPECT_NE(message([&] { skin::skin_gaussians(weights, s.transforms, s.means.narrow(0, 0, 9), s.log_scales); })
-                .find("canonical_means must have shape (10, 3)"),
+  EXPECT_NE(message([&] {
+              skin::skin_gaussians(weights, s.transforms, s.means.narrow(0, 0, 9), s.log_scales);
+            }).find("canonical_means must have shape (10, 3)"),
             std::string::npos);
-  EXPECT_NE(message([&] { skin::skin_gaussians(weights, s.transforms, s.means.to(at::kDouble), s.log_scales); })
-                .find("canonical_means must be Float"),
+  EXPECT_NE(message([&] {
+              skin::skin_gaussians(weights, s.transforms, s.means.to(at::kDouble), s.log_scales);
+            }).find("canonical_means must be Float"),
             std::string::npos);
   EXPECT_NE(message([&] { skin::SkinningWeights::from_dense(at::ones({3})); }).find("floating (N, J)"),
             std::string::npos);

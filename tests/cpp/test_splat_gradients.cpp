@@ -59,8 +59,7 @@ TEST_P(SplatGradients, GradientsEqualReferenceAutograd) {
   const auto ours = torch::autograd::grad({weighted_loss(r.image, r.alpha, r.depth, w)}, leaves);
   const ReferenceImage ref = reference_render(s.gaussians, s.background, s.camera, options());
   const auto theirs = torch::autograd::grad({weighted_loss(ref.image, ref.alpha, ref.depth, w)}, leaves);
-  for (size_t i = 0; i < leaves.size(); ++i)
-    EXPECT_LE(relative_error(ours[i], theirs[i]), 1e-9) << inputs[i].first;
+  for (size_t i = 0; i < leaves.size(); ++i) EXPECT_LE(relative_error(ours[i], theirs[i]), 1e-9) << inputs[i].first;
 }
 
 TEST_P(SplatGradients, GradientsEqualFiniteDifferences) {
@@ -107,15 +106,14 @@ TEST_P(SplatGradients, Float32AgreesWithFloat64) {
   for (size_t i = 1; i < g64.size(); ++i) EXPECT_LE(relative_error(g32[i], g64[i]), 1e-4) << names[i - 1].first;
 }
 
-INSTANTIATE_TEST_SUITE_P(
-    Cases, SplatGradients,
-    ::testing::Values(GradientCase{"scales_rotations", false, true, false, 3},
-                      GradientCase{"covariances", true, true, false, 3},
-                      GradientCase{"antialiased", false, true, true, 3},
-                      GradientCase{"no_low_pass", false, false, false, 3},
-                      GradientCase{"one_channel", false, true, false, 1},
-                      GradientCase{"five_channels_covariances_antialiased", true, true, true, 5}),
-    [](const ::testing::TestParamInfo<GradientCase>& info) { return info.param.name; });
+INSTANTIATE_TEST_SUITE_P(Cases, SplatGradients,
+                         ::testing::Values(GradientCase{"scales_rotations", false, true, false, 3},
+                                           GradientCase{"covariances", true, true, false, 3},
+                                           GradientCase{"antialiased", false, true, true, 3},
+                                           GradientCase{"no_low_pass", false, false, false, 3},
+                                           GradientCase{"one_channel", false, true, false, 1},
+                                           GradientCase{"five_channels_covariances_antialiased", true, true, true, 5}),
+                         [](const ::testing::TestParamInfo<GradientCase>& info) { return info.param.name; });
 
 }  // namespace
 }  // namespace sfgs::testing

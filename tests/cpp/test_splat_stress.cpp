@@ -74,11 +74,11 @@ TEST(SplatStress, SingularAndIndefiniteCovariances) {
   SceneSpec spec;
   spec.covariances = true;
   TestScene s = random_scene(spec, 5);
-  set_row(s.gaussians.covariances, 0, {1e-4, 0, 0, 0, 0, 0});                 // rank 1: a needle
-  set_row(s.gaussians.covariances, 1, {1e-4, 0, 0, 1e-4, 0, 0});             // rank 2: a disc seen face-on
-  set_row(s.gaussians.covariances, 2, {1e-4, 2e-4, 0, 1e-4, 0, 1e-4});       // indefinite (eigenvalue -1e-4)
-  set_row(s.gaussians.covariances, 3, {-1e-4, 0, 0, 1e-4, 0, 1e-4});         // negative variance
-  set_row(s.gaussians.covariances, 4, {0, 0, 0, 0, 0, 0});                   // a point
+  set_row(s.gaussians.covariances, 0, {1e-4, 0, 0, 0, 0, 0});           // rank 1: a needle
+  set_row(s.gaussians.covariances, 1, {1e-4, 0, 0, 1e-4, 0, 0});        // rank 2: a disc seen face-on
+  set_row(s.gaussians.covariances, 2, {1e-4, 2e-4, 0, 1e-4, 0, 1e-4});  // indefinite (eigenvalue -1e-4)
+  set_row(s.gaussians.covariances, 3, {-1e-4, 0, 0, 1e-4, 0, 1e-4});    // negative variance
+  set_row(s.gaussians.covariances, 4, {0, 0, 0, 0, 0, 0});              // a point
   const StressResult r = render_and_check(s);
   EXPECT_TRUE(r.render.visible[0].item<bool>());
   EXPECT_TRUE(r.render.visible[1].item<bool>());
@@ -144,11 +144,11 @@ TEST(SplatStress, ThousandsOfGaussiansOnOnePixel) {
   const int64_t n = 5000;
   TestScene s = base_scene(n);
   s.camera = Camera::looking_forward(40.0, 9, 7);
-  s.gaussians.means = at::tensor({0.0, 0.0, 2.0}, at::kDouble).repeat({n, 1}) +
-                      1e-3 * at::randn({n, 3}, at::kDouble);
+  s.gaussians.means = at::tensor({0.0, 0.0, 2.0}, at::kDouble).repeat({n, 1}) + 1e-3 * at::randn({n, 3}, at::kDouble);
   s.gaussians.scales = at::full({n, 3}, 0.002, at::kDouble);
   const StressResult r = render_and_check(s);
-  // Blending stops once T would drop below 1e-4; the last blended alpha is at most 0.7, so T ends in [1e-4, 1e-4 / 0.3].
+  // Blending stops once T would drop below 1e-4; the last blended alpha is at most 0.7, so T ends in [1e-4, 1e-4 /
+  // 0.3].
   EXPECT_NEAR(r.render.alpha[3][4].item<double>(), 1.0 - kMinTransmittance, 3e-4);
 }
 

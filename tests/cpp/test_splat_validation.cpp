@@ -33,8 +33,11 @@ TEST(SplatValidation, ShapesAreChecked) {
                "scales must have shape (4, 3)");
   expect_error([](TestScene& s) { s.gaussians.rotations = s.gaussians.rotations.narrow(1, 0, 3); },
                "rotations must have shape (4, 4)");
-  expect_error([](TestScene& s) { s.gaussians.opacities = s.gaussians.opacities.view({2, 2}); },
-               "opacities must have shape (N) or (N, 1) with N = 4");
+  expect_error(
+      [](TestScene& s) {
+        s.gaussians.opacities = s.gaussians.opacities.view({2, 2});
+      },
+      "opacities must have shape (N) or (N, 1) with N = 4");
   expect_error([](TestScene& s) { s.gaussians.features = s.gaussians.features.view({-1}); },
                "features must have shape (4, C)");
   expect_error([](TestScene& s) { s.gaussians.features = s.gaussians.features.narrow(1, 0, 0); },
@@ -59,8 +62,11 @@ TEST(SplatValidation, DtypesAndDevicesAreChecked) {
   expect_error([](TestScene& s) { s.gaussians.scales = s.gaussians.scales.to(at::kFloat); },
                "scales must have the dtype of means (Double), got a Float tensor");
   expect_error([](TestScene& s) { s.background = s.background.to(at::kFloat); }, "background must have the dtype");
-  expect_error([](TestScene& s) { s.gaussians.means = at::empty({4, 3}, at::TensorOptions(at::kMeta).dtype(at::kDouble)); },
-               "must be on the CPU or a CUDA device");
+  expect_error(
+      [](TestScene& s) {
+        s.gaussians.means = at::empty({4, 3}, at::TensorOptions(at::kMeta).dtype(at::kDouble));
+      },
+      "must be on the CPU or a CUDA device");
 }
 
 TEST(SplatValidation, CameraIsChecked) {
@@ -85,7 +91,11 @@ TEST(SplatValidation, SingularOrImproperRotationsAreRefused) {
       for (int j = 0; j < 3; ++j) s.camera.world_to_camera[size_t(4 * i + j)] = r[size_t(3 * i + j)];
   };
   const std::string message = "rotation part of world_to_camera must be orthonormal with determinant +1";
-  expect_error([&](TestScene& s) { set_rotation(s, {0, 0, 0, 0, 0, 0, 0, 0, 0}); }, message + " (max |R R^T - I| <= 0.0001), got max |R R^T - I| = 1 and det R = 0");
+  expect_error(
+      [&](TestScene& s) {
+        set_rotation(s, {0, 0, 0, 0, 0, 0, 0, 0, 0});
+      },
+      message + " (max |R R^T - I| <= 0.0001), got max |R R^T - I| = 1 and det R = 0");
   expect_error([&](TestScene& s) { set_rotation(s, {1, 0, 0, 0, 0, 0, 0, 0, 1}); }, message);
   expect_error([&](TestScene& s) { set_rotation(s, {1, 0, 0, 1, 0, 0, 1, 0, 0}); }, message);
   expect_error([&](TestScene& s) { set_rotation(s, {2, 0, 0, 0, 2, 0, 0, 0, 2}); }, message);

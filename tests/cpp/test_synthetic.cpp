@@ -40,11 +40,13 @@ TEST(SyntheticVideo, WritesAConsistentDatasetWithGroundTruthMeshes) {
     // Every ground-truth vertex projects into the image, and the projected centroid lands on the mask.
     const at::Tensor v = io::read_npy(d.frames[size_t(i)].mesh_path).to(at::kDouble);
     const auto& m = d.frames[size_t(i)].camera.world_to_camera;
-    const at::Tensor r = at::tensor(std::vector<double>{m[0], m[1], m[2], m[4], m[5], m[6], m[8], m[9], m[10]}).view({3, 3});
+    const at::Tensor r =
+        at::tensor(std::vector<double>{m[0], m[1], m[2], m[4], m[5], m[6], m[8], m[9], m[10]}).view({3, 3});
     const at::Tensor t = at::tensor(std::vector<double>{m[3], m[7], m[11]});
     const at::Tensor p = v.matmul(r.t()) + t;
     const Camera& c = d.frames[size_t(i)].camera;
-    const at::Tensor u = c.fx * p.select(1, 0) / p.select(1, 2) + c.cx, w = c.fy * p.select(1, 1) / p.select(1, 2) + c.cy;
+    const at::Tensor u = c.fx * p.select(1, 0) / p.select(1, 2) + c.cx,
+                     w = c.fy * p.select(1, 1) / p.select(1, 2) + c.cy;
     EXPECT_TRUE(((u >= 0) & (u < c.width) & (w >= 0) & (w < c.height)).all().item<bool>()) << "frame " << i;
     const int64_t px = int64_t(u.mean().item<double>()), py = int64_t(w.mean().item<double>());
     EXPECT_EQ(f.mask[py][px].item<float>(), 1.0f);
@@ -133,8 +135,8 @@ TEST(SyntheticVideo, NeumanLayoutPlacesTheSameBodiesInEachCamera) {
   EXPECT_EQ(d.split(Split::kTest), (std::vector<int64_t>{5, 6, 7, 8, 9}));
   EXPECT_EQ(d.split(Split::kTrain), (std::vector<int64_t>{0, 1, 2, 3}));
   EXPECT_EQ(d.split(Split::kVal), (std::vector<int64_t>{4}));
-  for (const char* f : {"keypoints_whole_body/5.json", "ground_truth/shape_param.json", "ground_truth/smplx_params/5.json",
-                        "masks/5.png", "images/00005.png"})
+  for (const char* f : {"keypoints_whole_body/5.json", "ground_truth/shape_param.json",
+                        "ground_truth/smplx_params/5.json", "masks/5.png", "images/00005.png"})
     EXPECT_TRUE(std::filesystem::exists(neuman_dir / f)) << f;
   // Camera-frame fits (hands relative to the mean) posed by SMPL-X equal the sfgs layout's meshes seen by the camera.
   const Dataset world = read_dataset(sfgs_dir.str());
@@ -152,7 +154,8 @@ TEST(SyntheticVideo, NeumanLayoutPlacesTheSameBodiesInEachCamera) {
     const at::Tensor posed = layer->forward(in).vertices[0];
     const at::Tensor mesh = io::read_npy(world.frames[size_t(i)].mesh_path).to(at::kDouble);
     const auto& m = world.frames[size_t(i)].camera.world_to_camera;
-    const at::Tensor rotation = at::tensor(std::vector<double>{m[0], m[1], m[2], m[4], m[5], m[6], m[8], m[9], m[10]}).view({3, 3});
+    const at::Tensor rotation =
+        at::tensor(std::vector<double>{m[0], m[1], m[2], m[4], m[5], m[6], m[8], m[9], m[10]}).view({3, 3});
     const at::Tensor seen = mesh.matmul(rotation.t()) + at::tensor(std::vector<double>{m[3], m[7], m[11]});
     EXPECT_LT((posed - seen).abs().max().item<double>(), 1e-4) << "frame " << i;
   }

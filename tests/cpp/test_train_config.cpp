@@ -31,7 +31,8 @@ TEST(TrainConfig, YamlRoundTripAndOverrides) {
 TEST(TrainConfig, MistakesAreClearErrors) {
   testing::expect_error_mentioning([] { TrainConfig::from_yaml_text("avatar:\n  use_hexplan: false\n"); },
                                    "unknown key 'avatar.use_hexplan'");
-  testing::expect_error_mentioning([] { TrainConfig::from_yaml_text("optimiser: {}\n"); }, "unknown section 'optimiser'");
+  testing::expect_error_mentioning([] { TrainConfig::from_yaml_text("optimiser: {}\n"); },
+                                   "unknown section 'optimiser'");
   testing::expect_error_mentioning([] { TrainConfig::from_yaml_text("schedule:\n  iterations: many\n"); },
                                    "bad value for 'schedule.iterations'");
   testing::expect_error_mentioning([] { TrainConfig::from_yaml_text("schedule:\n  iterations: 0\n"); },
@@ -130,10 +131,11 @@ TEST(TrainSchedule, WarmUpThenStepDecay) {
 }
 
 TEST(TrainLosses, LabOfKnownColours) {
-  const at::Tensor lab = pixel_loss::rgb_to_lab(at::tensor({1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0}, at::kDouble).view({3, 3}));
-  EXPECT_NEAR(lab[0][0].item<double>(), 1.0, 1e-4);   // white: L = 100
+  const at::Tensor lab =
+      pixel_loss::rgb_to_lab(at::tensor({1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0}, at::kDouble).view({3, 3}));
+  EXPECT_NEAR(lab[0][0].item<double>(), 1.0, 1e-4);  // white: L = 100
   EXPECT_NEAR(lab[0][1].item<double>(), 0.0, 1e-4);
-  EXPECT_NEAR(lab[1][0].item<double>(), 0.0, 1e-9);   // black: L = 0
+  EXPECT_NEAR(lab[1][0].item<double>(), 0.0, 1e-9);          // black: L = 0
   EXPECT_NEAR(lab[2][0].item<double>(), 53.24 / 100, 1e-3);  // sRGB red: L 53.24, a 80.09, b 67.20
   EXPECT_NEAR(lab[2][1].item<double>(), 80.09 / 110, 2e-3);
   EXPECT_NEAR(lab[2][2].item<double>(), 67.20 / 110, 2e-3);

@@ -1,6 +1,6 @@
 // The trainer (csrc/train/trainer.h) on a tiny synthetic video: training lowers the loss and raises the training
-// PSNR with every logged term non-negative and adding up to the total, a paused and resumed run ends bit-identical to an
-// uninterrupted one, the run-time-versus-error curve holds every validation, and a run folder is never overwritten
+// PSNR with every logged term non-negative and adding up to the total, a paused and resumed run ends bit-identical to
+// an uninterrupted one, the run-time-versus-error curve holds every validation, and a run folder is never overwritten
 // without being asked.
 #include <cmath>
 #include <fstream>

@@ -30,16 +30,22 @@ void write_xhumans_take(const TempFolder& dir, const std::string& take, int fram
     cv::Mat depth(6, 8, CV_32F, cv::Scalar(10.0f));
     depth(cv::Rect(2, 1, 3, 2)) = 2.5f;  // the person: 3 x 2 pixels nearer than the far background
     ASSERT_TRUE(cv::imwrite(dir / (base + "render/depth/depth_" + padded6 + ".tiff"), depth));
-    nlohmann::json pose{{"global_orient", {0.0, 0.0, 0.0}}, {"transl", {0.0, 0.0, 3.0 + i}},
-                        {"body_pose", std::vector<double>(63, 0.01 * i)}, {"left_hand_pose", std::vector<double>(45, 0.0)},
-                        {"right_hand_pose", std::vector<double>(45, 0.0)}, {"jaw_pose", {0.2, 0.0, 0.0}},
-                        {"leye_pose", {0.0, 0.0, 0.0}}, {"reye_pose", {0.0, 0.0, 0.0}},
-                        {"expression", std::vector<double>(10, 0.0)}, {"betas", std::vector<double>(10, 0.5)}};
+    nlohmann::json pose{{"global_orient", {0.0, 0.0, 0.0}},
+                        {"transl", {0.0, 0.0, 3.0 + i}},
+                        {"body_pose", std::vector<double>(63, 0.01 * i)},
+                        {"left_hand_pose", std::vector<double>(45, 0.0)},
+                        {"right_hand_pose", std::vector<double>(45, 0.0)},
+                        {"jaw_pose", {0.2, 0.0, 0.0}},
+                        {"leye_pose", {0.0, 0.0, 0.0}},
+                        {"reye_pose", {0.0, 0.0, 0.0}},
+                        {"expression", std::vector<double>(10, 0.0)},
+                        {"betas", std::vector<double>(10, 0.5)}};
     write_text(dir / (base + "SMPLX/mesh-f" + padded5 + "_smplx.json"), pose.dump());
     extrinsic[i][0][0] = extrinsic[i][1][1] = extrinsic[i][2][2] = 1.0;
     extrinsic[i][0][3] = 0.1 * i;
   }
-  const at::Tensor intrinsic = at::tensor({focal, 0.0, 4.0, 0.0, focal + 1, 3.0, 0.0, 0.0, 1.0}, at::kDouble).view({3, 3});
+  const at::Tensor intrinsic =
+      at::tensor({focal, 0.0, 4.0, 0.0, focal + 1, 3.0, 0.0, 0.0, 1.0}, at::kDouble).view({3, 3});
   io::write_npz(dir / (base + "render/cameras.npz"), {{"intrinsic", intrinsic}, {"extrinsic", extrinsic}}, true);
 }
 

@@ -353,8 +353,8 @@ TEST(AnimatorCuda, GraphFramesFollowAMovingCameraWithoutRecordingAgain) {
     const at::Tensor from_graph = graphed.render(pose).clone();
     EXPECT_LT(max_difference(from_graph, eager.render(pose)), 1e-6) << "frame " << k;
     // The reference: the avatar posed and rendered by the camera itself (no move into its frame).
-    const at::Tensor direct = render(model::to_gaussians(avatar->forward(pose, std::nullopt)),
-                                     background.cuda(), circling_camera(k)).image;
+    const at::Tensor direct =
+        render(model::to_gaussians(avatar->forward(pose, std::nullopt)), background.cuda(), circling_camera(k)).image;
     const double psnr = metrics::psnr(from_graph.cpu(), direct.cpu()).item<double>();
     std::printf("moving camera, frame %lld: graph vs direct render %.1f dB\n", static_cast<long long>(k), psnr);
     EXPECT_GT(psnr, 90.0) << "frame " << k;

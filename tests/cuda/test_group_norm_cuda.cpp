@@ -124,9 +124,11 @@ TEST(GroupNormReluCuda, LinearLayerMatchesTheCpuBackend) {
   for (const at::Device device : {at::Device(at::kCPU), at::Device(at::kCUDA)}) {
     std::vector<at::Tensor> in;
     for (const at::Tensor& d : draws) in.push_back(d.to(device).requires_grad_(true));
-    const at::Tensor out = group_norm::linear_group_norm_relu(in[0], in[1], in[2], in[3], in[4], 4, kMlpGroupNormEpsilon);
+    const at::Tensor out =
+        group_norm::linear_group_norm_relu(in[0], in[1], in[2], in[3], in[4], 4, kMlpGroupNormEpsilon);
     std::vector<at::Tensor> r{out.detach().cpu()};
-    for (const at::Tensor& grad : torch::autograd::grad({(out * weights.to(device)).sum()}, in)) r.push_back(grad.cpu());
+    for (const at::Tensor& grad : torch::autograd::grad({(out * weights.to(device)).sum()}, in))
+      r.push_back(grad.cpu());
     results.push_back(r);
   }
   for (size_t k = 0; k < results[0].size(); ++k)

@@ -19,7 +19,8 @@ std::pair<at::Tensor, at::Tensor> run_on(at::Device device, at::ScalarType dtype
                                          uint64_t seed) {
   at::Generator g = at::detail::createCPUGenerator(seed);
   const auto f64 = at::TensorOptions().dtype(at::kDouble);
-  const at::Tensor prediction = (at::rand({height, width, 3}, g, f64) * 1.2 - 0.1).to(device, dtype).requires_grad_(true);
+  const at::Tensor prediction =
+      (at::rand({height, width, 3}, g, f64) * 1.2 - 0.1).to(device, dtype).requires_grad_(true);
   const at::Tensor target = at::rand({height, width, 3}, g, f64).to(device, dtype);
   const at::Tensor weights = (at::rand({4}, g, f64) + 0.5).to(device, dtype);
   const at::Tensor means = pixel_loss::pixel_losses(prediction, target);

@@ -254,7 +254,8 @@ void expect_identical(const Rendered& a, const Rendered& b, const std::string& l
   EXPECT_TRUE(at::equal(a.alpha, b.alpha)) << label;
   EXPECT_TRUE(at::equal(a.depth, b.depth)) << label;
   EXPECT_TRUE(at::equal(a.radii, b.radii)) << label;
-  for (size_t i = 0; i < a.grads.size(); ++i) EXPECT_TRUE(at::equal(a.grads[i], b.grads[i])) << label << ": " << a.names[i];
+  for (size_t i = 0; i < a.grads.size(); ++i)
+    EXPECT_TRUE(at::equal(a.grads[i], b.grads[i])) << label << ": " << a.names[i];
 }
 
 // The per-tile sort and the radix path must give the same per-tile lists: bit-identical outputs, and bit-identical
@@ -298,10 +299,10 @@ TestScene equal_depth_scene(int64_t count, int64_t width, int64_t height, double
   const double z = 3.0, footprint_px = 2.5;
   at::manual_seed(int64_t(seed));
   const at::Tensor u = at::rand({count, 2}, at::kDouble);
-  s.gaussians.means = at::stack({(u.select(1, 0) - 0.5) * (double(width) * z / focal),
-                                 (u.select(1, 1) - 0.5) * (double(height) * z / focal),
-                                 at::full({count}, z, at::kDouble)},
-                                1);
+  s.gaussians.means =
+      at::stack({(u.select(1, 0) - 0.5) * (double(width) * z / focal),
+                 (u.select(1, 1) - 0.5) * (double(height) * z / focal), at::full({count}, z, at::kDouble)},
+                1);
   s.gaussians.scales =
       at::full({count, 3}, footprint_px * z / focal, at::kDouble) * at::tensor({1.0, 1.3, 0.8}, at::kDouble);
   return s;
@@ -314,9 +315,9 @@ TEST(CudaBinning, EqualDepthsKeepIndexOrder) {
     TestScene scene;
     Binning binning;  // the path float32 takes
   };
-  const Case cases[] = {{"equal depths, per-tile sort", equal_depth_scene(3000, 97, 61, 60.0, 41), Binning::kAuto},
-                        {"equal depths, one tile of 5000 (radix path)", equal_depth_scene(5000, 9, 7, 40.0, 43),
-                         Binning::kRadix}};
+  const Case cases[] = {
+      {"equal depths, per-tile sort", equal_depth_scene(3000, 97, 61, 60.0, 41), Binning::kAuto},
+      {"equal depths, one tile of 5000 (radix path)", equal_depth_scene(5000, 9, 7, 40.0, 43), Binning::kRadix}};
   for (const Case& c : cases) {
     expect_parity(c.scene, c.label);
     EXPECT_EQ(splat::cuda_kernels::last_binning(), c.binning) << c.label;

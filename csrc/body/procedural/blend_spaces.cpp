@@ -68,7 +68,7 @@ at::Tensor shape_directions(const at::Tensor& p, const at::Tensor& w, const at::
   const auto on_z = [&](const at::Tensor& d) { return at::cat({zero, zero, d}, 1); };
   const auto smoothstep = [](const at::Tensor& t) { return t * t * (3 - 2 * t); };
   std::vector<at::Tensor> columns;
-  columns.push_back(on_y(0.04 * h));  // 0: height, about +7 cm per unit
+  columns.push_back(on_y(0.04 * h));                 // 0: height, about +7 cm per unit
   columns.push_back(girth_direction(p, w, joints));  // 1: girth
 
   const at::Tensor head_group = column_sum(w, {J::kHead, J::kJaw, J::kLeftEye, J::kRightEye});

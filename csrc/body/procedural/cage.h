@@ -50,9 +50,7 @@ class Cage {
 };
 
 // Maps a left-side joint to the joint on `side`.
-inline int64_t joint(int side, int64_t left_joint) {
-  return side > 0 ? left_joint : kSmplxMirroredJoints[left_joint];
-}
+inline int64_t joint(int side, int64_t left_joint) { return side > 0 ? left_joint : kSmplxMirroredJoints[left_joint]; }
 
 // A ring of vertices around an axis point: offsets (a, b) along the frame vectors (ea, eb).
 std::vector<int64_t> frame_ring(Cage& cage, int side, const Vec3& centre, const Vec3& ea, const Vec3& eb,

@@ -39,8 +39,8 @@ Cage eye_cubes(const Vec3& centre) {
 Smoothed make_eyes(const at::Tensor& body, std::vector<Chart>& charts) {
   const double y_eye = kEyeHeight + kFloorY;
   const at::Tensor x = body.select(1, 0), y = body.select(1, 1), z = body.select(1, 2);
-  const at::Tensor near = ((x - kEyeHalfSpacing).abs() < kSocketSearchDistance) &
-                          ((y - y_eye).abs() < kSocketSearchDistance) & (z > 0);
+  const at::Tensor near =
+      ((x - kEyeHalfSpacing).abs() < kSocketSearchDistance) & ((y - y_eye).abs() < kSocketSearchDistance) & (z > 0);
   const double surface = z.masked_select(near).max().item<double>();
   const Vec3 centre = {kEyeHalfSpacing, y_eye, surface - kEyeSinkRadii * kEyeRadius};
   const Cage cage = eye_cubes(centre);

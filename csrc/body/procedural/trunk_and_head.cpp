@@ -109,12 +109,16 @@ std::vector<TrunkRing> trunk_rings() {
 
 // The head rings from the chin to the crown: ring 1 is the lower lip, ring 2 the mouth corners, ring 3 the upper
 // lip and cheeks, ring 4 the nose tip, ring 5 the eyes, ring 6 the brows.
-constexpr std::array<RingShape, 10> kHeadRings = {{
-    {1.507, 1.585, 0.060, 0.066, 0.060, kHeadCentreZ}, {1.541, 1.600, 0.067, 0.082, 0.076, kHeadCentreZ},
-    {1.547, 1.615, 0.071, 0.078, 0.085, kHeadCentreZ}, {1.553, 1.630, 0.074, 0.088, 0.090, kHeadCentreZ},
-    {1.588, 1.650, 0.076, 0.093, 0.095, kHeadCentreZ}, {1.627, 1.670, 0.078, 0.087, 0.098, kHeadCentreZ},
-    {1.660, 1.695, 0.078, 0.093, 0.098, kHeadCentreZ}, {1.703, 1.725, 0.073, 0.087, 0.092, kHeadCentreZ},
-    {1.738, 1.750, 0.055, 0.063, 0.068, kHeadCentreZ}, {1.758, 1.762, 0.026, 0.030, 0.032, kHeadCentreZ}}};
+constexpr std::array<RingShape, 10> kHeadRings = {{{1.507, 1.585, 0.060, 0.066, 0.060, kHeadCentreZ},
+                                                   {1.541, 1.600, 0.067, 0.082, 0.076, kHeadCentreZ},
+                                                   {1.547, 1.615, 0.071, 0.078, 0.085, kHeadCentreZ},
+                                                   {1.553, 1.630, 0.074, 0.088, 0.090, kHeadCentreZ},
+                                                   {1.588, 1.650, 0.076, 0.093, 0.095, kHeadCentreZ},
+                                                   {1.627, 1.670, 0.078, 0.087, 0.098, kHeadCentreZ},
+                                                   {1.660, 1.695, 0.078, 0.093, 0.098, kHeadCentreZ},
+                                                   {1.703, 1.725, 0.073, 0.087, 0.092, kHeadCentreZ},
+                                                   {1.738, 1.750, 0.055, 0.063, 0.068, kHeadCentreZ},
+                                                   {1.758, 1.762, 0.026, 0.030, 0.032, kHeadCentreZ}}};
 // How far the lips' middle stands in front of the head's centre.
 constexpr double kLipDepth = kHeadCentreZ + 0.086;
 
@@ -181,9 +185,7 @@ std::vector<std::vector<int64_t>> build_trunk(CageBuild& b, int64_t chart) {
     const std::vector<size_t> missing = r == 6 ? std::vector<size_t>{3, 4, 5} : std::vector<size_t>{};
     built.push_back(symmetric_ring(
         b.cage, [&](size_t slot) { return ring_point(rings[r].shape, kTrunkAngles[slot]); },
-        [&](size_t, const Vec3& p) {
-          return rings[r].weights(ramp(p[0], kTrunkSideBlendStart, kTrunkSideBlendEnd));
-        },
+        [&](size_t, const Vec3& p) { return rings[r].weights(ramp(p[0], kTrunkSideBlendStart, kTrunkSideBlendEnd)); },
         missing));
     if (r > 0) b.cage.bridge(built[r - 1], built[r], chart);
   }
