@@ -88,14 +88,19 @@ at::Tensor reference(const std::vector<at::Tensor>& inputs, const at::Tensor& ba
 }
 
 bool fuses(const std::vector<at::Tensor>& inputs, const Network& n) {
-  if (!cuda::available() || n.input_weights.empty() || !n.input_weights[0].defined()) return false;
+  // Only the shape questions: run() validates the network itself (and fuses() must not fail on a bad one).
+  if (!cuda::available() || n.input_weights.empty() || inputs.size() > kFusedMaxInputs) return false;
+  int64_t width = 0;
+  for (const at::Tensor& b : n.input_weights) {
+    if (!b.defined() || b.dim() != 2) return false;
+    width += b.size(1);
+  }
   const at::Tensor& w = n.input_weights[0];
   if (!w.is_cuda() || w.scalar_type() != at::kFloat || w.size(0) != kFusedWidth || n.groups != kFusedGroups)
     return false;
-  if (inputs.size() > kFusedMaxInputs || n.norm_weights.empty() || n.norm_weights.size() > kFusedMaxHiddenLayers)
+  if (n.norm_weights.empty() || n.norm_weights.size() > kFusedMaxHiddenLayers || !n.output_weight.defined() ||
+      n.output_weight.dim() != 2)
     return false;
-  int64_t width = 0;
-  for (const at::Tensor& b : n.input_weights) width += b.size(1);
   return width <= kFusedMaxInputWidth && n.output_weight.size(0) <= kFusedMaxOutputs &&
          cuda::fits(int(n.norm_weights.size()), int(width), w.device());
 }

@@ -47,6 +47,7 @@ TEST(MlpInference, RunFallsBackToTheReferenceOffCuda) {
   const mlp_inference::Network n = random_network(16, {6, 3}, 2, 4, g);
   const std::vector<at::Tensor> inputs = random_inputs(21, n, g);
   EXPECT_FALSE(mlp_inference::fuses(inputs, n));
+  EXPECT_FALSE(mlp_inference::fuses(inputs, mlp_inference::Network{})) << "a bad network is a no, not a crash";
   at::NoGradGuard no_grad;
   EXPECT_TRUE(mlp_inference::run(inputs, at::Tensor(), n).equal(mlp_inference::reference(inputs, at::Tensor(), n)));
 }
