@@ -118,6 +118,19 @@ __device__ __forceinline__ void load_operands(uint32_t address, uint32_t (&b)[4]
                : "r"(address));
 }
 
+// acc += input tile t (x) times the layer's weight, whose rows lie `stride` words apart from the lane's ldmatrix
+// address `base`: every output tile, two a load.
+__device__ __forceinline__ void multiply_tile(float (&acc)[kOutputTiles][4], const uint32_t (&x)[4], uint32_t base,
+                                              int stride, int t) {
+#pragma unroll
+  for (int n = 0; n < kOutputTiles; n += 2) {
+    uint32_t b[4];
+    load_operands(base + 4 * (n * 8 * stride + 8 * t), b);
+    mma(acc[n], x, b[0], b[1]);
+    mma(acc[n + 1], x, b[2], b[3]);
+  }
+}
+
 // GroupNorm of a layer's accumulators over each group's 32 columns of a row (eight values in each of the row's four
 // lanes), the affine map and the ReLU, packed as the next layer's input: output tile 2t + e is half e of input
 // tile t.
@@ -243,26 +256,13 @@ __global__ void __launch_bounds__(kThreads, 2) mlp_inference_kernel(const MlpInf
 #pragma unroll
         for (int t = 0; t < kTilesAcross; ++t) {
           if (t >= input_tiles) break;  // x is indexed by constants only: it stays in registers
-#pragma unroll
-          for (int n = 0; n < kOutputTiles; n += 2) {
-            uint32_t b[4];
-            load_operands(first_base + 4 * (n * 8 * stride0 + 8 * t), b);
-            mma(acc[n], x[t], b[0], b[1]);
-            mma(acc[n + 1], x[t], b[2], b[3]);
-          }
+          multiply_tile(acc, x[t], first_base, stride0, t);
         }
       } else {
+        // A constant stride: every operand address is the lane's base plus an immediate.
         const uint32_t base = hidden_base + 4 * (layer - 1) * kHiddenLayerWords;
 #pragma unroll
-        for (int t = 0; t < kTilesAcross; ++t) {
-#pragma unroll
-          for (int n = 0; n < kOutputTiles; n += 2) {
-            uint32_t b[4];
-            load_operands(base + 4 * (n * 8 * kHiddenStride + 8 * t), b);
-            mma(acc[n], x[t], b[0], b[1]);
-            mma(acc[n + 1], x[t], b[2], b[3]);
-          }
-        }
+        for (int t = 0; t < kTilesAcross; ++t) multiply_tile(acc, x[t], base, kHiddenStride, t);
       }
       group_norm_relu(acc, p + kWidth, p + 2 * kWidth, a.epsilon, quad_column, x);
     }
