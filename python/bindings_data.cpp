@@ -1,6 +1,7 @@
 // The module's metrics and dataset reading: sfgs.psnr, sfgs.ssim (three border conventions), sfgs.lpips and
 // sfgs.read_dataset (docs/python.md). Every function validates in C++ and raises RuntimeError naming what is wrong.
 #include <algorithm>
+#include <cmath>
 #include <map>
 #include <mutex>
 #include <string>
@@ -94,13 +95,15 @@ namespace {
 constexpr double kImageRangeSlack = 1e-4;
 
 // The metrics score images in [0, 1]: 8-bit values, [-1, 1] images or NaN would give a number that means nothing.
-// A host read, here at the module's boundary only (the training step's metrics run on the device unchecked).
+// One reduction and one host read, here at the module's boundary only (the training step's metrics run on the
+// device unchecked).
 at::Tensor image_in_unit_range(const py::object& object, const std::string& what) {
   const at::Tensor t = to_tensor(object, what);
   if (!t.defined() || !at::isFloatingType(t.scalar_type()) || t.numel() == 0) return t;  // the metric names these
-  const at::Tensor values = t.detach();
-  TORCH_CHECK(!values.isnan().any().item<bool>(), what, ": the image holds NaN");
-  const double low = values.min().item<double>(), high = values.max().item<double>();
+  const auto [low_value, high_value] = at::aminmax(t.detach());
+  const at::Tensor bounds = at::stack({low_value, high_value}).to(at::kCPU, at::kDouble);
+  const double low = bounds[0].item<double>(), high = bounds[1].item<double>();
+  TORCH_CHECK(!std::isnan(low) && !std::isnan(high), what, ": the image holds NaN");  // min and max propagate NaN
   TORCH_CHECK(low >= -kImageRangeSlack && high <= 1 + kImageRangeSlack, what,
               ": values must lie in [0, 1] (float images), got [", low, ", ", high, "]",
               high > 2  ? "; 8-bit images take / 255"

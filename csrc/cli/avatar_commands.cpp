@@ -167,7 +167,8 @@ int run_eval(Arguments& args) {
       "%.1f ms%s); %s\n%s",
       dataset.source.c_str(), metrics::to_string(e.summary).c_str(), e.render_milliseconds, e.first_render_milliseconds,
       t.avatar->part_labels().is_cuda() ? ", recording the CUDA graph" : "", written.c_str(), group_lines(e).c_str());
-  for (const std::string& stale : train::stale_results(run))
+  // write_result has just checked that the checkpoint is still the one evaluated: its digest is the current one.
+  for (const std::string& stale : train::stale_results(run, origin.checkpoint_crc32))
     std::printf(
         "  note: %s in the run measured another checkpoint than its current one (stale); evaluate again to "
         "replace it\n",

@@ -108,6 +108,8 @@ std::string relative_to(const std::string& folder, const std::string& path) {
 
 }  // namespace
 
+const char* split_name(Split split) { return split_names().at(split); }
+
 const std::vector<int64_t>& Dataset::split(Split s) const {
   static const std::vector<int64_t> empty;
   const auto it = splits.find(s);

@@ -47,6 +47,8 @@ struct Frame {
 };
 
 enum class Split { kTrain, kVal, kTest };
+// "train", "val" or "test": how files, options and messages name a split.
+const char* split_name(Split split);
 
 class Dataset {
  public:

@@ -3,11 +3,10 @@
 
 #include <algorithm>
 #include <chrono>
-#include <map>
-#include <set>
 #include <cmath>
 #include <filesystem>
 #include <map>
+#include <set>
 #include <vector>
 
 #include <ATen/ATen.h>
@@ -24,9 +23,7 @@ AvatarEvaluation evaluate_avatar(const data::Dataset& dataset, data::Split split
                                  const metrics::EvaluationOptions& options, const std::string& save_folder,
                                  bool overwrite) {
   const std::vector<int64_t>& frames = dataset.split(split);
-  static const std::map<data::Split, const char*> split_names = {
-      {data::Split::kTrain, "train"}, {data::Split::kVal, "val"}, {data::Split::kTest, "test"}};
-  TORCH_CHECK(!frames.empty(), "dataset '", dataset.source, "' has no frames in its ", split_names.at(split),
+  TORCH_CHECK(!frames.empty(), "dataset '", dataset.source, "' has no frames in its ", data::split_name(split),
               " split (train ", dataset.split(data::Split::kTrain).size(), ", val ",
               dataset.split(data::Split::kVal).size(), ", test ", dataset.split(data::Split::kTest).size(),
               " frames): choose another with --split");

@@ -20,21 +20,9 @@ constexpr const char* kMetricsPrefix = "metrics_";
 constexpr const char* kImagesPrefix = "eval_images_";
 constexpr size_t kDigestChunkBytes = size_t(1) << 20;
 
-std::string split_name(data::Split split) {
-  switch (split) {
-    case data::Split::kTrain:
-      return "train";
-    case data::Split::kVal:
-      return "val";
-    case data::Split::kTest:
-      return "test";
-  }
-  return "test";
-}
-
 // "test", "test_fitted_poses", "test_<fingerprint>", "test_fitted_poses_<fingerprint>".
 std::string result_stem(const ResultOrigin& o) {
-  std::string stem = split_name(o.split);
+  std::string stem = data::split_name(o.split);
   if (!o.variant.empty()) stem += "_" + o.variant;
   if (!o.own_dataset) stem += "_" + o.dataset_fingerprint;
   return stem;
@@ -98,7 +86,7 @@ std::string checkpoint_digest(const std::string& checkpoint_file) {
 }
 
 nlohmann::json provenance_json(const ResultOrigin& o) {
-  return {{"split", split_name(o.split)},
+  return {{"split", data::split_name(o.split)},
           {"variant", o.variant.empty() ? "plain" : o.variant},
           {"dataset", o.dataset},
           {"dataset_fingerprint", o.dataset_fingerprint},
@@ -121,10 +109,9 @@ std::string write_result(const RunFolder& run, const ResultOrigin& origin, nlohm
   return path;
 }
 
-std::vector<std::string> stale_results(const RunFolder& run) {
+std::vector<std::string> stale_results(const RunFolder& run, const std::string& current) {
   std::vector<std::string> stale;
   if (!fs::is_directory(run.path)) return stale;
-  const std::string current = fs::exists(run.checkpoint_file()) ? checkpoint_digest(run.checkpoint_file()) : "";
   for (const fs::directory_entry& e : fs::directory_iterator(run.path)) {
     if (!e.is_regular_file() || !is_metrics_file(e.path())) continue;
     std::string recorded;
@@ -141,7 +128,8 @@ std::vector<std::string> stale_results(const RunFolder& run) {
 }
 
 std::vector<std::string> remove_stale_results(const RunFolder& run) {
-  const std::vector<std::string> stale = stale_results(run);
+  const std::vector<std::string> stale =
+      stale_results(run, fs::exists(run.checkpoint_file()) ? checkpoint_digest(run.checkpoint_file()) : "");
   for (const std::string& name : stale) {
     const fs::path metrics = fs::path(run.path) / name;
     remove_images(images_of(metrics));

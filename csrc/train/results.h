@@ -41,8 +41,9 @@ nlohmann::json provenance_json(const ResultOrigin& origin);
 // Returns the file's path.
 std::string write_result(const RunFolder& run, const ResultOrigin& origin, nlohmann::json metrics);
 
-// The metrics files of the run whose checkpoint is not the run's current one (or that record none), by name.
-std::vector<std::string> stale_results(const RunFolder& run);
+// The metrics files of the run whose checkpoint is not `current` (the run's checkpoint_digest(); "" when it has none),
+// or that record none, by name. The caller passes the digest it already has (a checkpoint is a large file to read).
+std::vector<std::string> stale_results(const RunFolder& run, const std::string& current);
 // Removes the stale metrics files and their images' folders (only the PNG files sfgs wrote there; the folder when
 // that empties it). Returns the names removed.
 std::vector<std::string> remove_stale_results(const RunFolder& run);

@@ -61,13 +61,14 @@ TEST_F(TrainResults, RecordsProvenanceAndRefusesAResultOfAReplacedCheckpoint) {
   EXPECT_EQ(j["provenance"]["split"], "test");
   EXPECT_EQ(j["provenance"]["checkpoint_iteration"], 2);
   EXPECT_EQ(j["provenance"]["dataset_fingerprint"], "0a1b2c3d-10");
-  EXPECT_TRUE(train::stale_results(run_).empty());
+  EXPECT_TRUE(train::stale_results(run_, train::checkpoint_digest(run_.checkpoint_file())).empty());
 
   const train::ResultOrigin evaluated = origin(data::Split::kVal);
   write(run_.checkpoint_file(), "checkpoint of iteration 3");  // a training wrote it meanwhile
   EXPECT_THROW(train::write_result(run_, evaluated, {{"psnr", 31.0}}), c10::Error);
   EXPECT_FALSE(fs::exists(folder_ / "metrics_val.json"));
-  EXPECT_EQ(train::stale_results(run_), std::vector<std::string>{"metrics_test.json"});
+  EXPECT_EQ(train::stale_results(run_, train::checkpoint_digest(run_.checkpoint_file())),
+            std::vector<std::string>{"metrics_test.json"});
 }
 
 TEST_F(TrainResults, RemovesStaleResultsWithTheirImagesOnly) {
