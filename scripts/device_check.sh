@@ -6,7 +6,7 @@
 #
 #   bash scripts/device_check.sh [build] [test] [python] [pip] [sanitize] [bench] [profile] [avatar] [animate]
 #                                [train-step] [animate-trained] [stage-profile] [step-profile] [train] [ablate] [novel]
-#                                [sizes] [fits] [render-path]
+#                                [sizes] [fits] [render-path] [refine-cost]
 #   (no argument: build, test, sanitize, bench, profile, in this order)
 #
 # python: the pytest suite against the module built with the machine's pip torch and pybind11 (CUDA included).
@@ -311,17 +311,20 @@ fi
 # render-path: the product paths on one trained avatar (issue 40): the Anny body filmed walking, waving and turning
 # at 800x1200 (SFGS_DEVICE_RENDER_FRAMES frames a motion, default 20; new motions in test, held-out frames of the
 # training motions in val), trained for SFGS_DEVICE_RENDER_ITERATIONS (default 1000); then bench_animate's graph frame
-# (new-motion and replayed frames),
-# `sfgs eval` on new motions (test) and replayed frames (val), `sfgs render` of 300 frames, Avatar.render from Python
-# (bench/python_render.py), and the training step with pose refinement against a plain one (600 iterations each;
-# SFGS_DEVICE_RENDER_STEPS names the variants, default "plain refined").
-if wants render-path; then
-  export SFGS_SHARED_DIR=$shared
-  scene=/tmp/sfgs-render-path
-  run render-synth 300 "$build/sfgs" synth --out "$scene/data" --body "$shared/bodies/anny_smplx_layout.npz" \
+# (new-motion and replayed frames), `sfgs eval` on new motions (test) and replayed frames (val), `sfgs render` of 300
+# frames and Avatar.render from Python (bench/python_render.py).
+render_scene=/tmp/sfgs-render-path
+make_render_scene() {
+  [ -f "$render_scene/data/dataset.json" ] && return 0
+  run render-synth 300 "$build/sfgs" synth --out "$render_scene/data" --body "$shared/bodies/anny_smplx_layout.npz" \
     --texture "$shared/bodies/anny_albedo.png" --motions walk,wave,turn --test-motions overhead,bend,guard,sit \
     --frames "${SFGS_DEVICE_RENDER_FRAMES:-20}" --width 800 --height 1200 --force
-  sed "s|@SHARED@|$shared|g" "$root/configs/device_anny.yaml" >"$scene/config.yaml"
+  sed "s|@SHARED@|$shared|g" "$root/configs/device_anny.yaml" >"$render_scene/config.yaml"
+}
+if wants render-path; then
+  export SFGS_SHARED_DIR=$shared
+  scene=$render_scene
+  make_render_scene
   run render-train 400 "$build/sfgs" train --data "$scene/data" --out "$scene/run" --config "$scene/config.yaml" \
     --iterations "${SFGS_DEVICE_RENDER_ITERATIONS:-1000}" --force --quiet
   tail -n 3 "$out/render-train.log"
@@ -337,14 +340,43 @@ if wants render-path; then
   run render-python 200 env PYTHONUNBUFFERED=1 PYTHONPATH="$build/python" python3 "$root/bench/python_render.py" "$scene/run" --frames 200
   grep -h -E "frame|sfgs eval|render |encode|PSNR|median|python" "$out"/render-frame*.log "$out"/render-eval-*.log \
     "$out"/render-video.log "$out"/render-python.log | cut -c1-200
-  { cat "$scene/config.yaml"; printf 'pose_refinement:\n  enabled: true\n'; } >"$scene/config-refined.yaml"
-  for variant in ${SFGS_DEVICE_RENDER_STEPS-plain refined}; do
-    config=$scene/config.yaml
-    [ "$variant" = refined ] && config=$scene/config-refined.yaml
-    run "render-step-$variant" 300 "$build/sfgs" train --data "$scene/data" --out "$scene/run-$variant" \
-      --config "$config" --iterations 600 --force --quiet
-    tail -n 2 "$out/render-step-$variant.log"
-    grep -h '"pose_alignment"' "$scene/run-$variant/log.jsonl" 2>/dev/null | cut -c1-160
+fi
+
+# refine-cost: what pose refinement costs a training (issue 40), on render-path's scene (made here if render-path did
+# not run): trained plainly and with pose refinement at its defaults (configs/device_anny.yaml) for
+# SFGS_DEVICE_REFINE_ITERATIONS (default 4000) each, and with refinement and every step and evaluation eager
+# (schedule.cuda_graphs false) for SFGS_DEVICE_REFINE_EAGER_ITERATIONS (default 200; a pass costs the same in a run of
+# any length). SFGS_DEVICE_REFINE_VARIANTS names the runs (default "plain refined refined-eager"). Prints each run's
+# training seconds and each alignment pass's frames, loss evaluations and seconds.
+if wants refine-cost; then
+  export SFGS_SHARED_DIR=$shared
+  scene=$render_scene
+  make_render_scene
+  for variant in ${SFGS_DEVICE_REFINE_VARIANTS:-plain refined refined-eager}; do
+    config=$scene/config-$variant.yaml
+    cp "$scene/config.yaml" "$config"
+    [ "$variant" != plain ] && printf 'pose_refinement:\n  enabled: true\n' >>"$config"
+    iterations=${SFGS_DEVICE_REFINE_ITERATIONS:-4000}
+    if [ "$variant" = refined-eager ]; then
+      sed -i 's/^\( *cuda_graphs:\).*/\1 false/' "$config"
+      grep -q 'cuda_graphs:' "$config" || sed -i 's/^schedule:$/schedule:\n  cuda_graphs: false/' "$config"
+      iterations=${SFGS_DEVICE_REFINE_EAGER_ITERATIONS:-200}
+    fi
+    run "refine-$variant" 590 "$build/sfgs" train --data "$scene/data" --out "$scene/run-$variant" \
+      --config "$config" --iterations "$iterations" --force --quiet
+    python3 - "$scene/run-$variant/log.jsonl" "$variant" <<'PY'
+import json, sys
+entries = [json.loads(line) for line in open(sys.argv[1])]
+for e in entries:
+    if e.get("event") == "pose_alignment":
+        print(f"  {sys.argv[2]} alignment at {e['iteration']}: {e['frames']} frames, {e['evaluations']} evaluations, "
+              f"{e['seconds']:.1f} s ({1000 * e['seconds'] / max(1, e['evaluations']):.2f} ms each), "
+              f"recorded {e['recorded']}, loss {e['loss_before']:.4f} -> {e['loss_after']:.4f}")
+for e in entries:
+    if e.get("event") == "end":
+        print(f"  {sys.argv[2]}: {e['iteration']} iterations, training {e['training_seconds']:.1f} s, "
+              f"val PSNR {e.get('val_psnr', float('nan')):.2f}")
+PY
   done
 fi
 

@@ -173,6 +173,26 @@ AvatarOutput AvatarImpl::forward_trusted_pose(const body::SmplxPose& pose, const
   return posed(pose, std::nullopt, device_time);
 }
 
+CanonicalAttributes AvatarImpl::attributes(FrameTime time) {
+  TORCH_CHECK(!time || (std::isfinite(*time) && *time >= -1.0 && *time <= 1.0),
+              "Avatar: time must be normalised to [-1, 1] (once per sequence), got ", *time);
+  std::optional<Tf32MatmulScope> products;
+  if (!at::GradMode::is_enabled() && body_->vertices().is_cuda()) products.emplace(true);
+  plan_observation_prior();
+  return attributes_at(time);
+}
+
+AvatarOutput AvatarImpl::forward_with_attributes(const body::SmplxPose& pose, const CanonicalAttributes& attributes,
+                                                 bool has_time) {
+  TORCH_CHECK(attributes.mean_offset.defined() && attributes.log_scales.defined() &&
+                  attributes.colour_logits.defined() && attributes.mean_offset.size(0) == gaussian_count(),
+              "Avatar: forward_with_attributes takes the attributes of this avatar (", gaussian_count(),
+              " Gaussians), made by attributes()");
+  std::optional<Tf32MatmulScope> products;
+  if (!at::GradMode::is_enabled() && body_->vertices().is_cuda()) products.emplace(true);
+  return posed_with(pose, attributes, has_time);
+}
+
 // One of host_time and device_time at most; device_time bypasses the cache.
 AvatarOutput AvatarImpl::posed(const body::SmplxPose& pose, FrameTime host_time, const at::Tensor& device_time) {
   const bool has_time = host_time.has_value() || device_time.defined();
@@ -180,6 +200,15 @@ AvatarOutput AvatarImpl::posed(const body::SmplxPose& pose, FrameTime host_time,
   std::optional<Tf32MatmulScope> products;
   if (!at::GradMode::is_enabled() && body_->vertices().is_cuda()) products.emplace(true);
   plan_observation_prior();
+  CanonicalAttributes attributes;
+  {
+    const StageScope stage("avatar: canonical attributes (planes, heads)");
+    attributes = device_time.defined() ? attributes_at(device_time) : attributes_at(host_time);
+  }
+  return posed_with(pose, attributes, has_time);
+}
+
+AvatarOutput AvatarImpl::posed_with(const body::SmplxPose& pose, const CanonicalAttributes& attributes, bool has_time) {
   FramePose frame;
   at::Tensor coarse_residual;
   {
@@ -191,11 +220,6 @@ AvatarOutput AvatarImpl::posed(const body::SmplxPose& pose, FrameTime host_time,
   {
     const StageScope stage("avatar: body (correctives, subdivision, joints)");
     body = body_->pose(frame.rotations, frame.expression, frame.translation, coarse_residual);
-  }
-  CanonicalAttributes attributes;
-  {
-    const StageScope stage("avatar: canonical attributes (planes, heads)");
-    attributes = device_time.defined() ? attributes_at(device_time) : attributes_at(host_time);
   }
   CanonicalGaussians canonical;
   {

@@ -137,6 +137,13 @@ class AvatarImpl : public torch::nn::Module {
   // tensor (train/step_graphs.h, animate::Animator). With the inference cache, the time-dependent attributes are
   // computed from the cached static features every call (the cache keeps only host times' attributes).
   AvatarOutput forward_trusted_pose(const body::SmplxPose& pose, const at::Tensor& device_time);
+  // What a frame at `time` takes from the canonical body before its pose (the planes' features, the heads, the
+  // observation prior; from the cache when there is one), and forward_trusted_pose on such attributes: for a caller
+  // that poses one frame many times (pose fitting, train/pose_fit.h) or keeps them in buffers a recorded CUDA graph
+  // reads. `has_time`: whether they were made with a time (a replayed frame's appearance).
+  CanonicalAttributes attributes(FrameTime time);
+  AvatarOutput forward_with_attributes(const body::SmplxPose& pose, const CanonicalAttributes& attributes,
+                                       bool has_time);
 
   // The observation record of training (observation_prior.h): per Gaussian, the share of training steps that saw it
   // front-facing, (N) on any device; undefined clears it. In eval mode an avatar with a record trusts each
@@ -176,6 +183,7 @@ class AvatarImpl : public torch::nn::Module {
   struct FramePose;
   FramePose frame_pose(const body::SmplxPose& pose) const;
   AvatarOutput posed(const body::SmplxPose& pose, FrameTime time, const at::Tensor& device_time);
+  AvatarOutput posed_with(const body::SmplxPose& pose, const CanonicalAttributes& attributes, bool has_time);
   CanonicalAttributes attributes_at(FrameTime time);
   CanonicalAttributes attributes_at(const at::Tensor& device_time);
   // The observation prior's plan on the module's device (made when first needed there).

@@ -51,8 +51,16 @@ bool GrowingBudget::fits(const BinningCounts& counts) const {
 }
 
 void GrowingBudget::grow(const BinningCounts& counts) {
-  intersections_ = std::max<int64_t>(1, std::llround(double(counts.intersections) * slack_));
-  longest_tile_ = std::max<int64_t>(1, std::llround(double(counts.longest_tile) * slack_));
+  int64_t intersections = std::max<int64_t>(1, std::llround(double(counts.intersections) * slack_));
+  int64_t longest_tile = std::max<int64_t>(1, std::llround(double(counts.longest_tile) * slack_));
+  if (measured_) {
+    // A pass beyond one bound keeps the other: passes that alternate between many intersections and one busy tile
+    // would otherwise record again at every turn.
+    intersections = std::max(intersections, intersections_);
+    longest_tile = std::max(longest_tile, longest_tile_);
+  }
+  intersections_ = intersections;
+  longest_tile_ = longest_tile;
   measured_ = true;
 }
 

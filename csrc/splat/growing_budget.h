@@ -40,7 +40,7 @@ class GrowingBudget {
   // else 0 (no host read: the optimiser's skip flag).
   at::Tensor overflowed() const;
   bool fits(const BinningCounts& counts) const;
-  // Sizes the budget from `counts` with the slack.
+  // Sizes the budget from `counts` with the slack: the first measured pass replaces the guess, later ones only grow it.
   void grow(const BinningCounts& counts);
 
  private:

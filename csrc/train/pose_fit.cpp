@@ -3,7 +3,6 @@
 #include <array>
 #include <cmath>
 #include <cstdio>
-#include <map>
 #include <string>
 
 #include <ATen/ATen.h>
@@ -85,59 +84,71 @@ PoseFitter::PoseFitter(const PoseFitOptions& options, at::Device device, const b
   TORCH_CHECK(std::isfinite(options.keypoint_weight) && options.keypoint_weight >= 0,
               "pose fitting: the keypoint weight must be finite and >= 0, got ", options.keypoint_weight);
   if (keypoint_map && options.keypoint_weight > 0) keypoint_map_ = keypoint_map->to(device, at::kFloat);
+  fit_loss_ = std::make_unique<FitLoss>(loss_, keypoint_map_ ? &*keypoint_map_ : nullptr, options.keypoint_weight);
 }
 
-PoseFitResult PoseFitter::fit(model::Avatar& avatar, const body::SmplxPose& pose, const PoseFitTarget& target,
-                              const at::Tensor& start) const {
-  const auto options = start.options();
-  const at::Tensor white = at::ones({3}, options);
-  // The image (and mask) at each stage's resolution.
-  struct Level {
-    Camera camera;
-    at::Tensor image, mask;
-  };
-  std::map<int64_t, Level> levels;
-  for (const StageSpec& spec : kStages) {
-    if (levels.count(spec.downsample)) continue;
-    const int64_t d = spec.downsample;
-    levels[d] = d == 1 ? Level{target.camera, target.image, target.mask}
-                       : Level{downsampled(target.camera, d), downsample(target.image, d),
-                               target.mask.defined() ? downsample(target.mask, d) : at::Tensor()};
-  }
-  const bool anchored = keypoint_map_.has_value() && target.keypoints.defined();
-  const auto image_loss = [&](const RenderResult& r, const Level& level, const StageSpec& spec) {
-    if (!spec.run_loss) {
-      const at::Tensor loss = (r.image - level.image).abs().mean();
-      return level.mask.defined() ? loss + kPoseFitSilhouetteWeight * (r.alpha - level.mask).abs().mean() : loss;
-    }
-    // The image inside the person, as the evaluation protocol sees it, and the silhouette.
-    LossTerms terms;
-    if (!level.mask.defined()) {
-      loss_.add_terms(r.image, level.image, terms);
-      return total_loss(terms);
-    }
-    const at::Tensor m = level.mask.unsqueeze(2);
-    loss_.add_terms(r.image * m + (1 - m), level.image, terms);
-    return total_loss(terms) + kPoseFitFineSilhouetteWeight * (r.alpha - level.mask).abs().mean();
-  };
-  const auto loss_of = [&](const at::Tensor& correction, const StageSpec& spec) {
-    const Level& level = levels.at(spec.downsample);
-    const model::AvatarOutput out = avatar->forward_trusted_pose(corrected_pose(pose, correction), target.time);
-    const at::Tensor loss = image_loss(render(model::to_gaussians(out), white, level.camera), level, spec);
-    if (!anchored) return loss;
-    return loss + options_.keypoint_weight * keypoint_reprojection_loss(*keypoint_map_, avatar, out, target.keypoints);
-  };
+PoseFitter::~PoseFitter() = default;
 
-  PoseFitResult result;
+PoseFitResult PoseFitter::fit(model::Avatar& avatar, const body::SmplxPose& pose, const PoseFitTarget& target,
+                              const at::Tensor& start) {
+  const at::Device device = target.image.device();
+  // The frame as each stage's resolution sees it; the fit and the pose-independent attributes once for every stage.
+  FitFrame frame;
+  frame.pose = pose.views_of(pose.packed().to(device));
   {
     at::NoGradGuard no_grad;
-    result.start_loss = loss_of(start, kStages[2]).item<double>();
+    frame.attributes = avatar->attributes(target.time);
   }
-  at::Tensor best = start.detach().clone();
+  frame.has_time = target.time.has_value();
+  frame.keypoints = keypoint_map_ ? target.keypoints : FrameKeypoints();
+  std::array<FitFrame, kStages.size()> frames;
+  for (size_t s = 0; s < kStages.size(); ++s) {
+    const int64_t d = kStages[s].downsample;
+    frames[s] = frame;
+    frames[s].camera = d == 1 ? target.camera : downsampled(target.camera, d);
+    frames[s].image = d == 1 ? target.image : downsample(target.image, d);
+    if (target.mask.defined()) frames[s].mask = d == 1 ? target.mask : downsample(target.mask, d);
+  }
+
+  const bool record = options_.recorded && device.is_cuda() && device_graphs_available() && !recording_failed_;
+  if (record && graphs_avatar_ != avatar.get()) {
+    graphs_ = std::make_unique<PoseFitGraphs>(avatar, *fit_loss_, device);
+    graphs_avatar_ = avatar.get();
+  }
+  PoseFitResult result;
+  result.recorded = record;
+  size_t loaded = kStages.size();  // the stage whose frame the recorded evaluations read
+  // The stage's loss at `correction` (CPU) and, where it is finite, its gradient.
+  const auto evaluate = [&](size_t s, const at::Tensor& correction) -> FitEvaluation {
+    ++result.evaluations;
+    if (graphs_ && !recording_failed_) {
+      try {
+        if (loaded != s) graphs_->load(frames[s], kStages[s].run_loss);
+        loaded = s;
+        return graphs_->evaluate(correction);
+      } catch (const GraphCaptureError& e) {
+        // An evaluation the graphs cannot hold is still an evaluation: this one and the rest run eagerly.
+        std::fprintf(stderr, "pose fitting: evaluating eagerly (%s)\n", e.what());
+        recording_failed_ = true;
+        result.recorded = false;
+        graphs_.reset();
+        graphs_avatar_ = nullptr;
+      }
+    }
+    const at::Tensor moving = correction.to(device, at::kFloat, false, /*copy=*/true).requires_grad_(true);
+    const at::Tensor loss = (*fit_loss_)(avatar, frames[s], moving, kStages[s].run_loss);
+    FitEvaluation e{loss.item<double>(), at::Tensor()};
+    if (std::isfinite(e.loss)) e.gradient = torch::autograd::grad({loss}, {moving})[0].to(at::kCPU, at::kFloat);
+    return e;
+  };
+
+  const size_t fine = kStages.size() - 1;
+  at::Tensor best = start.detach().to(at::kCPU, at::kFloat).clone();
+  result.start_loss = evaluate(fine, best).loss;
   int64_t done = 0;
   for (size_t s = 0; s < kStages.size(); ++s) {
     const StageSpec& spec = kStages[s];
-    const bool last = s + 1 == kStages.size();
+    const bool last = s == fine;
     const int64_t end =
         last ? options_.iterations : done + int64_t(std::llround(spec.share * double(options_.iterations)));
     const int64_t evaluations = end - done;
@@ -146,7 +157,8 @@ PoseFitResult PoseFitter::fit(model::Avatar& avatar, const body::SmplxPose& pose
     done = end;
     // L-BFGS models how the joints' corrections couple along the kinematic chain (a turned root and a twisted spine
     // move the same pixels); its line search picks each step's length, so no rate needs tuning to the noise level.
-    at::Tensor moving = at::full({kCorrectionWidth}, spec.all_columns && options_.fit_joints ? 1.0 : 0.0, options);
+    // Its few hundred numbers live on the host, where its decisions are made.
+    at::Tensor moving = at::full({kCorrectionWidth}, spec.all_columns && options_.fit_joints ? 1.0f : 0.0f);
     moving.narrow(0, 0, 3).fill_(options_.fit_orientation ? 1.0 : 0.0);
     moving.narrow(0, kCorrectionWidth - 3, 3).fill_(1.0);
     at::Tensor correction = best.clone().requires_grad_(true);
@@ -162,19 +174,16 @@ PoseFitResult PoseFitter::fit(model::Avatar& avatar, const body::SmplxPose& pose
     const auto stage_loss = [&]() -> at::Tensor {
       if (spent == evaluations) throw StageEnded{};
       ++spent;
-      const at::Tensor loss = loss_of(correction, spec);
-      const double value = loss.item<double>();
-      if (!std::isfinite(value)) throw StageEnded{};
-      // The gradient of the correction alone (the frozen avatar's parameters accumulate none); a stage that moves
-      // the placement alone sees no joint gradient.
-      const at::Tensor gradient = torch::autograd::grad({loss}, {correction})[0];
+      const FitEvaluation e = evaluate(s, correction.detach());
+      if (!std::isfinite(e.loss)) throw StageEnded{};
+      // A stage that moves the placement alone sees no joint gradient.
       at::NoGradGuard no_grad;
-      correction.mutable_grad() = gradient * moving;
-      if (value < best_loss) {
-        best_loss = value;
+      correction.mutable_grad() = e.gradient * moving;
+      if (e.loss < best_loss) {
+        best_loss = e.loss;
         best = correction.detach().clone();
       }
-      return loss.detach();
+      return at::scalar_tensor(e.loss, at::kFloat);
     };
     try {
       optimizer.step(stage_loss);
@@ -183,7 +192,7 @@ PoseFitResult PoseFitter::fit(model::Avatar& avatar, const body::SmplxPose& pose
     if (last) result.loss = best_loss;
   }
   if (!(result.loss < result.start_loss)) {  // nothing beat the start
-    best = start.detach().clone();
+    best = start.detach().to(at::kCPU, at::kFloat).clone();
     result.loss = result.start_loss;
   }
   result.correction = best;
@@ -223,7 +232,7 @@ data::Dataset fit_poses(const data::Dataset& dataset, data::Split split, model::
   data::Dataset fitted = dataset;
   const std::vector<int64_t>& frames = dataset.split(split);
   const at::Device device = avatar->part_labels().device();
-  const PoseFitter fitter(options, device, keypoint_map);
+  PoseFitter fitter(options, device, keypoint_map);
   const at::Tensor zero = at::zeros({kCorrectionWidth}, at::TensorOptions().device(device));
   for (size_t k = 0; k < frames.size(); ++k) {
     const int64_t f = frames[k];

@@ -18,6 +18,7 @@
 // Each stage keeps its best iterate, and the fit returns its start when nothing beat it on the fine loss: a fit is
 // never worse than its start on the loss it minimises.
 #include <cstdint>
+#include <memory>
 #include <optional>
 #include <string>
 
@@ -30,6 +31,7 @@
 #include "splat/splat.h"
 #include "train/avatar_keypoints.h"
 #include "train/losses.h"
+#include "train/pose_fit_evaluation.h"
 #include "train/pose_refinement.h"
 #include "train/train_config.h"
 
@@ -44,6 +46,9 @@ struct PoseFitOptions {
   bool fit_joints = true;
   // Weight of the keypoint reprojection term where the target has detections; 0: the image alone.
   double keypoint_weight = kPoseFitKeypointWeight;
+  // On CUDA, each kind of stage's evaluation recorded once as a CUDA graph and replayed (train/pose_fit_evaluation.h);
+  // false: every evaluation eager (the schedule's cuda_graphs in pose refinement).
+  bool recorded = true;
 };
 
 // What a frame's pose is fitted to: its image on white outside the person, the person mask, its render camera and
@@ -62,18 +67,25 @@ PoseFitTarget pose_fit_target(const data::Dataset& dataset, int64_t frame, at::D
 FrameKeypoints record_keypoints(const data::FrameRecord& record, at::Device device);
 
 struct PoseFitResult {
-  at::Tensor correction;            // (kCorrectionWidth), detached
+  at::Tensor correction;            // (kCorrectionWidth) float32 on the CPU
   double start_loss = 0, loss = 0;  // the fine loss at the start and at the result (never above start_loss)
+  int64_t evaluations = 0;          // loss evaluations run (the start's included)
+  bool recorded = false;            // whether they were replays of recorded CUDA graphs
 };
 
-// Fits the correction of `pose` (from `start`, a (kCorrectionWidth) correction on the avatar's device) to `target`.
-// `loss` must be built from options.loss on the avatar's device (LPIPS loads once for many frames).
+// Fits the correction of `pose` (from `start`, a (kCorrectionWidth) correction on any device) to `target`. One fitter
+// serves many frames of one avatar: the image loss (LPIPS) loads once, and on CUDA the recorded evaluations are kept
+// from frame to frame while the avatar holds still.
 class PoseFitter {
  public:
   // `keypoint_map` (may be null: no keypoint term) must be built for the avatar's body model.
   PoseFitter(const PoseFitOptions& options, at::Device device, const body::WholeBodyKeypointMap* keypoint_map);
+  ~PoseFitter();
+  PoseFitter(const PoseFitter&) = delete;
+  PoseFitter& operator=(const PoseFitter&) = delete;
+  // The avatar must hold still between the fits of one fitter (its recorded evaluations read its parameters).
   PoseFitResult fit(model::Avatar& avatar, const body::SmplxPose& pose, const PoseFitTarget& target,
-                    const at::Tensor& start) const;
+                    const at::Tensor& start);
   // Whether fit() adds the keypoint term to a target with detections (a map was given and the weight is positive).
   bool uses_keypoints() const { return keypoint_map_.has_value(); }
 
@@ -81,6 +93,10 @@ class PoseFitter {
   PoseFitOptions options_;
   ImageLoss loss_;
   std::optional<body::WholeBodyKeypointMap> keypoint_map_;  // on the device, float32
+  std::unique_ptr<FitLoss> fit_loss_;
+  std::unique_ptr<PoseFitGraphs> graphs_;  // made at the first recorded fit
+  const void* graphs_avatar_ = nullptr;    // the avatar graphs_ was made for
+  bool recording_failed_ = false;          // a recording failed: this fitter evaluates eagerly from then on
 };
 
 // How far a fit lies from the truth: the mean geodesic angle (degrees) of the global orientation, of the 21 body

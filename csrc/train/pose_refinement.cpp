@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <array>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 
@@ -207,7 +208,7 @@ void PoseRefinement::step(int64_t frame, int64_t iteration, double rate_factor) 
   gradient.reset();
 }
 
-nlohmann::json PoseRefinement::align(int64_t iteration, model::Avatar& avatar, const LossWeights& loss) {
+nlohmann::json PoseRefinement::align(int64_t iteration, model::Avatar& avatar, const LossWeights& loss, bool recorded) {
   if (std::find(align_iterations_.begin(), align_iterations_.end(), iteration) == align_iterations_.end())
     return nlohmann::json::object();
   PoseFitOptions options;
@@ -216,13 +217,17 @@ nlohmann::json PoseRefinement::align(int64_t iteration, model::Avatar& avatar, c
   options.fit_orientation = iteration >= align_orientation_from_;
   options.fit_joints = iteration >= align_joints_from_;
   options.keypoint_weight = config_.keypoint_weight;
+  options.recorded = recorded;
+  const auto started = std::chrono::steady_clock::now();
   const at::Device device = corrections_.device();
-  const PoseFitter fitter(options, device, keypoint_map_ ? &*keypoint_map_ : nullptr);
+  PoseFitter fitter(options, device, keypoint_map_ ? &*keypoint_map_ : nullptr);
   // The parameters hold still meanwhile: the avatar's pose-independent features are computed once, not per step.
   avatar->eval();
   avatar->cache_static_features();
   const nlohmann::json error_before = error_against_truth();
   double before = 0, after = 0;
+  int64_t evaluations = 0;
+  bool every_fit_recorded = true;
   for (size_t r = 0; r < frames_.size(); ++r) {
     const int64_t f = frames_[r];
     // The frame's detections as the constructor read them (a pass reads no keypoint file).
@@ -237,6 +242,8 @@ nlohmann::json PoseRefinement::align(int64_t iteration, model::Avatar& avatar, c
     steps_[r] = 0;
     before += fit.start_loss;
     after += fit.loss;
+    evaluations += fit.evaluations;
+    every_fit_recorded = every_fit_recorded && fit.recorded;
   }
   avatar->clear_cache();
   avatar->train();
@@ -248,7 +255,10 @@ nlohmann::json PoseRefinement::align(int64_t iteration, model::Avatar& avatar, c
                        {"iteration", iteration},
                        {"frames", frames_.size()},
                        {"loss_before", before / rows},
-                       {"loss_after", after / rows}};
+                       {"loss_after", after / rows},
+                       {"evaluations", evaluations},
+                       {"recorded", every_fit_recorded},
+                       {"seconds", std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count()}};
   const nlohmann::json error = error_against_truth();
   if (!error.empty()) {
     entry["pose_error_before"] = error_before;

@@ -69,10 +69,11 @@ class PoseRefinement {
   // At an iteration of config.align_at (before its step): every training frame's correction fitted to its image with
   // `avatar` as it is (train/pose_fit.h, the run's image loss `loss`; the joints from config.align_joints_from on,
   // the global orientation from config.align_orientation_from on, the translation always), its Adam state restarted.
-  // Returns the log entry (event "pose_alignment": the mean fitting loss before and after, and where the dataset has
-  // exact fits the error against them before and after the pass, "pose_error_before" and "pose_error"); an empty object
-  // at other iterations.
-  nlohmann::json align(int64_t iteration, model::Avatar& avatar, const LossWeights& loss);
+  // `recorded`: on CUDA, the fits' evaluations as replays of recorded CUDA graphs (PoseFitOptions::recorded).
+  // Returns the log entry (event "pose_alignment": the mean fitting loss before and after, the loss evaluations,
+  // whether every fit's were recorded, the pass's seconds, and where the dataset has exact fits the error against them
+  // before and after the pass, "pose_error_before" and "pose_error"); an empty object at other iterations.
+  nlohmann::json align(int64_t iteration, model::Avatar& avatar, const LossWeights& loss, bool recorded);
   // The mean error of the refined and of the input training fits against the exact ones (FrameRecord::true_pose,
   // train/pose_fit.h PoseError) as {"input": ..., "refined": ...}; an empty object when the dataset has none.
   nlohmann::json error_against_truth() const;

@@ -131,7 +131,7 @@ void TrainingSession::step(int64_t it) {
   const int64_t f = train_frames[pick(rng_)];
   const data::FrameRecord& record = dataset_.frames[size_t(f)];
   if (refinement_) {
-    const nlohmann::json aligned = refinement_->align(it, avatar_, config_.loss);
+    const nlohmann::json aligned = refinement_->align(it, avatar_, config_.loss, config_.schedule.cuda_graphs);
     if (!aligned.empty()) log_->write(aligned);
   }
   StepData data;

@@ -401,7 +401,7 @@ TEST(TrainPoseFitting, StaysAtTheExactPoseAndNeverEndsWorseThanItsStart) {
   data::Dataset dataset = tiny_video(folder, 10, 64);
   const int64_t f = dataset.split(data::Split::kTest)[0];
   model::Avatar avatar = render_frames_with_avatar(dataset, {f});
-  const train::PoseFitter fitter(fit_options(30), at::kCPU, nullptr);
+  train::PoseFitter fitter(fit_options(30), at::kCPU, nullptr);
   const body::SmplxPose& truth = dataset.frames[size_t(f)].pose;
   const train::PoseFitTarget target = train::pose_fit_target(dataset, f, at::kCPU, false);
   const train::PoseFitResult exact = fitter.fit(avatar, truth, target, at::zeros({kCorrectionWidth}));
@@ -493,8 +493,8 @@ TEST(TrainPoseRefinement, AlignmentFitsThePlacementThenTheJointsOfTheTrainingFit
   train::PoseRefinement r(dataset, config, 10, at::kCPU, nullptr);
   train::LossWeights loss;
   loss.use_lpips = false;
-  EXPECT_TRUE(r.align(4, avatar, loss).empty()) << "not an alignment iteration";
-  const nlohmann::json placement = r.align(3, avatar, loss);
+  EXPECT_TRUE(r.align(4, avatar, loss, true).empty()) << "not an alignment iteration";
+  const nlohmann::json placement = r.align(3, avatar, loss, true);
   ASSERT_EQ(placement.value("event", ""), "pose_alignment");
   EXPECT_LE(placement.at("loss_after").get<double>(), placement.at("loss_before").get<double>());
   const nlohmann::json& error = placement.at("pose_error");
@@ -502,7 +502,7 @@ TEST(TrainPoseRefinement, AlignmentFitsThePlacementThenTheJointsOfTheTrainingFit
   for (const char* key : {"root_deg", "body_deg", "hands_deg"})  // they stay with the per-step corrections
     EXPECT_EQ(error.at("refined").at(key), error.at("input").at(key)) << key;
   EXPECT_NE(error.at("refined").at("translation_cm"), error.at("input").at("translation_cm"));
-  const nlohmann::json joints = r.align(5, avatar, loss);
+  const nlohmann::json joints = r.align(5, avatar, loss, true);
   ASSERT_EQ(joints.value("event", ""), "pose_alignment");
   EXPECT_LT(joints.at("loss_after").get<double>(), joints.at("loss_before").get<double>());
   EXPECT_EQ(joints.at("pose_error_before"), placement.at("pose_error")) << "the fits as the placement pass left them";
@@ -513,7 +513,7 @@ TEST(TrainPoseRefinement, AlignmentFitsThePlacementThenTheJointsOfTheTrainingFit
   // the turn free the translation comes nearer the truth (held to it, it covered part of the turn).
   config.align_orientation_from = 0.3;
   train::PoseRefinement turning(dataset, config, 10, at::kCPU, nullptr);
-  const nlohmann::json turned = turning.align(3, avatar, loss).at("pose_error");
+  const nlohmann::json turned = turning.align(3, avatar, loss, true).at("pose_error");
   EXPECT_NE(turned.at("refined").at("root_deg"), turned.at("input").at("root_deg"));
   EXPECT_EQ(turned.at("refined").at("body_deg"), turned.at("input").at("body_deg"));
   EXPECT_LT(turned.at("refined").at("translation_cm").get<double>(),
