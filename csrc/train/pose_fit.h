@@ -16,7 +16,8 @@
 // stage also minimises their robust reprojection error (train/avatar_keypoints.h), weighted by keypoint_weight: they
 // pull a far start into the image's basin and pin the placement a frontal image sees poorly.
 // Each stage keeps its best iterate, and the fit returns its start when nothing beat it on the fine loss: a fit is
-// never worse than its start on the loss it minimises.
+// never worse than its start on the loss it minimises. L-BFGS runs on the host; each evaluation is the stage's loss and
+// gradient on the avatar's device, on CUDA a replay of a recorded graph (train/pose_fit_evaluation.h).
 #include <cstdint>
 #include <memory>
 #include <optional>
