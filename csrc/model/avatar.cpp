@@ -41,6 +41,11 @@ struct CanonicalGaussians {
 
 namespace {
 
+void check_frame_time(FrameTime time) {
+  TORCH_CHECK(!time || (std::isfinite(*time) && *time >= -1.0 && *time <= 1.0),
+              "Avatar: time must be normalised to [-1, 1] (once per sequence), got ", *time);
+}
+
 using body::BodyPart;
 
 void check_config(const AvatarConfig& c) {
@@ -158,8 +163,7 @@ AvatarOutput AvatarImpl::forward(const body::SmplxPose& pose, FrameTime time) {
 }
 
 AvatarOutput AvatarImpl::forward_trusted_pose(const body::SmplxPose& pose, FrameTime time) {
-  TORCH_CHECK(!time || (std::isfinite(*time) && *time >= -1.0 && *time <= 1.0),
-              "Avatar: time must be normalised to [-1, 1] (once per sequence), got ", *time);
+  check_frame_time(time);
   return posed(pose, time, at::Tensor());
 }
 
@@ -174,8 +178,7 @@ AvatarOutput AvatarImpl::forward_trusted_pose(const body::SmplxPose& pose, const
 }
 
 CanonicalAttributes AvatarImpl::attributes(FrameTime time) {
-  TORCH_CHECK(!time || (std::isfinite(*time) && *time >= -1.0 && *time <= 1.0),
-              "Avatar: time must be normalised to [-1, 1] (once per sequence), got ", *time);
+  check_frame_time(time);
   std::optional<Tf32MatmulScope> products;
   if (!at::GradMode::is_enabled() && body_->vertices().is_cuda()) products.emplace(true);
   plan_observation_prior();

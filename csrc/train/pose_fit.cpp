@@ -111,17 +111,15 @@ PoseFitResult PoseFitter::fit(model::Avatar& avatar, const body::SmplxPose& pose
   }
 
   const bool record = options_.recorded && device.is_cuda() && device_graphs_available() && !recording_failed_;
-  if (record && graphs_avatar_ != avatar.get()) {
+  if (record && (!graphs_ || graphs_->avatar().get() != avatar.get()))
     graphs_ = std::make_unique<PoseFitGraphs>(avatar, *fit_loss_, device);
-    graphs_avatar_ = avatar.get();
-  }
   PoseFitResult result;
   result.recorded = record;
   size_t loaded = kStages.size();  // the stage whose frame the recorded evaluations read
   // The stage's loss at `correction` (CPU) and, where it is finite, its gradient.
   const auto evaluate = [&](size_t s, const at::Tensor& correction) -> FitEvaluation {
     ++result.evaluations;
-    if (graphs_ && !recording_failed_) {
+    if (graphs_) {
       try {
         if (loaded != s) graphs_->load(frames[s], kStages[s].run_loss);
         loaded = s;
@@ -132,7 +130,6 @@ PoseFitResult PoseFitter::fit(model::Avatar& avatar, const body::SmplxPose& pose
         recording_failed_ = true;
         result.recorded = false;
         graphs_.reset();
-        graphs_avatar_ = nullptr;
       }
     }
     const at::Tensor moving = correction.to(device, at::kFloat, false, /*copy=*/true).requires_grad_(true);

@@ -95,8 +95,7 @@ class PoseFitter {
   ImageLoss loss_;
   std::optional<body::WholeBodyKeypointMap> keypoint_map_;  // on the device, float32
   std::unique_ptr<FitLoss> fit_loss_;
-  std::unique_ptr<PoseFitGraphs> graphs_;  // made at the first recorded fit
-  const void* graphs_avatar_ = nullptr;    // the avatar graphs_ was made for
+  std::unique_ptr<PoseFitGraphs> graphs_;  // made at the first recorded fit of an avatar
   bool recording_failed_ = false;          // a recording failed: this fitter evaluates eagerly from then on
 };
 

@@ -109,15 +109,26 @@ PoseFitGraphs::~PoseFitGraphs() = default;
 
 void PoseFitGraphs::load(const FitFrame& frame, bool run_loss) {
   TORCH_CHECK(!frame.camera_frame.defined(), "PoseFitGraphs::load: the frame's camera is placed by its buffers");
-  const std::string name = kind_of(frame, run_loss);
-  std::unique_ptr<Kind>& slot = kinds_[name];
+  std::unique_ptr<Kind>& slot = kinds_[kind_of(frame, run_loss)];
   FitFrame given = frame;
-  const auto options = at::TensorOptions(device_).dtype(at::kFloat);
-  if (!slot) {
+  const at::Tensor pose_values = frame.pose.packed();
+  at::Tensor placement = at::empty({kCameraFrameValues}, at::kFloat);
+  write_camera_frame(frame.camera, placement.data_ptr<float>());
+  at::NoGradGuard no_grad;
+  if (slot) {
+    // A kind seen before: the frame's values into its buffers.
+    Kind& k = *slot;
+    copy_fields(attribute_fields(k.frame.attributes), attribute_fields(given.attributes));
+    k.frame.image.copy_(frame.image);
+    if (frame.mask.defined()) k.frame.mask.copy_(frame.mask);
+    copy_fields(keypoint_fields(k.frame.keypoints), keypoint_fields(given.keypoints));
+  } else {
+    // A new kind: buffers made from the frame itself.
     slot = std::make_unique<Kind>();
     Kind& k = *slot;
+    const auto options = at::TensorOptions(device_).dtype(at::kFloat);
     k.run_loss = run_loss;
-    k.pose_values = at::empty({frame.pose.packed().size(0)}, options);
+    k.pose_values = at::empty({pose_values.size(0)}, options);
     k.frame.pose = frame.pose.views_of(k.pose_values);
     clone_fields(attribute_fields(k.frame.attributes), attribute_fields(given.attributes));
     k.frame.has_time = frame.has_time;
@@ -129,17 +140,9 @@ void PoseFitGraphs::load(const FitFrame& frame, bool run_loss) {
     clone_fields(keypoint_fields(k.frame.keypoints), keypoint_fields(given.keypoints));
     k.correction = at::zeros({kCorrectionWidth}, options).requires_grad_(true);
   }
-  Kind& k = *slot;
-  at::NoGradGuard no_grad;
-  k.pose_values.copy_(frame.pose.packed());
-  at::Tensor placement = at::empty({kCameraFrameValues}, at::kFloat);
-  write_camera_frame(frame.camera, placement.data_ptr<float>());
-  k.camera_values.copy_(placement);
-  copy_fields(attribute_fields(k.frame.attributes), attribute_fields(given.attributes));
-  k.frame.image.copy_(frame.image);
-  if (frame.mask.defined()) k.frame.mask.copy_(frame.mask);
-  copy_fields(keypoint_fields(k.frame.keypoints), keypoint_fields(given.keypoints));
-  loaded_ = &k;
+  slot->pose_values.copy_(pose_values);
+  slot->camera_values.copy_(placement);
+  loaded_ = slot.get();
 }
 
 FitEvaluation PoseFitGraphs::evaluate(const at::Tensor& correction) {

@@ -80,6 +80,7 @@ class PoseFitGraphs {
   // when the evaluation cannot be recorded (nothing of it ran; the caller evaluates eagerly).
   FitEvaluation evaluate(const at::Tensor& correction);
   int64_t captures() const { return captures_; }
+  const model::Avatar& avatar() const { return avatar_; }
 
  private:
   struct Kind;
