@@ -6,7 +6,7 @@
 #
 #   bash scripts/device_check.sh [build] [test] [python] [pip] [sanitize] [bench] [profile] [avatar] [animate]
 #                                [train-step] [animate-trained] [stage-profile] [step-profile] [train] [ablate] [novel]
-#                                [sizes] [fits] [render-path] [refine-cost]
+#                                [sizes] [fits] [render-path] [refine-cost] [fit-profile]
 #   (no argument: build, test, sanitize, bench, profile, in this order)
 #
 # python: the pytest suite against the module built with the machine's pip torch and pybind11 (CUDA included).
@@ -34,6 +34,9 @@
 # trained avatar of render-path or animate-trained when one of them ran; replayed frames at SFGS_DEVICE_PROFILE_TIME
 # when set): every kernel's GPU time and DRAM bytes, summed per stage (scripts/kernel_profile_summary.py).
 # step-profile: the same over one training step (bench_train_step --profile 1, the train-step scene).
+# fit-profile: the same over one eager pose-fit evaluation (bench_pose_fit --profile 1: the fine stage on the person's
+# crop of the first training frame) of an avatar refine-cost trained (the refined one, else the plain one), else
+# render-path's.
 # train: synthesise the Anny scene (SFGS_DEVICE_TRAIN_SIZE, default 800x1200; SFGS_DEVICE_TRAIN_FRAMES, default
 # 100) and train, evaluate (with LPIPS) and render it on CUDA with configs/device_anny.yaml
 # (SFGS_DEVICE_TRAIN_ITERATIONS overrides its iterations).
@@ -347,7 +350,9 @@ fi
 # SFGS_DEVICE_REFINE_ITERATIONS (default 4000) each, and with refinement and every step and evaluation eager
 # (schedule.cuda_graphs false) for SFGS_DEVICE_REFINE_EAGER_ITERATIONS (default 200; a pass costs the same in a run of
 # any length). SFGS_DEVICE_REFINE_VARIANTS names the runs (default "plain refined refined-eager"). Prints each run's
-# training seconds and each alignment pass's frames, loss evaluations and seconds.
+# training seconds and each alignment pass's frames, loss evaluations and seconds; then bench_pose_fit on the refined
+# (else the plain) run's first four training frames (an evaluation on the whole image, on the person's crop, without LPIPS, with the
+# L1 stage loss; whole fits at the passes' 60 evaluations).
 if wants refine-cost; then
   export SFGS_SHARED_DIR=$shared
   scene=$render_scene
@@ -378,9 +383,15 @@ for e in entries:
               f"val PSNR {e.get('val_psnr', float('nan')):.2f}")
 PY
   done
+  fit_run=$scene/run-refined
+  [ -f "$fit_run/checkpoint.pt" ] || fit_run=$scene/run-plain
+  if [ -f "$fit_run/checkpoint.pt" ]; then
+    run refine-bench-fit 300 "$build/bench/bench_pose_fit" --run "$fit_run" --split train --frames 4
+    cat "$out/refine-bench-fit.log"
+  fi
 fi
 
-if wants stage-profile || wants step-profile; then
+if wants stage-profile || wants step-profile || wants fit-profile; then
   export SFGS_SHARED_DIR=$shared
   ncu=$(command -v ncu || echo /usr/local/cuda/bin/ncu)
   metrics=gpu__time_duration.sum,dram__bytes_read.sum,dram__bytes_write.sum
@@ -405,6 +416,13 @@ if wants stage-profile || wants step-profile; then
     [ -d "$scene/data" ] || anny_scene step-synth "$scene" "${SFGS_DEVICE_STEP_SIZE:-800x1200}" 40
     profile_stages step-profile "$build/bench/bench_train_step" --data "$scene/data" --config "$scene/config.yaml" \
       --warmup 5 --profile 1
+  fi
+  if wants fit-profile; then
+    fit_run=/tmp/sfgs-render-path/run
+    for candidate in run-plain run-refined; do
+      [ -f "/tmp/sfgs-render-path/$candidate/checkpoint.pt" ] && fit_run=/tmp/sfgs-render-path/$candidate
+    done
+    profile_stages fit-profile "$build/bench/bench_pose_fit" --run "$fit_run" --split train --profile 1
   fi
 fi
 

@@ -212,6 +212,13 @@ inline constexpr long kPoseFitHistory = 20;
 // Fewest evaluations a coarser stage runs with: one would render once and never step (its share goes to the fine
 // stage).
 inline constexpr long kPoseFitMinStageEvaluations = 2;
+// A fit with a person mask compares a crop around the person, not the whole image: the white rest costs the image
+// terms (SSIM, LPIPS) per pixel as much as the person does. The mask's box is widened on each side by
+// kPoseFitCropMargin of its larger side, where a misplaced body still shows (0.15 of a 1.7 m person is 25 cm), and its
+// sides are rounded up to multiples of kPoseFitCropStep pixels, so that a video's crops come in few sizes and so few
+// recorded graphs.
+inline constexpr double kPoseFitCropMargin = 0.15;
+inline constexpr long kPoseFitCropStep = 64;
 // Weight of the silhouette term, the mean |alpha - person mask|, beside the image L1 of the downsampled stages: a
 // share of misplaced pixels weighs about as much as the image error over them, and it pulls where the image is flat
 // (white on white). The fine stage's is lighter: there the image inside the person decides, and the avatar's own

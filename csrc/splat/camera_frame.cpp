@@ -55,4 +55,18 @@ Camera camera_at_origin_of(Camera camera) {
   return camera;
 }
 
+Camera with_centred_principal_point(Camera camera) {
+  // u = fx x / z + cx = fx (x + (cx - cx') z / fx) / z + cx': the depth row, scaled, added to the x row (y alike).
+  const double centre_x = 0.5 * double(camera.width), centre_y = 0.5 * double(camera.height);
+  const double shear_x = (camera.cx - centre_x) / camera.fx, shear_y = (camera.cy - centre_y) / camera.fy;
+  auto& m = camera.world_to_camera;
+  for (int column = 0; column < 4; ++column) {
+    m[size_t(column)] += shear_x * m[size_t(8 + column)];
+    m[size_t(4 + column)] += shear_y * m[size_t(8 + column)];
+  }
+  camera.cx = centre_x;
+  camera.cy = centre_y;
+  return camera;
+}
+
 }  // namespace sfgs

@@ -41,4 +41,10 @@ struct CameraFrame {
 // The camera with its intrinsics and image size at the origin (world_to_camera the identity).
 Camera camera_at_origin_of(Camera camera);
 
+// The same view with the principal point at the image's centre: world_to_camera's first two rows take a multiple of
+// the depth row (a shear that keeps every depth), so each point and each covariance projects where `camera` projects
+// it. A recording that bakes the intrinsics then serves every crop of an image size (the crop's placement read from
+// the device, as above). world_to_camera is no longer a rotation: for points and covariances, not view directions.
+Camera with_centred_principal_point(Camera camera);
+
 }  // namespace sfgs

@@ -1,16 +1,22 @@
 #include "train/pose_fit.h"
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstdio>
+#include <numeric>
+#include <optional>
 #include <string>
+#include <utility>
 
 #include <ATen/ATen.h>
 #include <torch/csrc/autograd/autograd.h>
 #include <torch/optim/lbfgs.h>
 
 #include "body/rotations.h"
+#include "common/tensor_description.h"
 #include "common/constants.h"
+#include "common/matmul_precision.h"
 #include "data/keypoint_file.h"
 #include "train/avatar_keypoints.h"
 #include "train/run_folder.h"
@@ -39,6 +45,33 @@ Camera downsampled(const Camera& camera, int64_t factor) {
   return c;
 }
 
+// Crops start on every stage's pixel grid, and their rounded sizes keep them on it.
+constexpr int64_t kCropAlignment = std::lcm(kPoseFitCoarseDownsample, kPoseFitMiddleDownsample);
+static_assert(kPoseFitCropStep % kCropAlignment == 0);
+
+// One side of the person's crop on an axis of `extent` pixels whose person pixels span [first, last]: the origin
+// and size (the whole axis where the rounded crop would cover it).
+std::pair<int64_t, int64_t> crop_axis(int64_t first, int64_t last, int64_t margin, int64_t extent) {
+  const int64_t size = (last - first + 1 + 2 * margin + kPoseFitCropStep - 1) / kPoseFitCropStep * kPoseFitCropStep;
+  if (size >= extent) return {0, extent};
+  const int64_t origin = std::clamp((first + last + 1 - size) / 2, int64_t(0), extent - size);
+  return {origin - origin % kCropAlignment, size};
+}
+
+// The camera of the crop `box` of its image.
+Camera cropped(const Camera& camera, const PixelBox& box) {
+  Camera c = camera;
+  c.cx -= double(box.x);
+  c.cy -= double(box.y);
+  c.width = box.width;
+  c.height = box.height;
+  return c;
+}
+
+at::Tensor crop(const at::Tensor& image, const PixelBox& box) {
+  return image.narrow(0, box.y, box.height).narrow(1, box.x, box.width).contiguous();
+}
+
 // One stage of a fit: its share of the evaluations, resolution, which correction columns move, and its loss.
 struct StageSpec {
   double share;
@@ -57,6 +90,20 @@ const std::array<StageSpec, 3> kStages{{{kPoseFitCoarseShare, kPoseFitCoarseDown
 struct StageEnded {};
 
 }  // namespace
+
+PixelBox person_crop(const at::Tensor& mask) {
+  TORCH_CHECK(mask.dim() == 2, "person_crop: an (H, W) mask expected, got ", describe(mask));
+  const int64_t height = mask.size(0), width = mask.size(1);
+  const at::Tensor person = mask >= 0.5;
+  const at::Tensor rows = at::nonzero(person.any(1)).cpu(), columns = at::nonzero(person.any(0)).cpu();
+  if (rows.numel() == 0) return {0, 0, width, height};
+  const int64_t top = rows.min().item<int64_t>(), bottom = rows.max().item<int64_t>();
+  const int64_t left = columns.min().item<int64_t>(), right = columns.max().item<int64_t>();
+  const auto margin = int64_t(std::ceil(kPoseFitCropMargin * double(std::max(bottom - top, right - left) + 1)));
+  const auto [x, w] = crop_axis(left, right, margin, width);
+  const auto [y, h] = crop_axis(top, bottom, margin, height);
+  return {x, y, w, h};
+}
 
 PoseFitTarget pose_fit_target(const data::Dataset& dataset, int64_t frame, at::Device device, bool with_keypoints) {
   const data::FrameRecord& record = dataset.frames[size_t(frame)];
@@ -101,13 +148,19 @@ PoseFitResult PoseFitter::fit(model::Avatar& avatar, const body::SmplxPose& pose
   }
   frame.has_time = target.time.has_value();
   frame.keypoints = keypoint_map_ ? target.keypoints : FrameKeypoints();
+  const int64_t full_width = target.image.size(1), full_height = target.image.size(0);
+  const PixelBox box = target.mask.defined() ? person_crop(target.mask) : PixelBox{0, 0, full_width, full_height};
+  frame.pixel_share = double(box.width * box.height) / double(full_width * full_height);
+  const Camera camera = cropped(target.camera, box);
+  const at::Tensor image = crop(target.image, box);
+  const at::Tensor mask = target.mask.defined() ? crop(target.mask, box) : at::Tensor();
   std::array<FitFrame, kStages.size()> frames;
   for (size_t s = 0; s < kStages.size(); ++s) {
     const int64_t d = kStages[s].downsample;
     frames[s] = frame;
-    frames[s].camera = d == 1 ? target.camera : downsampled(target.camera, d);
-    frames[s].image = d == 1 ? target.image : downsample(target.image, d);
-    if (target.mask.defined()) frames[s].mask = d == 1 ? target.mask : downsample(target.mask, d);
+    frames[s].camera = d == 1 ? camera : downsampled(camera, d);
+    frames[s].image = d == 1 ? image : downsample(image, d);
+    if (mask.defined()) frames[s].mask = d == 1 ? mask : downsample(mask, d);
   }
 
   const bool record = options_.recorded && device.is_cuda() && device_graphs_available() && !recording_failed_;
@@ -229,6 +282,9 @@ data::Dataset fit_poses(const data::Dataset& dataset, data::Split split, model::
   data::Dataset fitted = dataset;
   const std::vector<int64_t>& frames = dataset.split(split);
   const at::Device device = avatar->part_labels().device();
+  // The networks' products on TF32 tensor cores, as the training steps and inference frames take them on CUDA.
+  std::optional<Tf32MatmulScope> products;
+  if (device.is_cuda()) products.emplace(true);
   PoseFitter fitter(options, device, keypoint_map);
   const at::Tensor zero = at::zeros({kCorrectionWidth}, at::TensorOptions().device(device));
   for (size_t k = 0; k < frames.size(); ++k) {

@@ -12,6 +12,8 @@
 //  2. middle: every corrected field at 1/kPoseFitMiddleDownsample, the same loss;
 //  3. fine: every corrected field at full resolution, against the run's image loss inside the person (the
 //     evaluation protocol's view) plus a lighter silhouette term.
+// With a person mask, every stage compares a crop around the person (person_crop), its image terms scaled to the
+// whole image's means: the same objective without the white rest of the image.
 // When the frame has whole-body keypoint detections (FrameRecord::keypoints_path) and the fitter a keypoint map, every
 // stage also minimises their robust reprojection error (train/avatar_keypoints.h), weighted by keypoint_weight: they
 // pull a far start into the image's basin and pin the placement a frontal image sees poorly.
@@ -66,6 +68,16 @@ PoseFitTarget pose_fit_target(const data::Dataset& dataset, int64_t frame, at::D
 // The detections of `record`'s keypoint file on `device`, in the pixels of its render camera; undefined when the frame
 // has no keypoint file.
 FrameKeypoints record_keypoints(const data::FrameRecord& record, at::Device device);
+
+// A rectangle of an image's pixels: columns [x, x + width), rows [y, y + height).
+struct PixelBox {
+  int64_t x = 0, y = 0, width = 0, height = 0;
+};
+// The part of a target's image a fit compares, from its (H, W) person mask: the box of the person's pixels widened by
+// kPoseFitCropMargin of its larger side each way, its sides rounded up to multiples of kPoseFitCropStep (an axis the
+// rounded box would cover is kept whole), its origin on the coarsest stage's pixel grid so that every stage's crop is
+// the crop of its downsampled image. The whole image when the mask holds no person.
+PixelBox person_crop(const at::Tensor& mask);
 
 struct PoseFitResult {
   at::Tensor correction;            // (kCorrectionWidth) float32 on the CPU

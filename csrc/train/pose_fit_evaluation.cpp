@@ -25,6 +25,13 @@ at::Tensor FitLoss::operator()(model::Avatar& avatar, const FitFrame& frame, con
     gaussians.covariances = frame.camera_frame.covariances(gaussians.covariances);
   }
   const RenderResult r = render(gaussians, at::ones({3}, correction.options()), frame.camera);
+  at::Tensor loss = image_terms(r, frame, run_loss);
+  if (frame.pixel_share != 1) loss = loss * frame.pixel_share;
+  if (!keypoint_map_ || !frame.keypoints.defined()) return loss;
+  return loss + keypoint_weight_ * keypoint_reprojection_loss(*keypoint_map_, avatar, out, frame.keypoints);
+}
+
+at::Tensor FitLoss::image_terms(const RenderResult& r, const FitFrame& frame, bool run_loss) const {
   at::Tensor loss;
   if (!run_loss) {
     loss = (r.image - frame.image).abs().mean();
@@ -40,8 +47,7 @@ at::Tensor FitLoss::operator()(model::Avatar& avatar, const FitFrame& frame, con
     image_loss_.add_terms(r.image * m + (1 - m), frame.image, terms);
     loss = total_loss(terms) + kPoseFitFineSilhouetteWeight * (r.alpha - frame.mask).abs().mean();
   }
-  if (!keypoint_map_ || !frame.keypoints.defined()) return loss;
-  return loss + keypoint_weight_ * keypoint_reprojection_loss(*keypoint_map_, avatar, out, frame.keypoints);
+  return loss;
 }
 
 namespace {
@@ -68,8 +74,8 @@ std::string kind_of(const FitFrame& frame, bool run_loss) {
   std::ostringstream key;
   key << std::setprecision(17) << "run_loss " << run_loss << " time " << frame.has_time << " pose "
       << frame.pose.layout() << " camera " << c.fx << ',' << c.fy << ',' << c.cx << ',' << c.cy << ',' << c.width << ','
-      << c.height << ',' << c.near_plane << ',' << c.far_plane << " image " << describe(frame.image) << " mask "
-      << (frame.mask.defined() ? describe(frame.mask) : "-") << " attributes ";
+      << c.height << ',' << c.near_plane << ',' << c.far_plane << " share " << frame.pixel_share << " image "
+      << describe(frame.image) << " mask " << (frame.mask.defined() ? describe(frame.mask) : "-") << " attributes ";
   describe_fields(key, attribute_fields(f.attributes));
   key << " keypoints ";
   describe_fields(key, keypoint_fields(f.keypoints));
@@ -109,11 +115,13 @@ PoseFitGraphs::~PoseFitGraphs() = default;
 
 void PoseFitGraphs::load(const FitFrame& frame, bool run_loss) {
   TORCH_CHECK(!frame.camera_frame.defined(), "PoseFitGraphs::load: the frame's camera is placed by its buffers");
-  std::unique_ptr<Kind>& slot = kinds_[kind_of(frame, run_loss)];
+  // The principal point travels with the placement: crops of one size around different people share a kind.
   FitFrame given = frame;
+  given.camera = with_centred_principal_point(frame.camera);
+  std::unique_ptr<Kind>& slot = kinds_[kind_of(given, run_loss)];
   const at::Tensor pose_values = frame.pose.packed();
   at::Tensor placement = at::empty({kCameraFrameValues}, at::kFloat);
-  write_camera_frame(frame.camera, placement.data_ptr<float>());
+  write_camera_frame(given.camera, placement.data_ptr<float>());
   at::NoGradGuard no_grad;
   if (slot) {
     // A kind seen before: the frame's values into its buffers.
@@ -134,7 +142,8 @@ void PoseFitGraphs::load(const FitFrame& frame, bool run_loss) {
     k.frame.has_time = frame.has_time;
     k.camera_values = at::empty({kCameraFrameValues}, options);
     k.frame.camera_frame = CameraFrame(k.camera_values);
-    k.frame.camera = camera_at_origin_of(frame.camera);
+    k.frame.camera = camera_at_origin_of(given.camera);
+    k.frame.pixel_share = frame.pixel_share;
     k.frame.image = frame.image.detach().clone();
     if (frame.mask.defined()) k.frame.mask = frame.mask.detach().clone();
     clone_fields(keypoint_fields(k.frame.keypoints), keypoint_fields(given.keypoints));

@@ -39,11 +39,15 @@ struct FitFrame {
   at::Tensor image;          // (H, W, 3) on white outside the person, at the stage's resolution
   at::Tensor mask;           // (H, W) person mask; undefined: the whole image, no silhouette
   FrameKeypoints keypoints;  // undefined: no keypoint term
+  // The share of the whole image's pixels that `image` covers when it is a crop around the person. The image terms
+  // are means over the crop, scaled by it to the whole image's means (the pixels left out match: white, no alpha), so a
+  // crop keeps the objective and its balance with the keypoint term.
+  double pixel_share = 1;
 };
 
 // A stage's loss: `run_loss` the run's image loss inside the person plus a light silhouette (the fine stage), else
-// the image's L1 plus the silhouette; plus keypoint_weight times the keypoint reprojection error where the frame has
-// detections and a map is given.
+// the image's L1 plus the silhouette, both times the frame's pixel share; plus keypoint_weight times the keypoint
+// reprojection error where the frame has detections and a map is given.
 class FitLoss {
  public:
   FitLoss(const ImageLoss& image_loss, const body::WholeBodyKeypointMap* keypoint_map, double keypoint_weight);
@@ -52,6 +56,9 @@ class FitLoss {
                         bool run_loss) const;
 
  private:
+  // The stage's image and silhouette terms, as means over the frame's image.
+  at::Tensor image_terms(const RenderResult& render, const FitFrame& frame, bool run_loss) const;
+
   const ImageLoss& image_loss_;
   const body::WholeBodyKeypointMap* keypoint_map_;
   double keypoint_weight_;
@@ -64,9 +71,11 @@ struct FitEvaluation {
 };
 
 // The stages' evaluations recorded as CUDA graphs (common/device_graph.h), one per kind of stage (run_loss, image
-// size and intrinsics, pose layout, time, mask, keypoints), in one memory pool. The splatting's buffers are sized
-// from a budget (splat/growing_budget.h); each replay's counts are read with its loss, and a replay beyond the budget
-// grows it, records again and evaluates again, so every returned loss is of a whole image.
+// size, focal lengths and pixel share, pose layout, time, mask, keypoints), in one memory pool: the camera's placement
+// and principal point are read from a buffer (with_centred_principal_point), so the crops of one size share a graph.
+// The splatting's buffers are sized from a budget (splat/growing_budget.h); each replay's counts are read with its
+// loss, and a replay beyond the budget grows it, records again and evaluates again, so every returned loss is of a
+// whole image.
 class PoseFitGraphs {
  public:
   PoseFitGraphs(model::Avatar avatar, const FitLoss& loss, at::Device device);

@@ -5,10 +5,12 @@
 #include <cmath>
 #include <limits>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <ATen/ATen.h>
 #include <gtest/gtest.h>
+#include <torch/csrc/autograd/autograd.h>
 #include <torch/csrc/autograd/grad_mode.h>
 
 #include "animate/animator.h"
@@ -84,10 +86,8 @@ TEST(Animator, FollowsAMovingCameraAndBackground) {
   }
 }
 
-TEST(Animator, GaussiansMovedIntoTheCameraFrameRenderAsSeenByTheCamera) {
-  // splat/camera_frame.h: the Gaussians moved into the camera's frame give the same image, alpha and depth.
-  at::manual_seed(3);
-  const int64_t n = 300;
+// `n` random float64 Gaussians about the origin, with their full (N, 3, 3) covariances.
+std::pair<Gaussians, at::Tensor> random_gaussians(int64_t n) {
   Gaussians g;
   g.means = at::randn({n, 3}, at::kDouble) * 0.3;
   const at::Tensor a = at::randn({n, 3, 3}, at::kDouble) * 0.05;
@@ -98,6 +98,24 @@ TEST(Animator, GaussiansMovedIntoTheCameraFrameRenderAsSeenByTheCamera) {
                 1);
   g.opacities = at::rand({n}, at::kDouble) * 0.9;
   g.features = at::rand({n, 3}, at::kDouble);
+  return {g, full};
+}
+
+// `g` moved into the frame of `camera`'s placement, as a recording reads it from the device.
+Gaussians moved_into(const Gaussians& g, const Camera& camera) {
+  std::vector<float> values(kCameraFrameValues);
+  write_camera_frame(camera, values.data());
+  const CameraFrame frame(at::tensor(values, at::kFloat).to(at::kDouble));
+  Gaussians moved = g;
+  moved.means = frame.points(g.means);
+  moved.covariances = frame.covariances(g.covariances);
+  return moved;
+}
+
+TEST(Animator, GaussiansMovedIntoTheCameraFrameRenderAsSeenByTheCamera) {
+  // splat/camera_frame.h: the Gaussians moved into the camera's frame give the same image, alpha and depth.
+  at::manual_seed(3);
+  const auto [g, full] = random_gaussians(300);
   Camera camera = Camera::looking_forward(80, 64, 48);
   const double c = std::cos(0.7), s = std::sin(0.7);
   camera.world_to_camera = {c, 0, s, 0.1, 0, 1, 0, -0.2, -s, 0, c, 2.5, 0, 0, 0, 1};
@@ -122,6 +140,42 @@ TEST(Animator, GaussiansMovedIntoTheCameraFrameRenderAsSeenByTheCamera) {
   EXPECT_LT((packed.select(1, 1) - rotated.select(1, 0).select(1, 1)).abs().max().item<double>(), 1e-8);
   EXPECT_LT((packed.select(1, 5) - rotated.select(1, 2).select(1, 2)).abs().max().item<double>(), 1e-8);
   EXPECT_THROW(CameraFrame(at::zeros({12})), c10::Error);
+}
+
+TEST(Animator, CentredPrincipalPointGivesTheOffCentreCamerasImageAndGradients) {
+  // A crop's camera, its principal point far off the image's centre (and Gaussians beyond the image's edges, where the
+  // projection clamps): the sheared placement with the centred principal point gives the same image and gradients.
+  at::manual_seed(4);
+  const Gaussians g = random_gaussians(400).first;
+  Camera camera = Camera::looking_forward(80, 40, 56);
+  camera.cx = 6;
+  camera.cy = 47;
+  const double c = std::cos(0.4), s = std::sin(0.4);
+  camera.world_to_camera = {c, 0, s, -0.2, 0, 1, 0, 0.1, -s, 0, c, 2.0, 0, 0, 0, 1};
+  const Camera centred = with_centred_principal_point(camera);
+  EXPECT_EQ(centred.cx, 20);
+  EXPECT_EQ(centred.cy, 28);
+  const at::Tensor background = at::full({3}, 0.3, at::kDouble);
+  const at::Tensor weights = at::rand({56, 40, 3}, at::kDouble);
+  const auto render_with = [&](bool sheared) {
+    Gaussians leaf = g;
+    leaf.means = g.means.clone().requires_grad_(true);
+    leaf.covariances = g.covariances.clone().requires_grad_(true);
+    const RenderResult r = sheared ? render(moved_into(leaf, centred), background, camera_at_origin_of(centred))
+                                   : render(leaf, background, camera);
+    const auto grads =
+        torch::autograd::grad({(r.image * weights).sum() + r.alpha.sum()}, {leaf.means, leaf.covariances});
+    return std::vector<at::Tensor>{r.image, r.alpha, r.depth, grads[0], grads[1]};
+  };
+  const std::vector<at::Tensor> seen = render_with(false), sheared = render_with(true);
+  EXPECT_GT(seen[1].max().item<double>(), 0.5) << "the Gaussians are in view";
+  EXPECT_GT(seen[1].select(1, 0).max().item<double>(), 0.2) << "and reach the crop's edge";
+  const char* names[] = {"image", "alpha", "depth", "means' gradient", "covariances' gradient"};
+  for (size_t k = 0; k < seen.size(); ++k) {
+    // The placement travels in float32: agreement to its rounding.
+    const double scale = std::max(1.0, seen[k].abs().max().item<double>());
+    EXPECT_LT((seen[k] - sheared[k]).abs().max().item<double>(), 1e-4 * scale) << names[k];
+  }
 }
 
 TEST(BackFacing, CullsExactlyThePointsFacingAwayByMoreThanTheMargin) {

@@ -302,26 +302,6 @@ TEST(TrainPoseRefinement, TrainingRefinesSavesAndResumesTheFits) {
   EXPECT_GT(changed, 0);
 }
 
-// A textured avatar (fixed, random parameters) and the frames `frames` of `dataset` made its own renders of their
-// fits: the image, and the mask where the render is opaque. Their fits become the truth (FrameRecord::true_pose).
-model::Avatar render_frames_with_avatar(data::Dataset& dataset, const std::vector<int64_t>& frames) {
-  model::Avatar avatar(procedural_avatar_body(), dataset.betas, small_config());
-  randomise_parameters(*avatar, 0.3, 42);  // colours that vary over the body
-  avatar->eval();
-  avatar->cache_static_features();
-  at::NoGradGuard no_grad;
-  for (const int64_t f : frames) {
-    data::FrameRecord& record = dataset.frames[size_t(f)];
-    const model::AvatarOutput out = avatar->forward(record.pose, dataset.replay_time(f));
-    const RenderResult r = render(model::to_gaussians(out), at::ones({3}), train::render_camera(record));
-    data::write_png(record.image_path, r.image, true);
-    data::write_png(record.mask_path, (r.alpha > 0.5).to(at::kFloat), true);
-    record.mask_encoding = data::MaskEncoding::kWhitePerson;
-    record.true_pose = record.pose;
-  }
-  return avatar;
-}
-
 // A fit turned by `turn` rad about the vertical, its hips bent by `hips` rad, shifted `shift` m sideways and
 // `depth` m along z.
 body::SmplxPose perturbed(const body::SmplxPose& truth, float turn, float hips, float shift, float depth) {

@@ -2,6 +2,7 @@
 
 #include <fstream>
 
+#include "data/image_io.h"
 #include "data/synthetic.h"
 #include "test_avatar_utils.h"
 
@@ -41,6 +42,24 @@ std::vector<nlohmann::json> log_entries(const train::RunFolder& run) {
   std::ifstream in(run.log_file());
   for (std::string line; std::getline(in, line);) entries.push_back(nlohmann::json::parse(line));
   return entries;
+}
+
+model::Avatar render_frames_with_avatar(data::Dataset& dataset, const std::vector<int64_t>& frames) {
+  model::Avatar avatar(procedural_avatar_body(), dataset.betas, small_config());
+  randomise_parameters(*avatar, 0.3, 42);  // colours that vary over the body
+  avatar->eval();
+  avatar->cache_static_features();
+  at::NoGradGuard no_grad;
+  for (const int64_t f : frames) {
+    data::FrameRecord& record = dataset.frames[size_t(f)];
+    const model::AvatarOutput out = avatar->forward(record.pose, dataset.replay_time(f));
+    const RenderResult r = render(model::to_gaussians(out), at::ones({3}), train::render_camera(record));
+    data::write_png(record.image_path, r.image, true);
+    data::write_png(record.mask_path, (r.alpha > 0.5).to(at::kFloat), true);
+    record.mask_encoding = data::MaskEncoding::kWhitePerson;
+    record.true_pose = record.pose;
+  }
+  return avatar;
 }
 
 }  // namespace sfgs::testing

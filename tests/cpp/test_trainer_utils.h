@@ -1,6 +1,6 @@
 #pragma once
-// Shared fixtures of the trainer tests (test_trainer.cpp, test_run_safety.cpp): a tiny synthetic video, a config
-// that trains it in seconds, quiet options and the run's log as JSON objects.
+// Shared fixtures of the trainer tests (test_trainer.cpp, test_run_safety.cpp, the pose fitting tests): a tiny
+// synthetic video, a config that trains it in seconds, quiet options and the run's log as JSON objects.
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -8,6 +8,7 @@
 #include <nlohmann/json.hpp>
 
 #include "data/dataset.h"
+#include "model/avatar.h"
 #include "test_files.h"
 #include "train/run_folder.h"
 #include "train/trainer.h"
@@ -24,6 +25,10 @@ data::Dataset tiny_video(const TempFolder& folder, int64_t frames, int64_t side,
 
 // No progress bar.
 train::TrainOptions quiet();
+
+// A textured avatar (fixed, random parameters) and the frames `frames` of `dataset` made its own renders of their
+// fits: the image, and the mask where the render is opaque. Their fits become the truth (FrameRecord::true_pose).
+model::Avatar render_frames_with_avatar(data::Dataset& dataset, const std::vector<int64_t>& frames);
 
 // Every entry of the run's log.jsonl, in order.
 std::vector<nlohmann::json> log_entries(const train::RunFolder& run);

@@ -56,6 +56,7 @@ train::FitFrame fit_frame(model::Avatar& avatar, int64_t k, double distance = 3.
   }
   f.has_time = time.has_value();
   f.camera = turned_camera(0.1 * double(k), distance);
+  f.camera.cx -= 3.0 * double(k);  // crops of one size at different places: one recording serves them all
   f.image = at::rand({kHeight, kWidth, 3}, gpu);
   f.mask = (at::rand({kHeight, kWidth}, gpu) > 0.5).to(at::kFloat);
   return f;
@@ -70,8 +71,12 @@ train::FitEvaluation eager(model::Avatar& avatar, const train::FitLoss& loss, co
 
 void expect_same(const train::FitEvaluation& recorded, const train::FitEvaluation& reference, const std::string& what) {
   EXPECT_NEAR(recorded.loss, reference.loss, 1e-5 * (1 + std::abs(reference.loss))) << what;
+  // The recorded evaluation projects through a float32 placement that holds the principal point's shear
+  // (with_centred_principal_point); the eager one projects with the principal point itself. The SSIM and image-gradient
+  // terms sum thousands of pixels' rounding: up to 1.5e-3 of the largest entry seen. (A wrong shear moves the image
+  // by pixels: Animator.CentredPrincipalPointGivesTheOffCentreCamerasImageAndGradients.)
   const double scale = std::max(reference.gradient.abs().max().item<double>(), 1e-8);
-  EXPECT_LT(max_abs_difference(recorded.gradient, reference.gradient), 1e-3 * scale) << what;
+  EXPECT_LT(max_abs_difference(recorded.gradient, reference.gradient), 3e-3 * scale) << what;
 }
 
 train::LossWeights without_lpips() {
@@ -98,7 +103,8 @@ TEST(PoseFitGraphsCuda, RecordedEvaluationsEqualEagerOnes) {
       }
     }
   }
-  EXPECT_EQ(graphs.captures(), 4) << "one graph per loss with the time branch, one per loss without";
+  EXPECT_EQ(graphs.captures(), 4) << "one graph per loss with the time branch, one per loss without, whatever the "
+                                     "principal point";
   // The body ten times farther away, inside one tile: that tile outgrows the recorded budget, which grows, and the
   // evaluation is recorded again and repeated on a whole image.
   const train::FitFrame far = fit_frame(avatar, 4, 30.0);
