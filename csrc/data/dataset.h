@@ -57,9 +57,8 @@ class Dataset {
   std::vector<FrameRecord> frames;
   std::vector<std::string> sequences;  // names of the sequences (takes); at least one
   std::map<Split, std::vector<int64_t>> splits;
-  at::Tensor betas;                          // (B) shared shape parameters, float32
-  at::Tensor true_betas;                     // the exact shape when `betas` was corrupted on purpose; else undefined
-  std::map<std::string, at::Tensor> extras;  // optional per-subject data (e.g. ExAvatar's joint_offset)
+  at::Tensor betas;       // (B) shared shape parameters, float32
+  at::Tensor true_betas;  // the exact shape when `betas` was corrupted on purpose; else undefined
 
   int64_t size() const { return int64_t(frames.size()); }
   const std::vector<int64_t>& split(Split s) const;

@@ -72,10 +72,6 @@ Dataset read_neuman(const std::string& folder) {
   d.format = "neuman";
   d.sequences = {root.filename().string()};
   d.betas = json_numbers(read_json_file(shape_path), {-1}, shape_path);
-  for (const char* extra : {"face_offset", "joint_offset", "locator_offset"}) {
-    const fs::path p = params / (std::string(extra) + ".json");
-    if (fs::exists(p)) d.extras[extra] = json_numbers(read_json_file(p.string()), {-1}, p.string());
-  }
   // Exact fits beside corrupted ones (`sfgs synth --layout neuman --pose-noise`): ground_truth/ holds the files of
   // smplx_optimized/, read as the frames' true poses and the true shape (what refinement is measured against).
   const fs::path truth = root / "ground_truth";

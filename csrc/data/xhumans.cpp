@@ -154,10 +154,6 @@ Dataset read_xhumans(const std::string& subject_folder) {
                 "the SMPL-X files");
     d.betas = fallback_betas;
   }
-  for (const char* extra : {"face_offset", "joint_offset", "locator_offset"}) {
-    const fs::path p = root / "smplx_optimized" / (std::string(extra) + ".json");
-    if (fs::exists(p)) d.extras[extra] = json_numbers(read_json_file(p.string()), {-1}, p.string());
-  }
   d.validate();
   return d;
 }

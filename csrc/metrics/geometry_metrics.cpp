@@ -155,8 +155,8 @@ void check_surface(const char* name, const SurfacePoints& s) {
               describe(s.labels));
   if (s.labels.numel() > 0) {
     const int64_t low = s.labels.min().item<int64_t>(), high = s.labels.max().item<int64_t>();
-    TORCH_CHECK(low >= 0 && high <= int64_t(BodyRegionLabel::face), name,
-                " labels must be BodyRegionLabel values in [0, 3], got values in [", low, ", ", high, "]");
+    TORCH_CHECK(low >= 0 && high < body::kBodyPartCount, name, " labels must be body::BodyPart values in [0, ",
+                body::kBodyPartCount - 1, "], got values in [", low, ", ", high, "]");
   }
   if (s.normals.defined()) {
     TORCH_CHECK(s.normals.sizes() == s.points.sizes() && at::isFloatingType(s.normals.scalar_type()) &&
@@ -253,16 +253,16 @@ GeometryMetrics geometry_metrics(const SurfacePoints& prediction, const SurfaceP
     forward_normals = normal_agreement(pn, tn.index_select(0, forward.index));
     backward_normals = normal_agreement(tn, pn.index_select(0, backward.index));
   }
-  const auto in_region = [](const at::Tensor& labels, std::initializer_list<BodyRegionLabel> region) {
+  const auto in_region = [](const at::Tensor& labels, std::initializer_list<body::BodyPart> region) {
     at::Tensor mask = at::zeros_like(labels, labels.options().dtype(at::kBool));
-    for (BodyRegionLabel r : region) mask = mask | (labels == int64_t(r));
+    for (body::BodyPart r : region) mask = mask | (labels == int64_t(r));
     return mask;
   };
-  const auto box_iou_of = [&](std::initializer_list<BodyRegionLabel> region) {
+  const auto box_iou_of = [&](std::initializer_list<body::BodyPart> region) {
     return bounding_box_iou(prediction.points.index({in_region(prediction.labels, region)}),
                             target.points.index({in_region(target.labels, region)}));
   };
-  const auto measure = [&](std::initializer_list<BodyRegionLabel> region, const std::function<double()>& box_iou) {
+  const auto measure = [&](std::initializer_list<body::BodyPart> region, const std::function<double()>& box_iou) {
     const at::Tensor prediction_mask = in_region(prediction.labels, region);
     const at::Tensor target_mask = in_region(target.labels, region);
     RegionGeometry g;
@@ -283,13 +283,13 @@ GeometryMetrics geometry_metrics(const SurfacePoints& prediction, const SurfaceP
     return g;
   };
 
-  using R = BodyRegionLabel;
+  using R = body::BodyPart;
   GeometryMetrics metrics;
-  metrics.all = measure({R::body, R::left_hand, R::right_hand, R::face},
+  metrics.all = measure({R::kBody, R::kFace, R::kLeftHand, R::kRightHand},
                         [&] { return bounding_box_iou(prediction.points, target.points); });
-  metrics.face = measure({R::face}, [&] { return box_iou_of({R::face}); });
-  metrics.hands = measure({R::left_hand, R::right_hand},
-                          [&] { return 0.5 * (box_iou_of({R::left_hand}) + box_iou_of({R::right_hand})); });
+  metrics.face = measure({R::kFace}, [&] { return box_iou_of({R::kFace}); });
+  metrics.hands = measure({R::kLeftHand, R::kRightHand},
+                          [&] { return 0.5 * (box_iou_of({R::kLeftHand}) + box_iou_of({R::kRightHand})); });
   return metrics;
 }
 

@@ -7,12 +7,10 @@
 
 #include <ATen/core/Tensor.h>
 
+#include "body/parts.h"
 #include "common/constants.h"
 
 namespace sfgs::metrics {
-
-// Per-point region labels; the numbering is SFGS's (left hand 1, right hand 2, face 3, everything else 0).
-enum class BodyRegionLabel : int64_t { body = 0, left_hand = 1, right_hand = 2, face = 3 };
 
 struct NearestNeighbours {
   at::Tensor distance;  // (M) float64 Euclidean distance to the nearest target
@@ -34,7 +32,7 @@ double bounding_box_iou(const at::Tensor& points_a, const at::Tensor& points_b);
 struct SurfacePoints {
   at::Tensor points;   // (N, 3)
   at::Tensor normals;  // (N, 3), any length; undefined: normal consistency is not computed
-  at::Tensor labels;   // (N) integer BodyRegionLabel values
+  at::Tensor labels;   // (N) integer body::BodyPart values (the avatar's part labels' numbering)
 };
 
 // A region's metrics. Distances are in the unit of the points (SFGS prints millimetres: metres x 1e3).

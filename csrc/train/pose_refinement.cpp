@@ -28,14 +28,21 @@ struct CorrectedField {
   at::Tensor body::SmplxPose::*member;
   int64_t first, joints;
 };
-constexpr int64_t kTranslationColumn = 3 * kCorrectedJoints;
+constexpr int64_t kBodyColumn = 3;
+constexpr int64_t kJawColumn = kBodyColumn + 3 * body::kSmplxBodyJointCount;
+constexpr int64_t kLeftHandColumn = kJawColumn + 3;
+constexpr int64_t kRightHandColumn = kLeftHandColumn + body::kHandPoseSize;
+constexpr int64_t kTranslationColumn = kRightHandColumn + body::kHandPoseSize;
+static_assert(kTranslationColumn == 3 * kCorrectedJoints && kTranslationColumn + 3 == kCorrectionWidth);
 const std::array<CorrectedField, 6>& corrected_fields() {
-  static const std::array<CorrectedField, 6> fields{{{"global_orient", &body::SmplxPose::global_orient, 0, 1},
-                                                     {"body_pose", &body::SmplxPose::body_pose, 3, 21},
-                                                     {"jaw_pose", &body::SmplxPose::jaw_pose, 66, 1},
-                                                     {"left_hand_pose", &body::SmplxPose::left_hand_pose, 69, 15},
-                                                     {"right_hand_pose", &body::SmplxPose::right_hand_pose, 114, 15},
-                                                     {"transl", &body::SmplxPose::transl, kTranslationColumn, 1}}};
+  using body::SmplxPose;
+  static const std::array<CorrectedField, 6> fields{
+      {{"global_orient", &SmplxPose::global_orient, 0, 1},
+       {"body_pose", &SmplxPose::body_pose, kBodyColumn, body::kSmplxBodyJointCount},
+       {"jaw_pose", &SmplxPose::jaw_pose, kJawColumn, 1},
+       {"left_hand_pose", &SmplxPose::left_hand_pose, kLeftHandColumn, body::kHandJointCount},
+       {"right_hand_pose", &SmplxPose::right_hand_pose, kRightHandColumn, body::kHandJointCount},
+       {"transl", &SmplxPose::transl, kTranslationColumn, 1}}};
   return fields;
 }
 

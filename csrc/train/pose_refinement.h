@@ -25,6 +25,7 @@
 #include <ATen/core/Tensor.h>
 #include <nlohmann/json.hpp>
 
+#include "body/skeleton.h"
 #include "body/wholebody_keypoints.h"
 #include "data/dataset.h"
 #include "model/avatar.h"
@@ -34,7 +35,9 @@
 
 namespace sfgs::train {
 
-inline constexpr int64_t kCorrectedJoints = 1 + 21 + 1 + 15 + 15;
+// The corrected joints in a correction's order (body/skeleton.h): the root, the body's joints, the jaw and each hand's
+// joints; the eyes are not corrected.
+inline constexpr int64_t kCorrectedJoints = 1 + body::kSmplxBodyJointCount + 1 + 2 * body::kHandJointCount;
 inline constexpr int64_t kCorrectionWidth = 3 * kCorrectedJoints + 3;
 
 // `base` with a correction (kCorrectionWidth) applied; the corrected fields are on the correction's device and carry

@@ -219,7 +219,6 @@ TEST(NeumanDataset, ReadsCamerasPosesMasksAndSplits) {
   EXPECT_EQ(d.split(Split::kTrain), std::vector<int64_t>{0});
   EXPECT_EQ(d.split(Split::kTest), std::vector<int64_t>{1});
   EXPECT_EQ(d.betas.numel(), 3);
-  EXPECT_EQ(d.extras.at("joint_offset").numel(), 6);
   const FrameRecord& a = d.frames[0];
   EXPECT_EQ(a.camera.fx, 20.5);
   EXPECT_EQ(a.camera.cy, 2.75);

@@ -11,7 +11,7 @@
 namespace sfgs::testing {
 namespace {
 
-using metrics::BodyRegionLabel;
+using body::BodyPart;
 using metrics::SurfacePoints;
 
 // Unit vectors spread evenly over the sphere (Fibonacci lattice), (N, 3) float64.
@@ -26,9 +26,9 @@ at::Tensor sphere_points(int64_t n) {
 // Face on top (z > 0.8), right hand at +x, left hand at -x, the rest body.
 at::Tensor region_labels(const at::Tensor& directions) {
   at::Tensor labels = at::zeros({directions.size(0)}, at::kLong);
-  labels.masked_fill_(directions.select(1, 2) > 0.8, int64_t(BodyRegionLabel::face));
-  labels.masked_fill_(directions.select(1, 0) > 0.8, int64_t(BodyRegionLabel::right_hand));
-  labels.masked_fill_(directions.select(1, 0) < -0.8, int64_t(BodyRegionLabel::left_hand));
+  labels.masked_fill_(directions.select(1, 2) > 0.8, int64_t(BodyPart::kFace));
+  labels.masked_fill_(directions.select(1, 0) > 0.8, int64_t(BodyPart::kRightHand));
+  labels.masked_fill_(directions.select(1, 0) < -0.8, int64_t(BodyPart::kLeftHand));
   return labels;
 }
 
@@ -48,7 +48,7 @@ TEST(MetricsGeometry, SphereAgainstAScaledSphere) {
     EXPECT_EQ(r->prediction_points, r->target_points);
   }
   EXPECT_EQ(g.all.prediction_points, 3000);
-  EXPECT_EQ(g.face.prediction_points, (labels == int64_t(BodyRegionLabel::face)).sum().item<int64_t>());
+  EXPECT_EQ(g.face.prediction_points, (labels == int64_t(BodyPart::kFace)).sum().item<int64_t>());
   EXPECT_GT(g.face.prediction_points, 100);
   EXPECT_GT(g.hands.prediction_points, 200);
   // The scaled sphere's box is the unit box scaled about the origin, which it contains: IoU = 1 / scale^3.
@@ -82,7 +82,7 @@ TEST(MetricsGeometry, RegionPointsAreMatchedAgainstTheWholeOtherSurface) {
   // Region-to-region matching would give 3 both ways instead.
   const at::Tensor prediction_points = at::tensor({0.0, 0.0, 0.0, 5.0, 0.0, 0.0}, at::kDouble).view({2, 3});
   const at::Tensor target_points = at::tensor({0.5, 0.0, 0.0, 3.0, 0.0, 0.0}, at::kDouble).view({2, 3});
-  const int64_t face = int64_t(BodyRegionLabel::face), body = int64_t(BodyRegionLabel::body);
+  const int64_t face = int64_t(BodyPart::kFace), body = int64_t(BodyPart::kBody);
   const metrics::GeometryMetrics g = metrics::geometry_metrics({prediction_points, {}, at::tensor({face, body})},
                                                                {target_points, {}, at::tensor({body, face})});
   EXPECT_NEAR(g.face.chamfer, 1.25, 1e-15);
@@ -153,7 +153,7 @@ TEST(MetricsGeometryValidation, BadInputsAreClearErrors) {
       [&] {
         metrics::geometry_metrics({points, {}, labels + 7}, {points, {}, labels});
       },
-      {"geometry_metrics: prediction labels must be BodyRegionLabel values in [0, 3], got values in [7, 7]"});
+      {"geometry_metrics: prediction labels must be body::BodyPart values in [0, 3], got values in [7, 7]"});
   expect_error(
       [&] {
         metrics::geometry_metrics({points, {}, labels.slice(0, 0, 9)}, {points, {}, labels});
