@@ -38,7 +38,7 @@
 # crop of the first training frame) of an avatar refine-cost trained (the refined one, else the plain one), else
 # render-path's.
 # train: synthesise the Anny scene (SFGS_DEVICE_TRAIN_SIZE, default 800x1200; SFGS_DEVICE_TRAIN_FRAMES, default
-# 100) and train, evaluate (with LPIPS) and render it on CUDA with configs/device_anny.yaml
+# 80) and train, evaluate (with LPIPS) and render it on CUDA with configs/device_anny.yaml
 # (SFGS_DEVICE_TRAIN_ITERATIONS overrides its iterations).
 # ablate: `sfgs ablate` on the Anny scene at SFGS_DEVICE_ABLATE_SIZE (default 400x600), 80 frames,
 # SFGS_DEVICE_ABLATE_ITERATIONS (default 1500) per variant.

@@ -192,8 +192,8 @@ inline constexpr double kLegacyPoseRefinementRotationRate = 1e-2;
 inline constexpr double kLegacyPoseRefinementTranslationRate = 5e-3;
 // Loss evaluations (a render and its gradient) per frame of test-time fitting (`sfgs eval --fit-iterations`): with
 // L-BFGS, exact-fit Anny avatar on medium-level test fits at 540 x 960, 300 reach 33.7 dB of the 34.9 exact test fits
-// give (docs/results.md, "L-BFGS"); 600 gave 33.0 at the earlier stage shares against 32.1-32.7 at 300, within the
-// runs' spread, at twice the time.
+// give (docs/archive/results-history.md, "L-BFGS"); 600 gave 33.0 at the earlier stage shares against 32.1-32.7 at 300,
+// within the runs' spread, at twice the time.
 inline constexpr long kPoseFitIterations = 300;
 // Fitting a pose to an image with the avatar frozen (train/pose_fit.h): L-BFGS with a strong-Wolfe line search in
 // three stages, each a share of the evaluations. Coarse: the global orientation and translation at 1/4 of the

@@ -5,7 +5,7 @@
 //
 // Three stages, each a fresh L-BFGS with a strong-Wolfe line search over its share of the loss evaluations (a render
 // and its gradient; kPoseFit*Share, common/constants.h): the joints' corrections couple along the kinematic chain,
-// which a quasi-Newton model resolves and a per-number Adam does not (docs/results.md, "L-BFGS"):
+// which a quasi-Newton model resolves and a per-number Adam does not (docs/archive/results-history.md, "L-BFGS"):
 //  1. coarse: the placement alone (the translation, and the global orientation unless PoseFitOptions holds it),
 //     against the image and the person mask at
 //     1/kPoseFitCoarseDownsample of the resolution (a wide basin: centimetres of depth and lateral error);

@@ -62,8 +62,8 @@ struct PoseRefinementConfig {
   // step, times the schedule's factor; 0 leaves the fits to the alignment passes. Off by default: Adam moves every
   // number of a drawn frame by about the rate whatever its gradient, so the joints an image barely constrains walk
   // at random, and the avatar, trained on poses that jitter by a degree, never sharpens: on exact fits they cost
-  // the GPU benchmark's training steps 6-7 dB of PSNR (docs/results.md, "Per-step corrections"). Either rate
-  // positive turns them on, the pose's gradient path (the body's slower LibTorch compositions) with them.
+  // the GPU benchmark's training steps 6-7 dB of PSNR (docs/archive/results-history.md, "Per-step corrections"). Either
+  // rate positive turns them on, the pose's gradient path (the body's slower LibTorch compositions) with them.
   double learning_rate = 0;
   double translation_learning_rate = 0;
   // Share of the run before the corrections move (the avatar is a blur before): the first per-step correction and
@@ -77,7 +77,7 @@ struct PoseRefinementConfig {
   // then (train/pose_fit.h, align_iterations each). From `start` on, rising. Without per-step corrections the passes
   // carry the whole refinement: each fits against a sharper avatar, and four (the placement at 10 %, every joint at
   // 30, 50 and 70 %) brought a CPU run's training frames within 1.4 dB of the exact-fit avatar's where two left 3.3
-  // (docs/results.md, "Per-step corrections"), at about 40 % more training time.
+  // (docs/archive/results-history.md, "Per-step corrections"), at about 40 % more training time.
   std::vector<double> align_at{0.1, 0.3, 0.5, 0.7};
   int64_t align_iterations = 60;
   // The alignment passes at or after this share of the run fit every joint as well (the avatar is sharp enough by
@@ -85,8 +85,8 @@ struct PoseRefinementConfig {
   double align_joints_from = 0.3;
   // The alignment passes at or after this share fit the global orientation; the earlier ones the translation alone:
   // against an avatar still a blur a turn towards the camera or about the vertical is nearly free, and a pass at 10 %
-  // that fitted it turned the roots from 4 to 6-9 degrees off (docs/results.md, "Smoothness on rotations"). At most
-  // align_joints_from: joints fitted under a held root would take up its error.
+  // that fitted it turned the roots from 4 to 6-9 degrees off (docs/archive/results-history.md, "Smoothness on
+  // rotations"). At most align_joints_from: joints fitted under a held root would take up its error.
   double align_orientation_from = 0.3;
   // Weight of the drawn frame's whole-body keypoint reprojection error (train/avatar_keypoints.h) where the training
   // frames have detections (keypoints_whole_body/), also in the alignment passes; 0: the image alone. Without it the
@@ -97,13 +97,13 @@ struct PoseRefinementConfig {
   // The passes align each frame on its own, and the jitter of joints an image barely shows survives them. On the GPU
   // benchmark 0.1 (3 frames at 30 fps) brought the refined body joints 4.6 -> 4.1 deg and the training frames up
   // 0.6-0.9 dB, but not the test frames (fitted test poses: -1 to -1.5 dB on noisy fits, +0.1 on sfgs fit's);
-  // docs/results.md, "Temporal smoothing".
+  // docs/archive/results-history.md, "Temporal smoothing".
   double smoothing_seconds = 0;
   // Rounds of training (trainer.h, train_avatar): each round but the last trains a fresh avatar in the run folder's
   // round-K/ (K = 1, 2, ...) and hands its refined fits to the next as start fits; the last round is the run itself.
   // An avatar that trained on the unrefined fits has learnt their error and its passes agree with it; a fresh one
   // trained on the refined fits has not. On the GPU benchmark a second round on `sfgs fit`'s fits gained 0.6-0.8 dB
-  // in three runs (a third lost 0.3), at twice the training time (docs/results.md, "Two rounds").
+  // in three runs (a third lost 0.3), at twice the training time (docs/archive/results-history.md, "Two rounds").
   int64_t rounds = 1;
 
   // Whether training steps move the drawn frame's correction: either per-step rate positive.

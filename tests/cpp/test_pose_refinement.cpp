@@ -343,8 +343,8 @@ train::PoseFitOptions fit_options(int64_t iterations) {
 // 0.1 rad, its hips bent by 0.15 rad and shifted 4 cm sideways (a few pixels each at 128 x 128). Fitting with the
 // avatar frozen must find the truth from the image alone, placement and joints together, and lower the image's
 // error. (The per-number Adam that L-BFGS replaced traded placement for joints: from a fit turned 0.05 rad, hips bent
-// 0.1 rad, shifted 3 cm and pushed back 5 cm it ended 6.3 cm off with the joints bent 3.4 deg; docs/results.md,
-// "L-BFGS".)
+// 0.1 rad, shifted 3 cm and pushed back 5 cm it ended 6.3 cm off with the joints bent 3.4 deg;
+// docs/archive/results-history.md, "L-BFGS".)
 TEST(TrainPoseFitting, FindsAPerturbedPoseFromTheImageAlone) {
   TempFolder folder;
   data::Dataset dataset = tiny_video(folder, 10, 128);
