@@ -44,8 +44,10 @@
 # SFGS_DEVICE_ABLATE_ITERATIONS (default 1500) per variant.
 # novel: the novel-motion benchmark (docs/results.md): the Anny body filmed walking, waving and turning (train) and
 # raising its arms, bending, guarding and sitting (test), SFGS_DEVICE_NOVEL_FRAMES (default 40) frames per motion at
-# SFGS_DEVICE_NOVEL_SIZE (default 540x960), beside the interleaved Anny scene (sway, 80 frames; SFGS_DEVICE_NOVEL_SCENES
-# names the scenes, default "novel interleaved"). Every variant of
+# SFGS_DEVICE_NOVEL_SIZE (default 540x960), beside the interleaved Anny scene (sway, 80 frames) and, when named, the
+# frontal scene (walking, waving and talking, never turned away, to train on; turning, bending, arms overhead, kicking,
+# sitting and the guard to test on); SFGS_DEVICE_NOVEL_SCENES names the scenes, default "novel interleaved". Every
+# variant of
 # SFGS_DEVICE_NOVEL_VARIANTS ("name:key=value,..." separated by spaces, keys of the avatar section; default
 # "default:") is trained on both scenes at once with configs/device_anny.yaml for SFGS_DEVICE_NOVEL_ITERATIONS
 # (default 4000), then evaluated on test (new motions; interleaved test frames) and val (held-out frames of the
@@ -552,6 +554,11 @@ if wants novel; then
   [[ " $scenes " == *" novel "* ]] &&
     run novel-synth 300 "$build/sfgs" synth --out "$novel/novel" "${scene_args[@]}" --motions walk,wave,turn \
       --test-motions overhead,bend,guard,sit --frames "${SFGS_DEVICE_NOVEL_FRAMES:-40}" &
+  # The frontal benchmark (issue 41): motions that never show the back to learn from, new motions that do (turn), or
+  # show the top of the head (bend), armpits and inner arms (overhead) and soles (kick) to be tested on.
+  [[ " $scenes " == *" frontal "* ]] &&
+    run novel-synth-frontal 300 "$build/sfgs" synth --out "$novel/frontal" "${scene_args[@]}" --motions walk,wave,talk \
+      --test-motions turn,bend,overhead,kick,sit,guard --frames "${SFGS_DEVICE_NOVEL_FRAMES:-40}" &
   [[ " $scenes " == *" interleaved "* ]] &&
     run novel-synth-interleaved 300 "$build/sfgs" synth --out "$novel/interleaved" "${scene_args[@]}" --frames 80 &
   wait

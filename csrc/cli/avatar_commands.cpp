@@ -86,6 +86,7 @@ nlohmann::json evaluation_json(const train::AvatarEvaluation& e) {
       if (g.frames > 0) entry["psnr"] = g.psnr, entry["ssim"] = g.ssim;
       if (regions) entry["pixels"] = g.pixels;
       if (g.lpips) entry["lpips"] = *g.lpips;
+      if (g.unseen_share) entry["unseen_share"] = *g.unseen_share;
       list.push_back(entry);
     }
     return list;
@@ -106,15 +107,24 @@ std::string group_lines(const train::AvatarEvaluation& e) {
       std::snprintf(line, sizeof(line), "  LPIPS %.4f", *g.lpips);
       text += line;
     }
+    if (g.unseen_share) {
+      std::snprintf(line, sizeof(line), "  unseen %.1f %%", 100 * *g.unseen_share);
+      text += line;
+    }
     text += "\n";
   }
   for (const train::GroupScore& g : e.regions) {
     if (g.frames > 0)
-      std::snprintf(line, sizeof(line), "  region %-10s frames %4lld  pixels %8.0f  PSNR %.2f  SSIM %.4f\n",
+      std::snprintf(line, sizeof(line), "  region %-10s frames %4lld  pixels %8.0f  PSNR %.2f  SSIM %.4f",
                     g.name.c_str(), (long long)g.frames, g.pixels, g.psnr, g.ssim);
     else
-      std::snprintf(line, sizeof(line), "  region %-10s frames    0  (no frame showed it)\n", g.name.c_str());
+      std::snprintf(line, sizeof(line), "  region %-10s frames    0  (no frame showed it)", g.name.c_str());
     text += line;
+    if (g.unseen_share) {
+      std::snprintf(line, sizeof(line), "  unseen %.1f %%", 100 * *g.unseen_share);
+      text += line;
+    }
+    text += "\n";
   }
   if (e.regions.empty()) text += "  (no per-region metrics: the dataset has no ground-truth geometry)\n";
   return text;

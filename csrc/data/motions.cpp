@@ -195,12 +195,42 @@ void sit(Pose& q, double t) {
   q.translate(0, -0.42 * depth, 0);
 }
 
+// Talking with the hands, facing the camera: forearms up in front of the chest, gesturing, the head nodding; no turn,
+// so a video of it never shows the back.
+void talk(Pose& q, double t) {
+  const double w = kTwoPi * kMotionHz, s = std::sin(w * t), c = std::cos(1.5 * w * t);
+  q.set(kLeftShoulder, 0, -0.5 - 0.2 * s, -1.0);  // upper arms down and forward ...
+  q.set(kRightShoulder, 0, 0.5 + 0.2 * c, 1.0);
+  q.set(kLeftElbow, 0, -1.4 - 0.3 * c, 0);  // ... forearms up in front, moving with the words
+  q.set(kRightElbow, 0, 1.4 + 0.3 * s, 0);
+  q.set(kLeftWrist, 0, 0, 0.3 * s);
+  q.set(kRightWrist, 0, 0, -0.3 * c);
+  q.set(kNeck, 0.1 * std::sin(2 * w * t), 0, 0);
+  q.set(kHead, 0, 0.15 * s, 0.05 * c);
+  q.spine(0, 0.08 * s, 0.05 * c);
+  q.translate(0.02 * s, 0, 0);
+}
+
+// A slow front kick, one leg a cycle (left, then right): the leg swings forward and up nearly straight, so the sole
+// faces the camera in front; arms out and the torso leaning back for balance.
+void kick(Pose& q, double t) {
+  const double w = kTwoPi * kMotionHz;
+  const double lift = 0.5 - 0.5 * std::cos(w * t);  // standing at every cycle's start, the leg highest at its middle
+  const bool left = std::fmod(t * kMotionHz, 2.0) < 1.0;
+  q.set(left ? kLeftHip : kRightHip, -1.4 * lift, 0, 0);
+  q.set(left ? kLeftKnee : kRightKnee, 0.25 * lift, 0, 0);
+  q.spine(-0.15 * lift, 0, 0);
+  q.set(kLeftShoulder, 0, -0.4 * lift, -1.0 + 0.4 * lift);
+  q.set(kRightShoulder, 0, 0.4 * lift, 1.0 - 0.4 * lift);
+  q.set(kHead, 0.1 * lift, 0, 0);
+}
+
 using MotionFunction = void (*)(Pose&, double);
 
 const std::vector<std::pair<std::string, MotionFunction>>& library() {
   static const std::vector<std::pair<std::string, MotionFunction>> motions{
-      {"sway", sway}, {"walk", walk},   {"wave", wave}, {"overhead", overhead},
-      {"bend", bend}, {"guard", guard}, {"turn", turn}, {"sit", sit}};
+      {"sway", sway},   {"walk", walk}, {"wave", wave}, {"overhead", overhead}, {"bend", bend},
+      {"guard", guard}, {"turn", turn}, {"sit", sit},   {"talk", talk},         {"kick", kick}};
   return motions;
 }
 

@@ -38,6 +38,7 @@ AvatarEvaluation evaluate_avatar(const data::Dataset& dataset, data::Split split
   const std::optional<RegionTruth> truth = read_region_truth(dataset);
   RegionAccumulator regions(options.ssim_border);
   std::map<int64_t, std::vector<size_t>> frames_of_sequence;
+  std::map<int64_t, UnseenCount> unseen_of_sequence;
   int64_t previous_sequence = -1, previous_frame = -2;
   std::vector<double> render_ms;
   // Every frame through the Animator: on CUDA one graph replay per frame, whatever the frame's camera.
@@ -62,8 +63,10 @@ AvatarEvaluation evaluate_avatar(const data::Dataset& dataset, data::Split split
     if (truth && !record.mesh_path.empty()) {
       const auto [compared_prediction, compared_target] =
           evaluator.compared_images(image, frame.image, frame.eval_mask);
-      regions.add(compared_prediction, compared_target,
-                  region_masks(*truth, io::read_npy(record.mesh_path), camera, frame.eval_mask));
+      const std::vector<std::pair<std::string, at::Tensor>> masks =
+          region_masks(*truth, io::read_npy(record.mesh_path), camera, frame.eval_mask);
+      regions.add(compared_prediction, compared_target, masks);
+      unseen_of_sequence[record.sequence].add(labelled_person(masks), region_mask(masks, "unseen"));
     }
     if (!save_folder.empty()) {
       // Names are unique within a sequence (Dataset::validate); one that several sequences use carries its
@@ -87,6 +90,8 @@ AvatarEvaluation evaluate_avatar(const data::Dataset& dataset, data::Split split
       if (m.lpips) motion.lpips = motion.lpips.value_or(0.0) + *m.lpips / double(indices.size());
     }
     motion.frames = int64_t(indices.size());
+    if (const auto it = unseen_of_sequence.find(sequence); it != unseen_of_sequence.end())
+      motion.unseen_share = it->second.share();
     result.motions.push_back(motion);
   }
   result.first_render_milliseconds = render_ms.front();

@@ -19,7 +19,9 @@ struct AvatarEvaluation {
   // frame's, which on CUDA also records the frame's graph (animate::Animator).
   double render_milliseconds = 0;
   double first_render_milliseconds = 0;
-  std::vector<GroupScore> motions;  // per sequence (a motion of a synthetic video), in order of appearance
+  // Per sequence (a motion of a synthetic video), in order of appearance, with the share of the person the training
+  // never or rarely showed where the dataset has ground-truth geometry.
+  std::vector<GroupScore> motions;
   std::vector<GroupScore> regions;  // body, face, hands, seen, unseen; empty without ground-truth geometry
 };
 

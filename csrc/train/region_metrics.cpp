@@ -67,8 +67,41 @@ std::vector<std::pair<std::string, at::Tensor>> region_masks(const RegionTruth& 
           {"unseen", covered & seen.logical_not()}};
 }
 
+void UnseenCount::add(const at::Tensor& mask, const at::Tensor& unseen_mask) {
+  labelled += double(mask.sum().item<int64_t>());
+  unseen += double((mask & unseen_mask).sum().item<int64_t>());
+}
+
+std::optional<double> UnseenCount::share() const {
+  if (labelled <= 0) return std::nullopt;
+  return unseen / labelled;
+}
+
+namespace {
+
+const at::Tensor* find_mask(const std::vector<std::pair<std::string, at::Tensor>>& masks, const std::string& name) {
+  for (const auto& [mask_name, mask] : masks)
+    if (mask_name == name) return &mask;
+  return nullptr;
+}
+
+}  // namespace
+
+const at::Tensor& region_mask(const std::vector<std::pair<std::string, at::Tensor>>& masks, const std::string& name) {
+  const at::Tensor* mask = find_mask(masks, name);
+  TORCH_CHECK(mask, "region_mask: no mask named '", name, "'");
+  return *mask;
+}
+
+at::Tensor labelled_person(const std::vector<std::pair<std::string, at::Tensor>>& masks) {
+  return region_mask(masks, "seen") | region_mask(masks, "unseen");
+}
+
 void RegionAccumulator::add(const at::Tensor& prediction, const at::Tensor& target,
                             const std::vector<std::pair<std::string, at::Tensor>>& masks) {
+  if (const at::Tensor* unseen = find_mask(masks, "unseen"))
+    for (const char* region : {"body", "face", "hands"})
+      if (const at::Tensor* mask = find_mask(masks, region)) unseen_[region].add(*mask, *unseen);
   const at::Tensor p = prediction.detach().cpu().to(at::kDouble), t = target.detach().cpu().to(at::kDouble);
   const at::Tensor squared_error = (p - t).pow(2).mean(2);
   at::Tensor ssim = metrics::ssim_map(p, t, border_);
@@ -100,6 +133,7 @@ std::vector<GroupScore> RegionAccumulator::summary() const {
       s.psnr /= double(s.frames);
       s.ssim /= double(s.frames);
     }
+    if (const auto it = unseen_.find(s.name); it != unseen_.end()) s.unseen_share = it->second.share();
     out.push_back(s);
   }
   return out;

@@ -3,6 +3,7 @@
 // training frames showed, "seen", and surface they never or rarely showed, "unseen"), from the ground-truth
 // geometry a synthetic dataset carries (meshes/faces.npy, regions.npy, observation.npy; docs/dataset_format.md).
 // docs/metrics.md defines them.
+#include <map>
 #include <optional>
 #include <string>
 #include <utility>
@@ -39,6 +40,17 @@ struct GroupScore {
   double pixels = 0;  // mean region pixels per counted frame (regions only)
   double psnr = 0, ssim = 0;
   std::optional<double> lpips;  // motions only
+  // Of the person's pixels (a motion's) or the region's (body, face, hands), the share the training never or rarely
+  // showed ("unseen"), over all the frames; where the dataset has ground-truth geometry.
+  std::optional<double> unseen_share;
+};
+
+// Unseen and labelled pixels counted over frames: the share of a motion or a region the training never or rarely
+// showed.
+struct UnseenCount {
+  double unseen = 0, labelled = 0;
+  void add(const at::Tensor& mask, const at::Tensor& unseen_mask);
+  std::optional<double> share() const;
 };
 
 // Averages PSNR (over the region's pixels) and SSIM (the SSIM map averaged over them) per region over the frames in
@@ -47,13 +59,19 @@ class RegionAccumulator {
  public:
   explicit RegionAccumulator(metrics::SsimBorder border) : border_(border) {}
   // prediction and target (H, W, 3) as the evaluation compares them (composited on white).
+  // Where the masks hold region_masks' "unseen", also counts how much of each body region (body, face, hands) is.
   void add(const at::Tensor& prediction, const at::Tensor& target,
            const std::vector<std::pair<std::string, at::Tensor>>& masks);
   std::vector<GroupScore> summary() const;
 
  private:
   metrics::SsimBorder border_;
-  std::vector<GroupScore> sums_;  // running sums, in the order regions first appear
+  std::vector<GroupScore> sums_;               // running sums, in the order regions first appear
+  std::map<std::string, UnseenCount> unseen_;  // per body region
 };
+
+// The labelled person (seen or unseen) and the unseen pixels of region_masks' masks.
+at::Tensor labelled_person(const std::vector<std::pair<std::string, at::Tensor>>& masks);
+const at::Tensor& region_mask(const std::vector<std::pair<std::string, at::Tensor>>& masks, const std::string& name);
 
 }  // namespace sfgs::train

@@ -103,6 +103,40 @@ TEST(MetricsRegions, MasksLabelEachPixelByItsVisibleTriangle) {
   EXPECT_EQ(covered, 16 * 8) << "the lower half of the 16 x 16 square";
 }
 
+TEST(MetricsRegions, UnseenShareIsTheUnseenPixelsOverTheLabelledOnes) {
+  // Body is the seen triangle and face the unseen one: the body region is 0 % unseen, the face 100 %, and the person
+  // (a motion) the face's share of the square's pixels, summed over the frames.
+  const TwoTriangles scene;
+  at::Tensor eval_mask = at::ones({64, 64}, at::kFloat);
+  eval_mask.slice(0, 0, 32).zero_();
+  const auto masks = train::region_masks(scene.truth, scene.vertices, scene.camera, eval_mask);
+  const at::Tensor image = at::full({64, 64, 3}, 0.5, at::kDouble);
+  train::RegionAccumulator accumulator(SsimBorder::zero);
+  train::UnseenCount person;
+  for (int frame = 0; frame < 2; ++frame) {
+    accumulator.add(image, image, masks);
+    person.add(train::labelled_person(masks), train::region_mask(masks, "unseen"));
+  }
+  const double face = double(train::region_mask(masks, "face").sum().item<int64_t>());
+  const double body = double(train::region_mask(masks, "body").sum().item<int64_t>());
+  ASSERT_GT(face, 0);
+  ASSERT_GT(body, 0);
+  ASSERT_TRUE(person.share().has_value());
+  EXPECT_DOUBLE_EQ(*person.share(), face / (face + body));
+  for (const train::GroupScore& g : accumulator.summary()) {
+    if (g.name == "body" || g.name == "face") {
+      ASSERT_TRUE(g.unseen_share.has_value()) << g.name;
+      EXPECT_EQ(*g.unseen_share, g.name == "face" ? 1.0 : 0.0) << g.name;
+    } else if (g.name == "hands") {
+      EXPECT_FALSE(g.unseen_share.has_value()) << "no hand pixel: no share";
+    } else {
+      EXPECT_FALSE(g.unseen_share.has_value()) << g.name << " is an observation class, not a body region";
+    }
+  }
+  EXPECT_FALSE(train::UnseenCount().share().has_value());
+  expect_error_mentioning([&] { train::region_mask(masks, "elbow"); }, "elbow");
+}
+
 TEST(MetricsRegions, RegionFilesOfTheWrongKindAreErrorsNamingTheFile) {
   TempFolder folder;
   data::Dataset dataset;

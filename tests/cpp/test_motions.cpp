@@ -1,6 +1,8 @@
 // The motion library and the novel-motion split of `sfgs synth`: each motion does what its name says (checked on the
 // posed joints of the built-in body), the split puts whole motions into test, and the ground truth that per-region
 // evaluation needs is written.
+#include <tuple>
+
 #include <ATen/ATen.h>
 #include <gtest/gtest.h>
 
@@ -55,6 +57,25 @@ TEST(SyntheticVideo, LibraryMotionsDoWhatTheirNamesSay) {
   const at::Tensor turned = joints_in("turn", 0.5);
   const at::Tensor across = turned[kLeftWrist] - turned[kRightWrist];
   EXPECT_GT(std::abs(across[2].item<double>()), 0.5 * std::abs(across[0].item<double>()));
+  // Talking keeps both wrists in front of the chest, between the pelvis and the head, and never turns the root.
+  for (const double seconds : {0.3, 1.1}) {
+    const at::Tensor talk = joints_in("talk", seconds);
+    for (const int64_t wrist : {kLeftWrist, kRightWrist}) {
+      EXPECT_GT(height_of(talk, wrist), height_of(talk, kPelvis)) << seconds;
+      EXPECT_LT(height_of(talk, wrist), height_of(talk, kHead)) << seconds;
+      EXPECT_GT(talk[wrist][2].item<double>(), talk[kPelvis][2].item<double>() + 0.1) << "in front, " << seconds;
+    }
+    EXPECT_TRUE(motion_pose("talk", seconds, 0).global_orient.abs().max().item<float>() == 0) << seconds;
+  }
+  // The kick lifts the left foot forward to near the hips' height in the first cycle (1 s: highest) and the right
+  // one in the second (3 s).
+  constexpr int64_t kLeftFoot = 10, kRightFoot = 11;
+  for (const auto& [seconds, foot, other] : {std::tuple{1.0, kLeftFoot, kRightFoot}, {3.0, kRightFoot, kLeftFoot}}) {
+    const at::Tensor kick = joints_in("kick", seconds);
+    EXPECT_GT(height_of(kick, foot), height_of(kick, kPelvis) - 0.45) << seconds;
+    EXPECT_GT(kick[foot][2].item<double>(), kick[kPelvis][2].item<double>() + 0.5) << "forward, " << seconds;
+    EXPECT_LT(height_of(kick, other), height_of(stand, kPelvis) - 0.6) << "the other foot stays down, " << seconds;
+  }
   // Deterministic, finite, and moving.
   for (const std::string& m : motion_names()) {
     const SmplxPose a = motion_pose(m, 0.4, 10), b = motion_pose(m, 0.4, 10), c = motion_pose(m, 0.9, 10);

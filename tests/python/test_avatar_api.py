@@ -47,8 +47,11 @@ def test_loads_the_run_and_its_dataset(run):
 def test_eval_scores_only_the_regions_its_frames_showed(run):
     # At 40 x 32 pixels some regions (the hands) are too small in every frame: they get no score, not a PSNR of 0.
     with open(os.path.join(run, "metrics_test.json")) as f:
-        regions = json.load(f)["regions"]
+        metrics = json.load(f)
+    regions = metrics["regions"]
     assert regions, "the synthetic dataset has ground-truth geometry"
+    for m in metrics["motions"]:
+        assert 0 <= m["unseen_share"] <= 1, m
     assert any(r["frames"] == 0 for r in regions), "a region no frame shows"
     for r in regions:
         if r["frames"] == 0:
