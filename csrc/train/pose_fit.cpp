@@ -5,7 +5,6 @@
 #include <cmath>
 #include <cstdio>
 #include <numeric>
-#include <optional>
 #include <string>
 #include <utility>
 
@@ -16,7 +15,6 @@
 #include "body/rotations.h"
 #include "common/tensor_description.h"
 #include "common/constants.h"
-#include "common/matmul_precision.h"
 #include "data/keypoint_file.h"
 #include "train/avatar_keypoints.h"
 #include "train/run_folder.h"
@@ -282,9 +280,6 @@ data::Dataset fit_poses(const data::Dataset& dataset, data::Split split, model::
   data::Dataset fitted = dataset;
   const std::vector<int64_t>& frames = dataset.split(split);
   const at::Device device = avatar->part_labels().device();
-  // The networks' products on TF32 tensor cores, as the training steps and inference frames take them on CUDA.
-  std::optional<Tf32MatmulScope> products;
-  if (device.is_cuda()) products.emplace(true);
   PoseFitter fitter(options, device, keypoint_map);
   const at::Tensor zero = at::zeros({kCorrectionWidth}, at::TensorOptions().device(device));
   for (size_t k = 0; k < frames.size(); ++k) {
