@@ -81,32 +81,6 @@ double seconds_since(std::chrono::steady_clock::time_point start) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 }
 
-// The fine stage's frame of `target` at `pose`, on the whole image or on the person's crop (as PoseFitter::fit makes
-// it).
-train::FitFrame fine_frame(model::Avatar& avatar, const body::SmplxPose& pose, const train::PoseFitTarget& target,
-                           bool cropped) {
-  train::FitFrame f;
-  f.pose = pose.views_of(pose.packed().to(target.image.device()));
-  {
-    at::NoGradGuard no_grad;
-    f.attributes = avatar->attributes(target.time);
-  }
-  f.has_time = target.time.has_value();
-  f.camera = target.camera;
-  f.image = target.image;
-  f.mask = target.mask;
-  if (!cropped) return f;
-  const train::PixelBox box = train::person_crop(target.mask);
-  f.camera.cx -= double(box.x);
-  f.camera.cy -= double(box.y);
-  f.camera.width = box.width;
-  f.camera.height = box.height;
-  f.image = target.image.narrow(0, box.y, box.height).narrow(1, box.x, box.width).contiguous();
-  f.mask = target.mask.narrow(0, box.y, box.height).narrow(1, box.x, box.width).contiguous();
-  f.pixel_share = double(box.width * box.height) / double(target.image.size(0) * target.image.size(1));
-  return f;
-}
-
 // One eager evaluation of `frame`: its loss, after its gradient has been computed.
 double eager_evaluation(model::Avatar& avatar, const train::FitLoss& loss, const train::FitFrame& frame,
                         const at::Tensor& correction, bool run_loss) {
@@ -172,7 +146,7 @@ int main(int argc, char** argv) {
   if (args.profile) {
     const int64_t f = frames[0];
     const train::PoseFitTarget target = train::pose_fit_target(dataset, f, device, false);
-    const train::FitFrame crop = fine_frame(avatar, dataset.frames[size_t(f)].pose, target, true);
+    const train::FitFrame crop = train::fit_frame(avatar, dataset.frames[size_t(f)].pose, target, true);
     const at::Tensor correction = 0.01 * at::randn({train::kCorrectionWidth});
     for (int k = 0; k < 3; ++k) eager_evaluation(avatar, loss, crop, correction, true);
     bench::NvtxStages stages;
@@ -188,8 +162,8 @@ int main(int argc, char** argv) {
     const int64_t f = frames[size_t(k)];
     const data::FrameRecord& record = dataset.frames[size_t(f)];
     const train::PoseFitTarget target = train::pose_fit_target(dataset, f, device, false);
-    const train::FitFrame whole = fine_frame(avatar, record.pose, target, false);
-    const train::FitFrame crop = fine_frame(avatar, record.pose, target, true);
+    const train::FitFrame whole = train::fit_frame(avatar, record.pose, target, false);
+    const train::FitFrame crop = train::fit_frame(avatar, record.pose, target, true);
     const auto ms = [&](const train::FitLoss& l, const train::FitFrame& frame, bool run_loss) {
       return 1000 * evaluation_seconds(avatar, l, frame, run_loss, args.evaluations);
     };

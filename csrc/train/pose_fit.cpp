@@ -57,7 +57,7 @@ std::pair<int64_t, int64_t> crop_axis(int64_t first, int64_t last, int64_t margi
 }
 
 // The camera of the crop `box` of its image.
-Camera cropped(const Camera& camera, const PixelBox& box) {
+Camera crop(const Camera& camera, const PixelBox& box) {
   Camera c = camera;
   c.cx -= double(box.x);
   c.cy -= double(box.y);
@@ -103,6 +103,25 @@ PixelBox person_crop(const at::Tensor& mask) {
   return {x, y, w, h};
 }
 
+FitFrame fit_frame(model::Avatar& avatar, const body::SmplxPose& pose, const PoseFitTarget& target, bool cropped) {
+  FitFrame frame;
+  frame.pose = pose.views_of(pose.packed().to(target.image.device()));
+  {
+    at::NoGradGuard no_grad;
+    frame.attributes = avatar->attributes(target.time);
+  }
+  frame.has_time = target.time.has_value();
+  frame.keypoints = target.keypoints;
+  const int64_t full_width = target.image.size(1), full_height = target.image.size(0);
+  const PixelBox box =
+      cropped && target.mask.defined() ? person_crop(target.mask) : PixelBox{0, 0, full_width, full_height};
+  frame.pixel_share = double(box.width * box.height) / double(full_width * full_height);
+  frame.camera = crop(target.camera, box);
+  frame.image = crop(target.image, box);
+  if (target.mask.defined()) frame.mask = crop(target.mask, box);
+  return frame;
+}
+
 PoseFitTarget pose_fit_target(const data::Dataset& dataset, int64_t frame, at::Device device, bool with_keypoints) {
   const data::FrameRecord& record = dataset.frames[size_t(frame)];
   const data::Frame loaded = dataset.load(frame);
@@ -138,27 +157,16 @@ PoseFitResult PoseFitter::fit(model::Avatar& avatar, const body::SmplxPose& pose
                               const at::Tensor& start) {
   const at::Device device = target.image.device();
   // The frame as each stage's resolution sees it; the fit and the pose-independent attributes once for every stage.
-  FitFrame frame;
-  frame.pose = pose.views_of(pose.packed().to(device));
-  {
-    at::NoGradGuard no_grad;
-    frame.attributes = avatar->attributes(target.time);
-  }
-  frame.has_time = target.time.has_value();
-  frame.keypoints = keypoint_map_ ? target.keypoints : FrameKeypoints();
-  const int64_t full_width = target.image.size(1), full_height = target.image.size(0);
-  const PixelBox box = target.mask.defined() ? person_crop(target.mask) : PixelBox{0, 0, full_width, full_height};
-  frame.pixel_share = double(box.width * box.height) / double(full_width * full_height);
-  const Camera camera = cropped(target.camera, box);
-  const at::Tensor image = crop(target.image, box);
-  const at::Tensor mask = target.mask.defined() ? crop(target.mask, box) : at::Tensor();
+  const FitFrame cropped = fit_frame(avatar, pose, target, true);
   std::array<FitFrame, kStages.size()> frames;
   for (size_t s = 0; s < kStages.size(); ++s) {
     const int64_t d = kStages[s].downsample;
-    frames[s] = frame;
-    frames[s].camera = d == 1 ? camera : downsampled(camera, d);
-    frames[s].image = d == 1 ? image : downsample(image, d);
-    if (mask.defined()) frames[s].mask = d == 1 ? mask : downsample(mask, d);
+    frames[s] = cropped;
+    if (!keypoint_map_) frames[s].keypoints = FrameKeypoints();
+    if (d == 1) continue;
+    frames[s].camera = downsampled(cropped.camera, d);
+    frames[s].image = downsample(cropped.image, d);
+    if (cropped.mask.defined()) frames[s].mask = downsample(cropped.mask, d);
   }
 
   const bool record = options_.recorded && device.is_cuda() && device_graphs_available() && !recording_failed_;

@@ -78,6 +78,11 @@ struct PixelBox {
 // rounded box would cover is kept whole), its origin on the coarsest stage's pixel grid so that every stage's crop is
 // the crop of its downsampled image. The whole image when the mask holds no person.
 PixelBox person_crop(const at::Tensor& mask);
+// The fine stage's view of `target` at `pose`: the fit on the target's device, the avatar's pose-independent
+// attributes at the target's time (made here, once for all of a fit's evaluations), the target's keypoints, and its
+// image, mask and camera on the person's crop (person_crop) with the crop's pixel share; the whole image where
+// `cropped` is false or the target has no mask.
+FitFrame fit_frame(model::Avatar& avatar, const body::SmplxPose& pose, const PoseFitTarget& target, bool cropped);
 
 struct PoseFitResult {
   at::Tensor correction;            // (kCorrectionWidth) float32 on the CPU

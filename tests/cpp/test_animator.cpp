@@ -101,11 +101,15 @@ std::pair<Gaussians, at::Tensor> random_gaussians(int64_t n) {
   return {g, full};
 }
 
-// `g` moved into the frame of `camera`'s placement, as a recording reads it from the device.
-Gaussians moved_into(const Gaussians& g, const Camera& camera) {
+// The placement of `camera` as a recording reads it from the device (float32 values, here in float64 tensors).
+CameraFrame placement_of(const Camera& camera) {
   std::vector<float> values(kCameraFrameValues);
   write_camera_frame(camera, values.data());
-  const CameraFrame frame(at::tensor(values, at::kFloat).to(at::kDouble));
+  return CameraFrame(at::tensor(values, at::kFloat).to(at::kDouble));
+}
+
+// `g` moved into the frame of a camera's placement.
+Gaussians moved_into(const Gaussians& g, const CameraFrame& frame) {
   Gaussians moved = g;
   moved.means = frame.points(g.means);
   moved.covariances = frame.covariances(g.covariances);
@@ -119,12 +123,8 @@ TEST(Animator, GaussiansMovedIntoTheCameraFrameRenderAsSeenByTheCamera) {
   Camera camera = Camera::looking_forward(80, 64, 48);
   const double c = std::cos(0.7), s = std::sin(0.7);
   camera.world_to_camera = {c, 0, s, 0.1, 0, 1, 0, -0.2, -s, 0, c, 2.5, 0, 0, 0, 1};
-  std::vector<float> values(kCameraFrameValues);
-  write_camera_frame(camera, values.data());
-  const CameraFrame frame(at::tensor(values, at::kFloat).to(at::kDouble));
-  Gaussians moved_gaussians = g;
-  moved_gaussians.means = frame.points(g.means);
-  moved_gaussians.covariances = frame.covariances(g.covariances);
+  const CameraFrame frame = placement_of(camera);
+  const Gaussians moved_gaussians = moved_into(g, frame);
   const at::Tensor background = at::full({3}, 0.3, at::kDouble);
   const RenderResult seen = render(g, background, camera);
   const RenderResult moved = render(moved_gaussians, background, camera_at_origin_of(camera));
@@ -161,8 +161,9 @@ TEST(Animator, CentredPrincipalPointGivesTheOffCentreCamerasImageAndGradients) {
     Gaussians leaf = g;
     leaf.means = g.means.clone().requires_grad_(true);
     leaf.covariances = g.covariances.clone().requires_grad_(true);
-    const RenderResult r = sheared ? render(moved_into(leaf, centred), background, camera_at_origin_of(centred))
-                                   : render(leaf, background, camera);
+    const RenderResult r =
+        sheared ? render(moved_into(leaf, placement_of(centred)), background, camera_at_origin_of(centred))
+                : render(leaf, background, camera);
     const auto grads =
         torch::autograd::grad({(r.image * weights).sum() + r.alpha.sum()}, {leaf.means, leaf.covariances});
     return std::vector<at::Tensor>{r.image, r.alpha, r.depth, grads[0], grads[1]};

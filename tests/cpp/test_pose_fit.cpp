@@ -86,16 +86,9 @@ TEST(TrainPoseFitting, ACroppedFitHasTheWholeImagesObjective) {
 
   const train::ImageLoss image_loss(options.loss, at::kCPU);
   const train::FitLoss loss(image_loss, nullptr, 0);
-  train::FitFrame whole;
-  whole.pose = record.pose;
-  {
-    at::NoGradGuard no_grad;
-    whole.attributes = avatar->attributes(target.time);
-  }
-  whole.has_time = target.time.has_value();
-  whole.camera = target.camera;
-  whole.image = target.image;
-  whole.mask = target.mask;
+  const train::FitFrame whole = train::fit_frame(avatar, record.pose, target, false);
+  ASSERT_EQ(whole.pixel_share, 1.0);
+  ASSERT_EQ(whole.image.size(1), 256);
   at::NoGradGuard no_grad;
   const double expected = loss(avatar, whole, start, true).item<double>();
   EXPECT_GT(expected, 0);
