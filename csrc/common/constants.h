@@ -308,9 +308,9 @@ inline constexpr double kJointKeypointOcclusionDepth = 0.1;
 // root-aligned MPJPE from 39.7 to 34.4 mm (sway) and 42.9 to 41.5 mm (walk) for half as much time again (60 frames:
 // 12 -> 18 s on one core); the detail stage (every keypoint, the body still moving) keeps settling them too: 600
 // detail and 200 silhouette steps took sway / walk / wave from 31.7 / 37.4 / 66.8 to 28.0 / 35.5 / 64.2 mm for
-// two thirds more time (60 frames: 18 -> 31 s on one core); remeasured on the clips as synthesised on 2026-11-27
-// (30.4 / 35.4 / 65.3 mm), 1,200 detail steps give 28.0 / 33.5 / 64.7 mm (vertices 39.2 -> 35.4 mm on sway) for
-// about 10 s more, where 1,800 gained nothing more (28.4 on sway; docs/fitting.md).
+// two thirds more time (60 frames: 18 -> 31 s on one core); on today's synthetic clips (30.4 / 35.4 / 65.3 mm at 600)
+// 1,200 detail steps give 28.0 / 33.5 / 64.7 mm (vertices 39.2 -> 35.4 mm on sway) for about 10 s more, where 1,800
+// gain nothing more (28.4 on sway; docs/fitting.md).
 inline constexpr long kFitGlobalIterations = 80;
 inline constexpr long kFitBodyIterations = 600;
 inline constexpr long kFitDetailIterations = 1200;

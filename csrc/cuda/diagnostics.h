@@ -13,8 +13,8 @@ namespace sfgs {
 // one holds): with the tiles taken longest first, a run that long is still being composited when
 // the other blocks have shared out the rest of the pass, so it sets the pass's length and cutting it pays. Cutting a
 // shorter run only costs: each segment composites its whole share even where the pixels' transmittance ran out in an
-// earlier one (a dense scene's tiles saturate early), which doubled the generic benchmark's forward when every run
-// longer than a segment was cut (issue 40). 1.5 leaves the generic benchmark's densest runs (about one share, by an
+// earlier one (a dense scene's tiles saturate early): cutting every run longer than a segment doubles the generic
+// benchmark's forward. 1.5 leaves the generic benchmark's densest runs (about one share, by an
 // estimate from its scene) whole with a margin, and cuts the trained avatar's runs beyond about 600 (324,646
 // intersections at 800x1200 on the H200's 132 x 6 blocks); bench_splat_cuda's cut-rule table and bench_animate
 // --blend-cut-shares measure it (docs/performance.md).
