@@ -45,6 +45,7 @@
 #include "metrics/image_metrics.h"
 #include "model/observation_prior.h"
 #include "train/run_folder.h"
+#include "flags.h"
 #include "profiled_range.h"
 #include "stage_clock.h"
 
@@ -78,10 +79,7 @@ struct Arguments {
 
 Arguments parse(int argc, char** argv) {
   Arguments a;
-  for (int i = 1; i < argc; ++i) {
-    const std::string flag = argv[i];
-    if (i + 1 >= argc) usage();
-    const std::string value = argv[++i];
+  sfgs::bench::parse_flags(argc, argv, usage, [&](const std::string& flag, const std::string& value) {
     if (flag == "--device")
       a.device = value;
     else if (flag == "--shared")
@@ -120,8 +118,9 @@ Arguments parse(int argc, char** argv) {
         a.sizes.push_back({w, h});
       }
     } else
-      usage();
-  }
+      return false;
+    return true;
+  });
   return a;
 }
 

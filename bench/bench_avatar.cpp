@@ -27,6 +27,7 @@
 #include "body/mesh.h"
 #include "body/skeleton.h"
 #include "model/avatar.h"
+#include "flags.h"
 
 namespace {
 
@@ -38,22 +39,24 @@ struct Arguments {
   int64_t levels = -1;  // -1: closest to kSmplxPointCount
 };
 
+[[noreturn]] void usage() {
+  std::fprintf(stderr, "usage: bench_avatar [--device cpu|cuda] [--repeats N] [--levels L]\n");
+  std::exit(2);
+}
+
 Arguments parse(int argc, char** argv) {
   Arguments a;
-  for (int i = 1; i < argc; ++i) {
-    const std::string flag = argv[i];
-    const bool has_value = i + 1 < argc;
-    if (flag == "--device" && has_value) {
-      a.device = argv[++i];
-    } else if (flag == "--repeats" && has_value) {
-      a.repeats = std::max(1, std::atoi(argv[++i]));
-    } else if (flag == "--levels" && has_value) {
-      a.levels = std::max(0, std::atoi(argv[++i]));
-    } else {
-      std::fprintf(stderr, "usage: bench_avatar [--device cpu|cuda] [--repeats N] [--levels L]\n");
-      std::exit(2);
-    }
-  }
+  sfgs::bench::parse_flags(argc, argv, usage, [&](const std::string& flag, const std::string& value) {
+    if (flag == "--device")
+      a.device = value;
+    else if (flag == "--repeats")
+      a.repeats = std::max(1, std::atoi(value.c_str()));
+    else if (flag == "--levels")
+      a.levels = std::max(0, std::atoi(value.c_str()));
+    else
+      return false;
+    return true;
+  });
   return a;
 }
 

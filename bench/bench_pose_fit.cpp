@@ -25,6 +25,7 @@
 #include "train/pose_fit.h"
 #include "train/pose_fit_evaluation.h"
 #include "train/run_folder.h"
+#include "flags.h"
 #include "profiled_range.h"
 
 namespace {
@@ -46,10 +47,7 @@ struct Arguments {
 
 Arguments parse(int argc, char** argv) {
   Arguments a;
-  for (int i = 1; i < argc; ++i) {
-    const std::string flag = argv[i];
-    if (i + 1 >= argc) usage();
-    const std::string value = argv[++i];
+  bench::parse_flags(argc, argv, usage, [&](const std::string& flag, const std::string& value) {
     if (flag == "--run")
       a.run = value;
     else if (flag == "--split")
@@ -65,8 +63,9 @@ Arguments parse(int argc, char** argv) {
     else if (flag == "--profile")
       a.profile = value == "1";
     else
-      usage();
-  }
+      return false;
+    return true;
+  });
   if (a.run.empty()) usage();
   return a;
 }

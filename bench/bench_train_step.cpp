@@ -19,6 +19,7 @@
 
 #include "common/host_memory.h"
 #include "data/dataset.h"
+#include "flags.h"
 #include "profiled_range.h"
 #include "stage_clock.h"
 #include "train/trainer.h"
@@ -39,10 +40,7 @@ struct Arguments {
 
 Arguments parse(int argc, char** argv) {
   Arguments a;
-  for (int i = 1; i < argc; ++i) {
-    const std::string flag = argv[i];
-    if (i + 1 >= argc) usage();
-    const std::string value = argv[++i];
+  sfgs::bench::parse_flags(argc, argv, usage, [&](const std::string& flag, const std::string& value) {
     if (flag == "--data")
       a.data = value;
     else if (flag == "--config")
@@ -56,8 +54,9 @@ Arguments parse(int argc, char** argv) {
     else if (flag == "--profile")
       a.profile = value == "1";
     else
-      usage();
-  }
+      return false;
+    return true;
+  });
   if (a.data.empty() || a.config.empty()) usage();
   return a;
 }

@@ -99,6 +99,11 @@ nlohmann::json evaluation_json(const train::AvatarEvaluation& e) {
 std::string group_lines(const train::AvatarEvaluation& e) {
   std::string text;
   char line[256];
+  const auto append_unseen = [&](const train::GroupScore& g) {
+    if (!g.unseen_share) return;
+    std::snprintf(line, sizeof(line), "  unseen %.1f %%", 100 * *g.unseen_share);
+    text += line;
+  };
   for (const train::GroupScore& g : e.motions) {
     std::snprintf(line, sizeof(line), "  motion %-10s frames %4lld  PSNR %.2f  SSIM %.4f", g.name.c_str(),
                   (long long)g.frames, g.psnr, g.ssim);
@@ -107,10 +112,7 @@ std::string group_lines(const train::AvatarEvaluation& e) {
       std::snprintf(line, sizeof(line), "  LPIPS %.4f", *g.lpips);
       text += line;
     }
-    if (g.unseen_share) {
-      std::snprintf(line, sizeof(line), "  unseen %.1f %%", 100 * *g.unseen_share);
-      text += line;
-    }
+    append_unseen(g);
     text += "\n";
   }
   for (const train::GroupScore& g : e.regions) {
@@ -120,10 +122,7 @@ std::string group_lines(const train::AvatarEvaluation& e) {
     else
       std::snprintf(line, sizeof(line), "  region %-10s frames    0  (no frame showed it)", g.name.c_str());
     text += line;
-    if (g.unseen_share) {
-      std::snprintf(line, sizeof(line), "  unseen %.1f %%", 100 * *g.unseen_share);
-      text += line;
-    }
+    append_unseen(g);
     text += "\n";
   }
   if (e.regions.empty()) text += "  (no per-region metrics: the dataset has no ground-truth geometry)\n";

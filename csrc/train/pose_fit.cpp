@@ -157,12 +157,12 @@ PoseFitResult PoseFitter::fit(model::Avatar& avatar, const body::SmplxPose& pose
                               const at::Tensor& start) {
   const at::Device device = target.image.device();
   // The frame as each stage's resolution sees it; the fit and the pose-independent attributes once for every stage.
-  const FitFrame cropped = fit_frame(avatar, pose, target, true);
+  FitFrame cropped = fit_frame(avatar, pose, target, true);
+  if (!keypoint_map_) cropped.keypoints = FrameKeypoints();
   std::array<FitFrame, kStages.size()> frames;
   for (size_t s = 0; s < kStages.size(); ++s) {
     const int64_t d = kStages[s].downsample;
     frames[s] = cropped;
-    if (!keypoint_map_) frames[s].keypoints = FrameKeypoints();
     if (d == 1) continue;
     frames[s].camera = downsampled(cropped.camera, d);
     frames[s].image = downsample(cropped.image, d);
