@@ -14,6 +14,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <string>
+#include <utility>
 
 #include <ATen/ATen.h>
 #include <torch/cuda.h>
@@ -138,6 +139,7 @@ int main(int argc, char** argv) {
   without_lpips.use_lpips = false;
   const train::ImageLoss image_loss(with_lpips, device), image_loss_without_lpips(without_lpips, device);
   const train::FitLoss loss(image_loss, nullptr, 0), loss_without_lpips(image_loss_without_lpips, nullptr, 0);
+  const train::FitLoss skeleton_loss(image_loss, nullptr, 0, model::PoseGradient::kSkeleton);
   std::printf("bench_pose_fit: %s, %lld Gaussians, %s split, LPIPS %s\n", device.str().c_str(),
               static_cast<long long>(avatar->gaussian_count()), args.split.c_str(),
               image_loss.lpips_status().empty() ? "loaded" : image_loss.lpips_status().c_str());
@@ -168,26 +170,33 @@ int main(int argc, char** argv) {
     };
     std::printf(
         "  %s: crop %lldx%lld of %lldx%lld (%.0f %%); ms an evaluation: fine whole %.2f, fine crop %.2f, "
-        "crop without LPIPS %.2f, crop L1 %.2f\n",
+        "crop without LPIPS %.2f, crop L1 %.2f, crop with the skeleton's gradient %.2f\n",
         record.name.c_str(), static_cast<long long>(crop.camera.width), static_cast<long long>(crop.camera.height),
         static_cast<long long>(whole.camera.width), static_cast<long long>(whole.camera.height), 100 * crop.pixel_share,
-        ms(loss, whole, true), ms(loss, crop, true), ms(loss_without_lpips, crop, true), ms(loss, crop, false));
+        ms(loss, whole, true), ms(loss, crop, true), ms(loss_without_lpips, crop, true), ms(loss, crop, false),
+        ms(skeleton_loss, crop, true));
   }
 
-  train::PoseFitOptions options;
-  options.iterations = args.fit_evaluations;
-  options.loss = with_lpips;
-  train::PoseFitter fitter(options, device, nullptr);
+  // Whole fits as test-time fitting runs them, and as an alignment pass does (train/pose_refinement.cpp).
+  train::PoseFitOptions test_time;
+  test_time.iterations = args.fit_evaluations;
+  test_time.loss = with_lpips;
+  train::PoseFitOptions alignment = test_time;
+  alignment.gradient = model::PoseGradient::kSkeleton;
+  alignment.stall_share = train::kAlignmentStallShare;
   const at::Tensor zero = at::zeros({train::kCorrectionWidth});
-  for (int64_t k = 0; k < count; ++k) {
-    const int64_t f = frames[size_t(k)];
-    const train::PoseFitTarget target = train::pose_fit_target(dataset, f, device, false);
-    const auto start = std::chrono::steady_clock::now();
-    const train::PoseFitResult r = fitter.fit(avatar, dataset.frames[size_t(f)].pose, target, zero);
-    const double seconds = seconds_since(start);
-    std::printf("  fit %s: %lld evaluations in %.3f s (%.2f ms each), loss %.5f -> %.5f, recorded %d\n",
-                dataset.frames[size_t(f)].name.c_str(), static_cast<long long>(r.evaluations), seconds,
-                1000 * seconds / double(r.evaluations), r.start_loss, r.loss, int(r.recorded));
+  for (const auto& [name, options] : {std::pair{"test-time", test_time}, {"alignment", alignment}}) {
+    train::PoseFitter fitter(options, device, nullptr);
+    for (int64_t k = 0; k < count; ++k) {
+      const int64_t f = frames[size_t(k)];
+      const train::PoseFitTarget target = train::pose_fit_target(dataset, f, device, false);
+      const auto start = std::chrono::steady_clock::now();
+      const train::PoseFitResult r = fitter.fit(avatar, dataset.frames[size_t(f)].pose, target, zero);
+      const double seconds = seconds_since(start);
+      std::printf("  %s fit %s: %lld evaluations in %.3f s (%.2f ms each), loss %.5f -> %.5f, recorded %d\n", name,
+                  dataset.frames[size_t(f)].name.c_str(), static_cast<long long>(r.evaluations), seconds,
+                  1000 * seconds / double(r.evaluations), r.start_loss, r.loss, int(r.recorded));
+    }
   }
   return 0;
 }

@@ -379,6 +379,10 @@ for e in entries:
         print(f"  {sys.argv[2]} alignment at {e['iteration']}: {e['frames']} frames, {e['evaluations']} evaluations, "
               f"{e['seconds']:.1f} s ({1000 * e['seconds'] / max(1, e['evaluations']):.2f} ms each), "
               f"recorded {e['recorded']}, loss {e['loss_before']:.4f} -> {e['loss_after']:.4f}")
+        if "pose_error" in e:
+            r = e["pose_error"]["refined"]
+            print(f"    refined fits against the exact ones: root {r['root_deg']:.2f} deg, body {r['body_deg']:.2f} deg, "
+                  f"translation {r['translation_cm']:.2f} cm")
 for e in entries:
     if e.get("event") == "end":
         print(f"  {sys.argv[2]}: {e['iteration']} iterations, training {e['training_seconds']:.1f} s, "

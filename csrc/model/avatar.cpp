@@ -186,14 +186,14 @@ CanonicalAttributes AvatarImpl::attributes(FrameTime time) {
 }
 
 AvatarOutput AvatarImpl::forward_with_attributes(const body::SmplxPose& pose, const CanonicalAttributes& attributes,
-                                                 bool has_time) {
+                                                 bool has_time, PoseGradient gradient) {
   TORCH_CHECK(attributes.mean_offset.defined() && attributes.log_scales.defined() &&
                   attributes.colour_logits.defined() && attributes.mean_offset.size(0) == gaussian_count(),
               "Avatar: forward_with_attributes takes the attributes of this avatar (", gaussian_count(),
               " Gaussians), made by attributes()");
   std::optional<Tf32MatmulScope> products;
   if (!at::GradMode::is_enabled() && body_->vertices().is_cuda()) products.emplace(true);
-  return posed_with(pose, attributes, has_time);
+  return posed_with(pose, attributes, has_time, gradient);
 }
 
 // One of host_time and device_time at most; device_time bypasses the cache.
@@ -208,10 +208,11 @@ AvatarOutput AvatarImpl::posed(const body::SmplxPose& pose, FrameTime host_time,
     const StageScope stage("avatar: canonical attributes (planes, heads)");
     attributes = device_time.defined() ? attributes_at(device_time) : attributes_at(host_time);
   }
-  return posed_with(pose, attributes, has_time);
+  return posed_with(pose, attributes, has_time, PoseGradient::kWhole);
 }
 
-AvatarOutput AvatarImpl::posed_with(const body::SmplxPose& pose, const CanonicalAttributes& attributes, bool has_time) {
+AvatarOutput AvatarImpl::posed_with(const body::SmplxPose& pose, const CanonicalAttributes& attributes, bool has_time,
+                                    PoseGradient gradient) {
   FramePose frame;
   at::Tensor coarse_residual;
   {
@@ -227,7 +228,7 @@ AvatarOutput AvatarImpl::posed_with(const body::SmplxPose& pose, const Canonical
   CanonicalGaussians canonical;
   {
     const StageScope stage("avatar: structure offset");
-    canonical = canonical_gaussians(frame, body, attributes);
+    canonical = canonical_gaussians(frame, body, attributes, gradient);
   }
 
   AvatarOutput out;
@@ -264,7 +265,7 @@ AvatarOutput AvatarImpl::posed_with(const body::SmplxPose& pose, const Canonical
         body::vertex_normals(out.posed_vertices.detach(), faces, faces.is_cuda() ? faces_around_ : body::VertexFaces());
   }
   const StageScope stage("avatar: appearance");
-  out.colours = appearance(frame, attributes, has_time, out);
+  out.colours = appearance(frame, attributes, has_time, gradient, out);
   return out;
 }
 
@@ -383,17 +384,23 @@ CanonicalAttributes AvatarImpl::attributes_at(FrameTime time) {
 }
 
 CanonicalGaussians AvatarImpl::canonical_gaussians(const FramePose& frame, const FrameBody& body,
-                                                   const CanonicalAttributes& attributes) const {
+                                                   const CanonicalAttributes& attributes, PoseGradient gradient) const {
   CanonicalGaussians g;
   g.means = body.rest + attributes.mean_offset;
   g.log_scales = attributes.log_scales;
   if (structure_offset_) {
     // Inference from the cache on CUDA: the whole network as one fused kernel (gathered_mlp.h); a gradient
     // (training, or through the pose) takes the network layer by layer, its first layer fused (gathered_first_layer).
-    const bool fused = attributes.structure_projection_half.defined() && !at::GradMode::is_enabled();
-    const StructureOffsetOutput structure =
-        fused ? structure_offset_->forward_inference(attributes.structure_projection_half, frame.rotations_6d)
-              : structure_offset_->forward(attributes.structure_projection, frame.rotations_6d);
+    const bool held = gradient == PoseGradient::kSkeleton;
+    const bool fused = attributes.structure_projection_half.defined() && (held || !at::GradMode::is_enabled());
+    StructureOffsetOutput structure;
+    {
+      std::optional<at::NoGradGuard> no_gradient;
+      if (held) no_gradient.emplace();
+      structure = fused ? structure_offset_->forward_inference(attributes.structure_projection_half,
+                                                               frame.rotations_6d.detach())
+                        : structure_offset_->forward(attributes.structure_projection, frame.rotations_6d);
+    }
     g.structure_offset = trusted(structure.mean_offset);
     g.scale_offset = trusted(structure.log_scale_offset.unsqueeze(1)).squeeze(1);
     g.means = g.means + g.structure_offset;
@@ -404,9 +411,11 @@ CanonicalGaussians AvatarImpl::canonical_gaussians(const FramePose& frame, const
 }
 
 at::Tensor AvatarImpl::appearance(const FramePose& frame, const CanonicalAttributes& attributes, bool replay,
-                                  AvatarOutput& out) const {
+                                  PoseGradient gradient, AvatarOutput& out) const {
   at::Tensor logits = attributes.colour_logits;
   if (colour_offset_ && (replay || config_.colour_offset_on_new_motions)) {
+    std::optional<at::NoGradGuard> no_gradient;
+    if (gradient == PoseGradient::kSkeleton) no_gradient.emplace();
     const at::Tensor pose_embedding = body_->weights().matmul(frame.rotations_6d);  // sum_j w_ij r_j
     out.colour_offset =
         trusted(colour_offset_->forward(attributes.colour_projection, pose_embedding, out.posed_normals));

@@ -38,6 +38,13 @@ struct Plan;
 
 namespace sfgs::model {
 
+// What a pose's gradient flows through in forward_with_attributes. kWhole: everything the pose drives. kSkeleton: the
+// body (correctives, joints, hand residual) and the skinning, with the pose-driven networks (structure and colour
+// offsets) evaluated at the pose but held constant for the gradient (on CUDA the fused inference network): a fit
+// that moves the body by centimetres and degrees is steered by the skeleton, and those networks' millimetres of detail
+// cost about a third of a fit's evaluation (docs/performance.md, "Pose refinement and pose fitting").
+enum class PoseGradient { kWhole, kSkeleton };
+
 class InferenceCache;
 struct CanonicalAttributes;
 struct CanonicalGaussians;
@@ -143,7 +150,7 @@ class AvatarImpl : public torch::nn::Module {
   // reads. `has_time`: whether they were made with a time (a replayed frame's appearance).
   CanonicalAttributes attributes(FrameTime time);
   AvatarOutput forward_with_attributes(const body::SmplxPose& pose, const CanonicalAttributes& attributes,
-                                       bool has_time);
+                                       bool has_time, PoseGradient gradient = PoseGradient::kWhole);
 
   // The observation record of training (observation_prior.h): per Gaussian, the share of training steps that saw it
   // front-facing, (N) on any device; undefined clears it. In eval mode an avatar with a record trusts each
@@ -183,7 +190,8 @@ class AvatarImpl : public torch::nn::Module {
   struct FramePose;
   FramePose frame_pose(const body::SmplxPose& pose) const;
   AvatarOutput posed(const body::SmplxPose& pose, FrameTime time, const at::Tensor& device_time);
-  AvatarOutput posed_with(const body::SmplxPose& pose, const CanonicalAttributes& attributes, bool has_time);
+  AvatarOutput posed_with(const body::SmplxPose& pose, const CanonicalAttributes& attributes, bool has_time,
+                          PoseGradient gradient);
   CanonicalAttributes attributes_at(FrameTime time);
   CanonicalAttributes attributes_at(const at::Tensor& device_time);
   // The observation prior's plan on the module's device (made when first needed there).
@@ -194,10 +202,10 @@ class AvatarImpl : public torch::nn::Module {
   CanonicalAttributes with_observation_prior(CanonicalAttributes attributes) const;
   at::Tensor trusted(const at::Tensor& learned) const;  // scaled by the confidence when trusts_observation()
   CanonicalGaussians canonical_gaussians(const FramePose& frame, const FrameBody& body,
-                                         const CanonicalAttributes& attributes) const;
+                                         const CanonicalAttributes& attributes, PoseGradient gradient) const;
   // Colours from the canonical attributes and the posed normals in `out` (and sets its colour offset and shading).
   at::Tensor appearance(const FramePose& frame, const CanonicalAttributes& attributes, bool replay,
-                        AvatarOutput& out) const;
+                        PoseGradient gradient, AvatarOutput& out) const;
 
   AvatarConfig config_;
   CanonicalBody body_{nullptr};

@@ -7,6 +7,7 @@
 #include <numeric>
 #include <string>
 #include <utility>
+#include <vector>
 
 #include <ATen/ATen.h>
 #include <torch/csrc/autograd/autograd.h>
@@ -148,7 +149,10 @@ PoseFitter::PoseFitter(const PoseFitOptions& options, at::Device device, const b
   TORCH_CHECK(std::isfinite(options.keypoint_weight) && options.keypoint_weight >= 0,
               "pose fitting: the keypoint weight must be finite and >= 0, got ", options.keypoint_weight);
   if (keypoint_map && options.keypoint_weight > 0) keypoint_map_ = keypoint_map->to(device, at::kFloat);
-  fit_loss_ = std::make_unique<FitLoss>(loss_, keypoint_map_ ? &*keypoint_map_ : nullptr, options.keypoint_weight);
+  TORCH_CHECK(std::isfinite(options.stall_share) && options.stall_share >= 0 && options.stall_share < 1,
+              "pose fitting: the stall share must be in [0, 1), got ", options.stall_share);
+  fit_loss_ = std::make_unique<FitLoss>(loss_, keypoint_map_ ? &*keypoint_map_ : nullptr, options.keypoint_weight,
+                                        options.gradient);
 }
 
 PoseFitter::~PoseFitter() = default;
@@ -227,8 +231,14 @@ PoseFitResult PoseFitter::fit(model::Avatar& avatar, const body::SmplxPose& pose
                                                     .line_search_fn("strong_wolfe"));
     double best_loss = INFINITY;
     int64_t spent = 0;
+    std::vector<double> best_after;  // the best loss after each evaluation of the stage
+    const auto stalled = [&] {
+      if (options_.stall_share <= 0 || spent <= kPoseFitStallEvaluations) return false;
+      const double earlier = best_after[size_t(spent - 1 - kPoseFitStallEvaluations)];
+      return earlier - best_loss <= options_.stall_share * std::abs(earlier);
+    };
     const auto stage_loss = [&]() -> at::Tensor {
-      if (spent == evaluations) throw StageEnded{};
+      if (spent == evaluations || stalled()) throw StageEnded{};
       ++spent;
       const FitEvaluation e = evaluate(s, correction.detach());
       if (!std::isfinite(e.loss)) throw StageEnded{};
@@ -239,6 +249,7 @@ PoseFitResult PoseFitter::fit(model::Avatar& avatar, const body::SmplxPose& pose
         best_loss = e.loss;
         best = correction.detach().clone();
       }
+      best_after.push_back(best_loss);
       return at::scalar_tensor(e.loss, at::kFloat);
     };
     try {

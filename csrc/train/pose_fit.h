@@ -52,7 +52,17 @@ struct PoseFitOptions {
   // On CUDA, each kind of stage's evaluation recorded once as a CUDA graph and replayed (train/pose_fit_evaluation.h);
   // false: every evaluation eager (the schedule's cuda_graphs in pose refinement).
   bool recorded = true;
+  // What the correction's gradient flows through (model::PoseGradient): the whole avatar where each frame is fitted
+  // once and accuracy is the point (test-time fitting), the skeleton where a training fits every frame at each of
+  // its alignment passes (PoseRefinement).
+  model::PoseGradient gradient = model::PoseGradient::kWhole;
+  // A stage ends once its best loss fell by less than this share over its last kPoseFitStallEvaluations evaluations:
+  // a frame that starts at its optimum (an alignment pass after another) spends few. 0: every stage spends its share.
+  double stall_share = 0;
 };
+
+// The window of PoseFitOptions::stall_share: a few L-BFGS iterations with their line searches.
+inline constexpr int64_t kPoseFitStallEvaluations = 10;
 
 // What a frame's pose is fitted to: its image on white outside the person, the person mask, its render camera and
 // its time on the avatar's time axis, on the avatar's device.

@@ -12,13 +12,14 @@
 
 namespace sfgs::train {
 
-FitLoss::FitLoss(const ImageLoss& image_loss, const body::WholeBodyKeypointMap* keypoint_map, double keypoint_weight)
-    : image_loss_(image_loss), keypoint_map_(keypoint_map), keypoint_weight_(keypoint_weight) {}
+FitLoss::FitLoss(const ImageLoss& image_loss, const body::WholeBodyKeypointMap* keypoint_map, double keypoint_weight,
+                 model::PoseGradient gradient)
+    : image_loss_(image_loss), keypoint_map_(keypoint_map), keypoint_weight_(keypoint_weight), gradient_(gradient) {}
 
 at::Tensor FitLoss::operator()(model::Avatar& avatar, const FitFrame& frame, const at::Tensor& correction,
                                bool run_loss) const {
-  const model::AvatarOutput out =
-      avatar->forward_with_attributes(corrected_pose(frame.pose, correction), frame.attributes, frame.has_time);
+  const model::AvatarOutput out = avatar->forward_with_attributes(corrected_pose(frame.pose, correction),
+                                                                  frame.attributes, frame.has_time, gradient_);
   Gaussians gaussians = model::to_gaussians(out);
   if (frame.camera_frame.defined()) {
     gaussians.means = frame.camera_frame.points(gaussians.means);

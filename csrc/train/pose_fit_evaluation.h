@@ -50,7 +50,9 @@ struct FitFrame {
 // reprojection error where the frame has detections and a map is given.
 class FitLoss {
  public:
-  FitLoss(const ImageLoss& image_loss, const body::WholeBodyKeypointMap* keypoint_map, double keypoint_weight);
+  // `gradient`: what the correction's gradient flows through (model::PoseGradient).
+  FitLoss(const ImageLoss& image_loss, const body::WholeBodyKeypointMap* keypoint_map, double keypoint_weight,
+          model::PoseGradient gradient = model::PoseGradient::kWhole);
   // A 0-dim loss with a gradient to `correction` (kCorrectionWidth, on the avatar's device).
   at::Tensor operator()(model::Avatar& avatar, const FitFrame& frame, const at::Tensor& correction,
                         bool run_loss) const;
@@ -62,6 +64,7 @@ class FitLoss {
   const ImageLoss& image_loss_;
   const body::WholeBodyKeypointMap* keypoint_map_;
   double keypoint_weight_;
+  model::PoseGradient gradient_;
 };
 
 // The loss and its gradient (CPU float32, kCorrectionWidth) at one correction.

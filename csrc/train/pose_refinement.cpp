@@ -225,6 +225,9 @@ nlohmann::json PoseRefinement::align(int64_t iteration, model::Avatar& avatar, c
   options.fit_joints = iteration >= align_joints_from_;
   options.keypoint_weight = config_.keypoint_weight;
   options.recorded = recorded;
+  // Hundreds of fits a training: the skeleton's gradient, and a stage ends where its loss stalls.
+  options.gradient = model::PoseGradient::kSkeleton;
+  options.stall_share = kAlignmentStallShare;
   const auto started = std::chrono::steady_clock::now();
   const at::Device device = corrections_.device();
   PoseFitter fitter(options, device, keypoint_map_ ? &*keypoint_map_ : nullptr);

@@ -39,6 +39,9 @@ namespace sfgs::train {
 // joints; the eyes are not corrected.
 inline constexpr int64_t kCorrectedJoints = 1 + body::kSmplxBodyJointCount + 1 + 2 * body::kHandJointCount;
 inline constexpr int64_t kCorrectionWidth = 3 * kCorrectedJoints + 3;
+// An alignment pass's fit ends a stage once its best loss fell by less than this share over a few L-BFGS iterations
+// (PoseFitOptions::stall_share): the passes after the first start at the last one's optimum.
+inline constexpr double kAlignmentStallShare = 1e-3;
 
 // `base` with a correction (kCorrectionWidth) applied; the corrected fields are on the correction's device and carry
 // its gradient, the others (eyes, expression) stay as given. A base hand pose that is undefined stays undefined.

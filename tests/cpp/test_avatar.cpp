@@ -5,6 +5,7 @@
 #include <limits>
 #include <sstream>
 #include <string>
+#include <tuple>
 #include <vector>
 
 #include <ATen/CPUGeneratorImpl.h>
@@ -22,6 +23,7 @@
 #include "body/smplx.h"
 #include "common/constants.h"
 #include "model/avatar.h"
+#include "model/inference_cache.h"
 #include "test_avatar_utils.h"
 #include "test_body_utils.h"
 
@@ -170,6 +172,49 @@ TEST(Avatar, GradientsReachEveryParameter) {
     ++checked;
   }
   EXPECT_GT(checked, 30);
+}
+
+// The skeleton's gradient (fits' alignment passes) renders the same frame, and its pose gradient is the whole one less
+// exactly the part that flows through the pose-driven networks' outputs (structure and colour offsets).
+TEST(Avatar, ASkeletonGradientIsTheWholeOneWithoutThePoseDrivenNetworks) {
+  Avatar avatar(procedural_avatar_body(), subject_betas(), small_config());
+  randomise_parameters(*avatar, 0.1, 6);
+  model::CanonicalAttributes attributes;
+  {
+    at::NoGradGuard no_grad;
+    attributes = avatar->attributes(kTestTime);
+  }
+  body::SmplxPose pose = test_pose(6, 0.4, /*hands=*/true);
+  pose.body_pose = pose.body_pose.clone().requires_grad_(true);
+  at::Generator generator = at::detail::createCPUGenerator(6);
+  const at::Tensor mean_weights = at::randn({avatar->gaussian_count(), 3}, generator);
+  const at::Tensor colour_weights = at::randn({avatar->gaussian_count(), 3}, generator);
+  const at::Tensor covariance_weights = at::randn({avatar->gaussian_count(), 6}, generator);
+  const auto loss = [&](const AvatarOutput& o) {
+    return (o.means * mean_weights).sum() + (o.colours * colour_weights).sum() +
+           (o.covariances * covariance_weights).sum() * 1e3;
+  };
+  const AvatarOutput whole =
+      avatar->forward_with_attributes(pose, attributes, /*has_time=*/true, model::PoseGradient::kWhole);
+  const AvatarOutput skeleton =
+      avatar->forward_with_attributes(pose, attributes, /*has_time=*/true, model::PoseGradient::kSkeleton);
+  for (const auto& [name, a, b] : {std::tuple{"means", whole.means, skeleton.means},
+                                   {"covariances", whole.covariances, skeleton.covariances},
+                                   {"colours", whole.colours, skeleton.colours}})
+    EXPECT_LT(max_abs_difference(a, b), 1e-6) << name;
+  ASSERT_TRUE(whole.structure_offset.defined() && whole.colour_offset.defined());
+  EXPECT_FALSE(skeleton.structure_offset.requires_grad());
+  EXPECT_FALSE(skeleton.colour_offset.requires_grad());
+
+  const at::Tensor whole_loss = loss(whole);
+  const std::vector<at::Tensor> networks{whole.structure_offset, whole.scale_offset, whole.colour_offset};
+  const auto through = torch::autograd::grad({whole_loss}, networks, {}, /*retain_graph=*/true);
+  const at::Tensor network_path = torch::autograd::grad(networks, {pose.body_pose}, through, /*retain_graph=*/true)[0];
+  const at::Tensor whole_gradient = torch::autograd::grad({whole_loss}, {pose.body_pose})[0];
+  const at::Tensor skeleton_gradient = torch::autograd::grad({loss(skeleton)}, {pose.body_pose})[0];
+  EXPECT_GT(network_path.abs().max().item<double>(), 1e-3 * whole_gradient.abs().max().item<double>());
+  EXPECT_LT(max_abs_difference(skeleton_gradient + network_path, whole_gradient),
+            1e-4 * whole_gradient.abs().max().item<double>());
 }
 
 TEST(Avatar, CachedInferenceEqualsUncached) {

@@ -3,6 +3,7 @@
 // camera, both stages' losses, a frame that goes beyond the recorded splatting budget (recorded again), and a whole fit
 // recorded against one run eagerly. Skips without a CUDA device.
 #include <cmath>
+#include <cstdio>
 #include <vector>
 
 #include <ATen/ATen.h>
@@ -114,6 +115,29 @@ TEST(PoseFitGraphsCuda, RecordedEvaluationsEqualEagerOnes) {
   EXPECT_EQ(graphs.captures(), 5) << "recorded again with a larger budget";
 }
 
+// The skeleton's gradient (alignment passes): the pose-driven networks run fused inside the recording as they do
+// eagerly, and the gradient differs from the whole one (else the option would save nothing).
+TEST(PoseFitGraphsCuda, RecordedSkeletonEvaluationsEqualEagerOnes) {
+  if (!torch::cuda::is_available() || !device_graphs_available()) GTEST_SKIP() << "no CUDA device";
+  model::Avatar avatar = avatar_on_the_gpu(13);
+  const train::ImageLoss image_loss(without_lpips(), at::kCUDA);
+  const train::FitLoss skeleton(image_loss, nullptr, 0.0, model::PoseGradient::kSkeleton);
+  const train::FitLoss whole(image_loss, nullptr, 0.0, model::PoseGradient::kWhole);
+  train::PoseFitGraphs graphs(avatar, skeleton, at::kCUDA);
+  for (int64_t k = 0; k < 2; ++k) {
+    const train::FitFrame frame = fit_frame(avatar, k);
+    graphs.load(frame, true);
+    at::manual_seed(400 + k);
+    const at::Tensor correction = 0.02 * at::randn({train::kCorrectionWidth});
+    const train::FitEvaluation reference = eager(avatar, skeleton, frame, correction, true);
+    expect_same(graphs.evaluate(correction), reference, "frame " + std::to_string(k));
+    const train::FitEvaluation full = eager(avatar, whole, frame, correction, true);
+    EXPECT_NEAR(full.loss, reference.loss, 1e-4 * (1 + std::abs(full.loss))) << "the same frame, fused network";
+    EXPECT_GT(max_abs_difference(full.gradient, reference.gradient), 1e-4 * full.gradient.abs().max().item<double>())
+        << "the networks' share of the gradient";
+  }
+}
+
 // A whole fit from a perturbed pose to the avatar's own render: the recorded fit moves towards the truth as the eager
 // one does, and ends where it ends (L-BFGS follows the rounding of each gradient, so within a tolerance).
 TEST(PoseFitGraphsCuda, ARecordedFitFindsThePoseAsTheEagerOneDoes) {
@@ -155,6 +179,21 @@ TEST(PoseFitGraphsCuda, ARecordedFitFindsThePoseAsTheEagerOneDoes) {
   EXPECT_NEAR(ends[0].root, ends[1].root, 0.5) << "recorded against eager, degrees";
   EXPECT_NEAR(ends[0].body, ends[1].body, 0.5) << "recorded against eager, degrees";
   EXPECT_NEAR(ends[0].translation, ends[1].translation, 0.3) << "recorded against eager, centimetres";
+
+  // As an alignment pass fits: the skeleton's gradient, stages that end where the loss stalls.
+  train::PoseFitOptions options;
+  options.iterations = 100;
+  options.loss = without_lpips();
+  options.gradient = model::PoseGradient::kSkeleton;
+  options.stall_share = train::kAlignmentStallShare;
+  train::PoseFitter fitter(options, at::kCUDA, nullptr);
+  const train::PoseFitResult fit = fitter.fit(avatar, start, target, at::zeros({train::kCorrectionWidth}));
+  const train::PoseError after = train::pose_error(train::corrected_pose(start, fit.correction), truth);
+  const std::string report = "skeleton: " + train::to_string(before) + " -> " + train::to_string(after) + " in " +
+                             std::to_string(fit.evaluations) + " evaluations";
+  EXPECT_LT(after.translation, 0.3 * before.translation) << report;
+  EXPECT_LT(after.root, before.root) << report;
+  std::printf("%s\n", report.c_str());
 }
 
 }  // namespace
