@@ -10,6 +10,7 @@
 #include "animate/animator.h"
 #include "data/dataset.h"
 #include "data/motion_file.h"
+#include "model/sampling_filter.h"
 #include "scene/builtin_scene.h"
 #include "splat/splat.h"
 #include "train/run_folder.h"
@@ -140,7 +141,12 @@ class TrainedAvatar {
     if (device_.is_cuda() && !needs_gradient(p, given)) return render_fast(cam, p, given);
     const sfgs::model::AvatarOutput o = t_.avatar->forward(p.pose, p.time);
     const at::Tensor bg = given ? given->to(o.means.options()) : at::ones({3}, o.means.options());
-    return result_dict(sfgs::render(sfgs::model::to_gaussians(o), bg, cam));
+    sfgs::Gaussians gaussians = sfgs::model::to_gaussians(o);
+    // Widened to the training's blur where the camera samples more finely, as the Animator's frames are.
+    if (const at::Tensor& record = t_.avatar->sampling_record(); record.defined())
+      gaussians.covariances =
+          sfgs::model::sampling_filtered(gaussians.covariances, gaussians.means, cam, record.to(o.means.device()));
+    return result_dict(sfgs::render(gaussians, bg, cam));
   }
 
   // Frame `index` of the training dataset: its pose (with time), camera and split.

@@ -6,7 +6,7 @@
 #
 #   bash scripts/device_check.sh [build] [test] [python] [pip] [sanitize] [bench] [profile] [avatar] [animate]
 #                                [train-step] [animate-trained] [stage-profile] [step-profile] [train] [ablate] [novel]
-#                                [sizes] [fits] [render-path] [refine-cost] [fit-profile]
+#                                [sizes] [resolution] [fits] [render-path] [refine-cost] [fit-profile]
 #   (no argument: build, test, sanitize, bench, profile, in this order)
 #
 # python: the pytest suite against the module built with the machine's pip torch and pybind11 (CUDA included).
@@ -537,6 +537,10 @@ if wants sizes; then
   steps+=(novel)
 fi
 
+# resolution: the novel step's scenes (SFGS_DEVICE_NOVEL_SCENES), each made again at twice its size, and the default
+# run of each evaluated there with and without the sampling filter (issue 41; docs/results.md, "Any resolution").
+wants resolution && ! wants novel && steps+=(novel)
+
 if wants novel; then
   export SFGS_SHARED_DIR=$shared
   novel=/tmp/sfgs-novel
@@ -555,16 +559,17 @@ if wants novel; then
   scene_args=(--body "$shared/bodies/anny_smplx_layout.npz" --texture "$shared/bodies/anny_albedo.png"
     --width "${size%x*}" --height "${size#*x}" --force)
   scenes=${SFGS_DEVICE_NOVEL_SCENES:-novel interleaved}
-  [[ " $scenes " == *" novel "* ]] &&
-    run novel-synth 300 "$build/sfgs" synth --out "$novel/novel" "${scene_args[@]}" --motions walk,wave,turn \
-      --test-motions overhead,bend,guard,sit --frames "${SFGS_DEVICE_NOVEL_FRAMES:-40}" &
   # The frontal benchmark (issue 41): motions that never show the back to learn from, new motions that do (turn), or
   # show the top of the head (bend), armpits and inner arms (overhead) and soles (kick) to be tested on.
-  [[ " $scenes " == *" frontal "* ]] &&
-    run novel-synth-frontal 300 "$build/sfgs" synth --out "$novel/frontal" "${scene_args[@]}" --motions walk,wave,talk \
-      --test-motions turn,bend,overhead,kick,sit,guard --frames "${SFGS_DEVICE_NOVEL_FRAMES:-40}" &
-  [[ " $scenes " == *" interleaved "* ]] &&
-    run novel-synth-interleaved 300 "$build/sfgs" synth --out "$novel/interleaved" "${scene_args[@]}" --frames 80 &
+  frames=${SFGS_DEVICE_NOVEL_FRAMES:-40}
+  declare -A scene_motions=(
+    [novel]="--motions walk,wave,turn --test-motions overhead,bend,guard,sit --frames $frames"
+    [frontal]="--motions walk,wave,talk --test-motions turn,bend,overhead,kick,sit,guard --frames $frames"
+    [interleaved]="--frames 80")
+  for scene in $scenes; do
+    # shellcheck disable=SC2086 # the scene's motions are words
+    run "novel-synth-$scene" 300 "$build/sfgs" synth --out "$novel/$scene" "${scene_args[@]}" ${scene_motions[$scene]} &
+  done
   wait
   tail -q -n 1 "$out"/novel-synth*.log
   # One run at a time: the GPU is the bottleneck (three runs at once take as long as three in a row).
@@ -614,6 +619,23 @@ if wants novel; then
     done
   done
   grep -h -E "^sfgs eval|^  " "$out"/eval-*.log
+  # resolution: each scene's default run on the same scene made at twice the size (the same geometry, twice the
+  # pixels), evaluated with and without the sampling filter: PSNR and the person's pixels left uncovered.
+  if wants resolution; then
+    double_args=(--body "$shared/bodies/anny_smplx_layout.npz" --texture "$shared/bodies/anny_albedo.png"
+      --width "$((2 * ${size%x*}))" --height "$((2 * ${size#*x}))" --force)
+    for scene in $scenes; do
+      [ -f "$novel/runs/default-$scene/checkpoint.pt" ] || continue
+      # shellcheck disable=SC2086 # the scene's motions are words
+      run "resolution-synth-$scene" 400 "$build/sfgs" synth --out "$novel/$scene-2x" "${double_args[@]}" \
+        ${scene_motions[$scene]} || continue
+      for flag in "" --no-sampling-filter; do
+        run "resolution-eval-$scene${flag:+-unfiltered}" 300 "$build/sfgs" eval --run "$novel/runs/default-$scene" \
+          --data "$novel/$scene-2x" --other-dataset --device cuda --force $flag
+        grep -E "PSNR|uncovered" "$out/resolution-eval-$scene${flag:+-unfiltered}.log" | head -n 3
+      done
+    done
+  fi
   "$build/sfgs" render --run "$novel/runs/default-novel" --out "$novel/render" --motion bend --frames 24 \
     --device cuda --force >"$out/novel-render.log" 2>&1
   mkdir -p "$out/renders" && cp "$novel/render/frame_0006.png" "$novel/render/frame_0018.png" "$out/renders/" 2>/dev/null

@@ -12,7 +12,7 @@
 const SfgsPose = (() => {
   const TYPES = { float32: Float32Array, uint32: Uint32Array, int8: Int8Array, uint8: Uint8Array };
   // Texels of one posed Gaussian in the renderer's RGBA32F texture: (mean, opacity), covariance xx xy xz yy,
-  // covariance yz zz, colour.
+  // covariance yz zz, (colour, sampling record: 0 without one).
   const TEXELS = 4;
 
   function decodeBase64(text) {
@@ -42,6 +42,7 @@ const SfgsPose = (() => {
       this.faces = this.view(b.faces);
       this.albedo = this.view(b.albedo);
       this.opacities = this.view(b.opacities);
+      this.sampling = b.sampling ? this.view(b.sampling) : null;  // the avatar's sampling record, if it has one
       this.joints = this.view(b.joints);
       this.weights = this.view(b.weights);
       this.shading = manifest.shading;  // (9 x 3) row-major, or null: no shading
@@ -160,6 +161,7 @@ const SfgsPose = (() => {
         texels[o] = r;
         texels[o + 1] = g;
         texels[o + 2] = b;
+        texels[o + 3] = this.sampling ? this.sampling[i] : 0;
       }
     }
   }

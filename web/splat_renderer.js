@@ -36,8 +36,12 @@ void main() {
   vec3 p = u_rotation * t0.xyz + u_translation;
   float z = p.z, opacity = t0.w;
   if (!(z >= u_clip.x && z <= u_clip.y) || !(opacity >= u_min_alpha)) { cull(); return; }
-  mat3 camera_cov = u_rotation * covariance * transpose(u_rotation);
   float fx = u_intrinsics.x, fy = u_intrinsics.y, cx = u_intrinsics.z, cy = u_intrinsics.w;
+  // The sampling filter (csrc/model/sampling_filter.h; t3.w the record): where this view samples the Gaussian more
+  // finely than training did, an isotropic variance that makes the low-pass the training's.
+  float footprint = z / sqrt(fx * fy);
+  mat3 camera_cov = u_rotation * covariance * transpose(u_rotation) +
+                    mat3(u_low_pass * max(0.0, t3.w * t3.w - footprint * footprint));
   float guard_x = u_fov_guard * 0.5 * u_size.x / fx, guard_y = u_fov_guard * 0.5 * u_size.y / fy;
   float tx = clamp(p.x / z, -cx / fx - guard_x, (u_size.x - cx) / fx + guard_x);
   float ty = clamp(p.y / z, -cy / fy - guard_y, (u_size.y - cy) / fy + guard_y);

@@ -14,6 +14,7 @@
 #include "common/device_graph.h"
 #include "common/stage_timer.h"
 #include "common/tensor_description.h"
+#include "model/sampling_filter.h"
 
 namespace sfgs::animate {
 namespace {
@@ -57,6 +58,7 @@ Animator::Animator(model::Avatar avatar, const Camera& camera, const at::Tensor&
   set_camera(camera);
   avatar_->eval();
   keep_cache();
+  if (avatar_->sampling_record().defined()) sampling_record_ = avatar_->sampling_record().to(device_);
   if (device_.is_cuda()) budget_ = std::make_unique<GrowingBudget>(device_, options_.budget_slack, "Animator");
 }
 
@@ -100,6 +102,9 @@ void Animator::splat(const model::AvatarOutput& out) {
       cull_back_facing(gaussians.opacities, out.means, out.posed_normals, camera_centre_, options_.back_facing_cosine);
   gaussians.means = camera_frame_.points(gaussians.means);
   gaussians.covariances = camera_frame_.covariances(gaussians.covariances);
+  if (sampling_record_.defined())
+    gaussians.covariances =
+        model::sampling_filtered(gaussians.covariances, gaussians.means, origin_camera_, sampling_record_);
   result_ = sfgs::render(gaussians, background_, origin_camera_, options_.render);
 }
 

@@ -14,6 +14,10 @@
 // The splatting's intersection buffers are sized from a budget (splat.h, BinningBudget) that the Animator grows and
 // captures again whenever a frame reports it was exceeded, so every returned image is complete. On the CPU, or with
 // use_graph off, the same frame runs eagerly. docs/performance.md.
+//
+// An avatar with a sampling record (model/sampling_filter.h) seen more finely than its training views saw it (closer,
+// or at a higher resolution) has its Gaussians widened to the training's blur, so it shows no holes or dots; at the
+// training's sampling nothing changes.
 #include <array>
 #include <memory>
 #include <string>
@@ -102,6 +106,9 @@ class Animator {
   // centre in the world (3) for the back-facing cull, and the time (0-dim); graphs read them.
   at::Tensor frame_values_, camera_centre_, time_;
   CameraFrame camera_frame_;
+  // The avatar's sampling record on the device (model/sampling_filter.h), undefined without one: a frame that
+  // samples a Gaussian more finely than training did widens it to the training's blur.
+  at::Tensor sampling_record_;
   // Graph state: the pose's device copy (one flat buffer and the fields as its views), the key the graph was
   // recorded for (pose layout, timing, intrinsics), the splatting budget (CUDA only), and the graph's result.
   std::string graph_key_;

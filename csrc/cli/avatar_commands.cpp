@@ -73,6 +73,7 @@ nlohmann::json evaluation_json(const train::AvatarEvaluation& e) {
                    {"first_render_ms", e.first_render_milliseconds}};
   if (e.summary.lpips) j["lpips"] = *e.summary.lpips;
   if (e.summary.tc_lpips) j["tc_lpips"] = *e.summary.tc_lpips;
+  if (e.uncovered_share) j["uncovered_share"] = *e.uncovered_share;
   for (size_t i = 0; i < e.frames.size(); ++i) {
     nlohmann::json f{{"name", e.frame_names[i]}, {"psnr", e.frames[i].psnr}, {"ssim", e.frames[i].ssim}};
     if (e.frames[i].lpips) f["lpips"] = *e.frames[i].lpips;
@@ -85,6 +86,7 @@ nlohmann::json evaluation_json(const train::AvatarEvaluation& e) {
       nlohmann::json entry{{"name", g.name}, {"frames", g.frames}, {"psnr", nullptr}, {"ssim", nullptr}};
       if (g.frames > 0) entry["psnr"] = g.psnr, entry["ssim"] = g.ssim;
       if (regions) entry["pixels"] = g.pixels;
+      if (regions && g.frames > 0) entry["signed_error"] = g.signed_error;
       if (g.lpips) entry["lpips"] = *g.lpips;
       if (g.unseen_share) entry["unseen_share"] = *g.unseen_share;
       list.push_back(entry);
@@ -98,6 +100,12 @@ nlohmann::json evaluation_json(const train::AvatarEvaluation& e) {
 
 std::string group_lines(const train::AvatarEvaluation& e) {
   std::string text;
+  if (e.uncovered_share) {
+    char line[160];
+    std::snprintf(line, sizeof(line), "  person pixels the render leaves uncovered (alpha < %.2f): %.3f %%\n",
+                  train::kCoveredAlpha, 100 * *e.uncovered_share);
+    text += line;
+  }
   char line[256];
   const auto append_unseen = [&](const train::GroupScore& g) {
     if (!g.unseen_share) return;
@@ -117,8 +125,10 @@ std::string group_lines(const train::AvatarEvaluation& e) {
   }
   for (const train::GroupScore& g : e.regions) {
     if (g.frames > 0)
-      std::snprintf(line, sizeof(line), "  region %-10s frames %4lld  pixels %8.0f  PSNR %.2f  SSIM %.4f",
-                    g.name.c_str(), (long long)g.frames, g.pixels, g.psnr, g.ssim);
+      std::snprintf(line, sizeof(line),
+                    "  region %-10s frames %4lld  pixels %8.0f  PSNR %.2f  SSIM %.4f  bias %+.3f %+.3f %+.3f",
+                    g.name.c_str(), (long long)g.frames, g.pixels, g.psnr, g.ssim, g.signed_error[0], g.signed_error[1],
+                    g.signed_error[2]);
     else
       std::snprintf(line, sizeof(line), "  region %-10s frames    0  (no frame showed it)", g.name.c_str());
     text += line;
@@ -138,6 +148,7 @@ int run_eval(Arguments& args) {
   const bool save = args.flag("save-images");
   const bool force = args.flag("force");
   const bool without_prior = args.flag("no-observation-prior");
+  const bool without_filter = args.flag("no-sampling-filter");
   const bool fit_poses = args.flag("fit-test-poses");
   const bool other_dataset = args.flag("other-dataset");
   train::PoseFitOptions fit;
@@ -152,10 +163,13 @@ int run_eval(Arguments& args) {
   train::ResultOrigin origin;
   if (fs::exists(run.checkpoint_file())) origin.checkpoint_crc32 = train::checkpoint_digest(run.checkpoint_file());
   train::TrainedAvatar t = train::load_trained_avatar(run, device);
-  if (without_prior) t.avatar->set_observation(at::Tensor());  // every Gaussian trusted (the ablation)
+  if (without_prior) t.avatar->set_observation(at::Tensor());       // every Gaussian trusted (the ablation)
+  if (without_filter) t.avatar->set_sampling_record(at::Tensor());  // the splatting alone at any sampling
   const data::Dataset dataset = train::read_run_dataset(t, data_folder, &origin.own_dataset);
   origin.split = split;
-  origin.variant = without_prior ? "no_observation_prior" : "";
+  for (const auto& [off, name] :
+       {std::pair{without_prior, "no_observation_prior"}, {without_filter, "no_sampling_filter"}})
+    if (off) origin.variant += (origin.variant.empty() ? "" : "_") + std::string(name);
   origin.dataset = train::absolute_dataset_path(dataset);
   origin.dataset_fingerprint = dataset.fingerprint();
   origin.checkpoint_iteration = t.iteration;

@@ -55,6 +55,8 @@ commands:
            --save-images (RUN/eval_images_SPLIT/)
            --no-observation-prior (trust every Gaussian's learned colour and offsets: the ablation;
            metrics_SPLIT_no_observation_prior.json)
+           --no-sampling-filter (render finer than the training views without widening the Gaussians to the
+           training's blur: the ablation; metrics_SPLIT_no_sampling_filter.json)
            --fit-test-poses: also fit each frame's pose to its image with the avatar frozen (NeuMan protocol;
            coarse to fine, never ending worse than the given fit on its loss), reported separately
            (metrics_SPLIT_fitted_poses.json)  --fit-iterations N (300 loss evaluations)
@@ -112,7 +114,8 @@ int main(int argc, char** argv) {
       {"train", {sfgs::cli::run_train, {"resume", "force", "quiet"}}},
       {"eval",
        {sfgs::cli::run_eval,
-        {"eight-bit", "save-images", "no-observation-prior", "fit-test-poses", "other-dataset", "force"}}},
+        {"eight-bit", "save-images", "no-observation-prior", "no-sampling-filter", "fit-test-poses", "other-dataset",
+         "force"}}},
       {"render", {sfgs::cli::run_render, {"force"}}},
       {"export", {sfgs::cli::run_export, {"force"}}},
       {"ablate", {sfgs::cli::run_ablate, {"force"}}},

@@ -343,6 +343,20 @@ void AvatarImpl::set_observation(const at::Tensor& observed_fraction) {
   if (!neighbours_.indices.defined()) neighbours_ = body::vertex_neighbours(body_->faces().cpu(), n);
 }
 
+void AvatarImpl::set_sampling_record(const at::Tensor& record) {
+  if (!record.defined()) {
+    sampling_record_ = at::Tensor();
+    return;
+  }
+  const int64_t n = gaussian_count();
+  TORCH_CHECK(record.dim() == 1 && record.size(0) == n && at::isFloatingType(record.scalar_type()),
+              "Avatar: the sampling record must be a floating (", n, ") tensor, got ", describe(record));
+  const at::Tensor r = record.detach().to(at::kCPU, at::kFloat).contiguous();
+  TORCH_CHECK(r.isfinite().all().item<bool>() && r.min().item<double>() >= 0,
+              "Avatar: the sampling record must be finite and non-negative");
+  sampling_record_ = r;
+}
+
 void AvatarImpl::plan_observation_prior() {
   if (!confidence_.defined()) return;
   const auto options = body_->vertices().options();

@@ -158,6 +158,11 @@ class AvatarImpl : public torch::nn::Module {
   // video never or rarely showed come from the observed surface around it. Training mode ignores it.
   void set_observation(const at::Tensor& observed_fraction);
   const at::Tensor& observation() const { return observed_fraction_; }
+  // The sampling record of training (sampling_filter.h): per Gaussian, the smallest world footprint of a pixel any
+  // training view had of it, (N) on any device (kept on the CPU); undefined clears it. Renders that sample more
+  // finely (animate::Animator) widen each Gaussian to the training's blur; the avatar's own forward ignores it.
+  void set_sampling_record(const at::Tensor& record);
+  const at::Tensor& sampling_record() const { return sampling_record_; }
 
   // Keeps the pose- and time-independent features and canonical attributes (and, with the hexplane, the
   // time-dependent ones of the last time it saw) for inference. forward refuses the cache in training mode. Call
@@ -217,6 +222,7 @@ class AvatarImpl : public torch::nn::Module {
   HandResidual hand_residual_{nullptr};
   at::Tensor opacities_;
   at::Tensor observed_fraction_, confidence_;            // (N) and (N, 1) on the module's device, or undefined
+  at::Tensor sampling_record_;                           // (N) float32 on the CPU, or undefined
   body::VertexNeighbours neighbours_;                    // of the mesh points, for the observation prior
   std::unique_ptr<mesh_propagation::Plan> propagation_;  // of confidence_, on its device; null until planned
   body::VertexFaces faces_around_;                       // of the mesh points on the CUDA device, for their normals

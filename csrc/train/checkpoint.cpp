@@ -9,6 +9,7 @@
 
 #include "common/atomic_file.h"
 #include "common/checksum.h"
+#include "model/sampling_filter.h"
 
 namespace sfgs::train {
 namespace {
@@ -81,6 +82,11 @@ void save_checkpoint(const std::string& path, const CheckpointInfo& info, const 
     archive.write("observation", observation);
     archive.write("observation_steps", at::tensor({info.observation_steps}, at::kLong));
   }
+  if (info.footprint_minimum.defined()) {
+    const at::Tensor footprint = info.footprint_minimum.detach().to(at::kCPU, at::kFloat).contiguous();
+    checksums["sampling"] = crc32_of(footprint);
+    archive.write("sampling", footprint);
+  }
   if (info.pose_refinement.defined()) {
     const at::Tensor refinement = info.pose_refinement.detach().to(at::kCPU, at::kDouble).contiguous();
     checksums["pose_refinement"] = crc32_of(refinement);
@@ -143,6 +149,13 @@ CheckpointReader::CheckpointReader(const std::string& path) : path_(path) {
     TORCH_CHECK(info_.observation_steps > 0, "checkpoint '", path, "' has an observation record over ",
                 info_.observation_steps, " steps");
   }
+  if (archive_.try_read("sampling", info_.footprint_minimum)) {
+    TORCH_CHECK(checksums_.value("sampling", uint32_t(0)) == crc32_of(info_.footprint_minimum), "checkpoint '", path,
+                "' is damaged: its sampling record does not match the checksum written with it");
+    TORCH_CHECK(
+        !info_.footprint_minimum.isnan().any().item<bool>() && (info_.footprint_minimum >= 0).all().item<bool>(),
+        "checkpoint '", path, "' has a sampling record with negative or NaN footprints");
+  }
   if (archive_.try_read("pose_refinement", info_.pose_refinement)) {
     TORCH_CHECK(checksums_.value("pose_refinement", uint32_t(0)) == crc32_of(info_.pose_refinement), "checkpoint '",
                 path, "' is damaged: its pose refinement state does not match the checksum written with it");
@@ -180,6 +193,8 @@ void CheckpointReader::load_avatar(model::Avatar& avatar) {
               ": the run diverged before it was written, or the file is damaged; it cannot be used");
   // The observation record (checkpoints of runs trained before it existed have none: every Gaussian is trusted).
   if (info_.observation_sum.defined()) avatar->set_observation(info_.observation_sum / double(info_.observation_steps));
+  // Likewise the sampling record (none: renders are not widened).
+  if (info_.footprint_minimum.defined()) avatar->set_sampling_record(model::sampling_record(info_.footprint_minimum));
 }
 
 void CheckpointReader::load_optimizer(torch::optim::Optimizer& optimizer) {

@@ -28,6 +28,9 @@ struct CheckpointInfo {
   // steps of how squarely each saw it (float32 (N); undefined: no record, as in runs trained before it existed).
   at::Tensor observation_sum;
   int64_t observation_steps = 0;
+  // The sampling record as training keeps it: per Gaussian, the smallest world footprint of a pixel a training step
+  // had of it, +inf where none held it (float32 (N); undefined: none, as in runs trained before it existed).
+  at::Tensor footprint_minimum;
   // PoseRefinement::state() of a run that refines its poses; undefined otherwise.
   at::Tensor pose_refinement;
 };

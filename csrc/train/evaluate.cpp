@@ -41,6 +41,7 @@ AvatarEvaluation evaluate_avatar(const data::Dataset& dataset, data::Split split
   std::map<int64_t, UnseenCount> unseen_of_sequence;
   int64_t previous_sequence = -1, previous_frame = -2;
   std::vector<double> render_ms;
+  double person_pixels = 0, uncovered_pixels = 0;
   // Every frame through the Animator: on CUDA one graph replay per frame, whatever the frame's camera.
   animate::Animator animator(avatar, render_camera(dataset.frames[size_t(frames.front())]), at::ones({3}));
   for (int64_t f : frames) {
@@ -57,6 +58,11 @@ AvatarEvaluation evaluate_avatar(const data::Dataset& dataset, data::Split split
     const at::Tensor rendered = animator.render(record.pose, dataset.replay_time(f));
     render_ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count());
     const at::Tensor image = rendered.to(at::kCPU);
+    {
+      const at::Tensor person = frame.eval_mask >= 0.5;
+      person_pixels += person.sum().item<double>();
+      uncovered_pixels += (person & (animator.latest().alpha.to(at::kCPU) < kCoveredAlpha)).sum().item<double>();
+    }
     frames_of_sequence[record.sequence].push_back(result.frames.size());
     result.frames.push_back(evaluator.add_frame(image, frame.image, frame.eval_mask));
     result.frame_names.push_back(record.name);
@@ -79,6 +85,7 @@ AvatarEvaluation evaluate_avatar(const data::Dataset& dataset, data::Split split
     }
   }
   result.summary = evaluator.summary();
+  if (person_pixels > 0) result.uncovered_share = uncovered_pixels / person_pixels;
   result.regions = regions.summary();
   for (const auto& [sequence, indices] : frames_of_sequence) {
     GroupScore motion;

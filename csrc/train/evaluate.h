@@ -11,6 +11,10 @@
 
 namespace sfgs::train {
 
+// A person's pixel is covered where the render's alpha reaches this; below it the white background shows through
+// (holes and dots between Gaussians, as in a render finer than the training's; model/sampling_filter.h).
+inline constexpr double kCoveredAlpha = 0.95;
+
 struct AvatarEvaluation {
   metrics::EvaluationSummary summary;
   std::vector<std::string> frame_names;
@@ -23,6 +27,9 @@ struct AvatarEvaluation {
   // never or rarely showed where the dataset has ground-truth geometry.
   std::vector<GroupScore> motions;
   std::vector<GroupScore> regions;  // body, face, hands, seen, unseen; empty without ground-truth geometry
+  // Of the person's pixels (the evaluation mask, over all frames), the share the render leaves uncovered (alpha below
+  // kCoveredAlpha); none where the masks hold no person.
+  std::optional<double> uncovered_share;
 };
 
 // Renders every frame of the split on white and scores it against the ground truth composited on white outside the

@@ -103,7 +103,8 @@ void RegionAccumulator::add(const at::Tensor& prediction, const at::Tensor& targ
     for (const char* region : {"body", "face", "hands"})
       if (const at::Tensor* mask = find_mask(masks, region)) unseen_[region].add(*mask, *unseen);
   const at::Tensor p = prediction.detach().cpu().to(at::kDouble), t = target.detach().cpu().to(at::kDouble);
-  const at::Tensor squared_error = (p - t).pow(2).mean(2);
+  const at::Tensor difference = p - t;
+  const at::Tensor squared_error = difference.pow(2).mean(2);
   at::Tensor ssim = metrics::ssim_map(p, t, border_);
   const int64_t crop = (p.size(0) - ssim.size(0)) / 2;  // the valid border's map is smaller
   for (const auto& [name, mask] : masks) {
@@ -122,6 +123,8 @@ void RegionAccumulator::add(const at::Tensor& prediction, const at::Tensor& targ
     it->pixels += double(pixels);
     it->psnr += 10.0 * std::log10(kImageDataRange * kImageDataRange / std::max(mse, kMinRegionMse));
     it->ssim += inner.any().item<bool>() ? ssim.masked_select(inner).mean().item<double>() : 1.0;
+    const at::Tensor bias = difference.masked_select(mask.unsqueeze(2)).view({-1, 3}).mean(0);
+    for (int64_t c = 0; c < 3; ++c) it->signed_error[size_t(c)] += bias[c].item<double>();
   }
 }
 
@@ -132,6 +135,7 @@ std::vector<GroupScore> RegionAccumulator::summary() const {
       s.pixels /= double(s.frames);
       s.psnr /= double(s.frames);
       s.ssim /= double(s.frames);
+      for (double& e : s.signed_error) e /= double(s.frames);
     }
     if (const auto it = unseen_.find(s.name); it != unseen_.end()) s.unseen_share = it->second.share();
     out.push_back(s);

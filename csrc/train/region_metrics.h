@@ -3,6 +3,7 @@
 // training frames showed, "seen", and surface they never or rarely showed, "unseen"), from the ground-truth
 // geometry a synthetic dataset carries (meshes/faces.npy, regions.npy, observation.npy; docs/dataset_format.md).
 // docs/metrics.md defines them.
+#include <array>
 #include <map>
 #include <optional>
 #include <string>
@@ -43,6 +44,9 @@ struct GroupScore {
   // Of the person's pixels (a motion's) or the region's (body, face, hands), the share the training never or rarely
   // showed ("unseen"), over all the frames; where the dataset has ground-truth geometry.
   std::optional<double> unseen_share;
+  // Regions only: the mean of render minus truth over the region's pixels, per channel (R, G, B, in the image's
+  // units), averaged over the counted frames: a region rendered too bright or too dark shows as a bias.
+  std::array<double, 3> signed_error{};
 };
 
 // Unseen and labelled pixels counted over frames: the share of a motion or a region the training never or rarely

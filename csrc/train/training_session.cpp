@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <map>
 #include <optional>
 #include <sstream>
@@ -79,6 +80,7 @@ TrainingSession::TrainingSession(const data::Dataset& dataset, const TrainConfig
       (!refinement_ || !refinement_->per_step()) && !stage_recorder_installed())
     graphs_ = std::make_unique<StepGraphs>(avatar_, device_);
   observation_sum_ = at::zeros({avatar_->gaussian_count()}, at::TensorOptions().dtype(at::kFloat).device(device_));
+  footprint_minimum_ = at::full_like(observation_sum_, std::numeric_limits<float>::infinity());
   summary_.validation_psnr = std::nan("");
   summary_.has_validation_frames = !dataset.split(data::Split::kVal).empty();
 }
@@ -95,6 +97,8 @@ void TrainingSession::restore(CheckpointReader& checkpoint) {
   observation_steps_ = checkpoint.info().observation_steps;
   if (checkpoint.info().observation_sum.defined())
     observation_sum_ = checkpoint.info().observation_sum.to(observation_sum_.options());
+  if (checkpoint.info().footprint_minimum.defined())
+    footprint_minimum_ = checkpoint.info().footprint_minimum.to(footprint_minimum_.options());
   // The schedule may have changed on resume: the groups take the config's rates, not the checkpoint's.
   for (size_t g = 0; g < base_rates_.size(); ++g) adam_options(*optimizer_, g).eps(config_.schedule.adam_epsilon);
   std::istringstream(checkpoint.info().rng_state) >> rng_;
@@ -183,6 +187,10 @@ void TrainingSession::step(int64_t it) {
   // A left-out step's record is of an incomplete image: it adds nothing (and still counts, one in thousands).
   observation_sum_ +=
       outputs.skip_update.defined() ? outputs.observation * (1 - outputs.skip_update) : outputs.observation;
+  at::minimum_out(footprint_minimum_, footprint_minimum_,
+                  outputs.skip_update.defined()
+                      ? at::where(outputs.skip_update > 0.5, footprint_minimum_, outputs.footprint)
+                      : outputs.footprint);
   ++observation_steps_;
   LossTerms& terms = outputs.terms;
   // A copy: a recorded step rewrites its outputs at every replay.
@@ -326,6 +334,7 @@ void TrainingSession::checkpoint(int64_t done) {
   info.betas = dataset_.betas.to(at::kFloat).cpu();
   info.observation_sum = observation_sum_;
   info.observation_steps = observation_steps_;
+  info.footprint_minimum = footprint_minimum_;
   if (refinement_) info.pose_refinement = refinement_->state();
   try {
     save_checkpoint(run_.checkpoint_file(), info, avatar_, *optimizer_);

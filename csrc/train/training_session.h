@@ -78,6 +78,7 @@ class TrainingSession {
   // the step's frame saw it, and the number of steps.
   at::Tensor observation_sum_;
   int64_t observation_steps_ = 0;
+  at::Tensor footprint_minimum_;  // (N) the sampling record's running minimum (model/sampling_filter.h)
   std::optional<std::vector<unsigned char>> start_fits_;
   int64_t last_checkpoint_ = -1;  // iteration of the newest good checkpoint, -1 for none
   TrainSummary summary_;

@@ -11,6 +11,7 @@
 #include "common/tensor_description.h"
 #include "metrics/image_metrics.h"
 #include "model/observation_prior.h"
+#include "model/sampling_filter.h"
 
 namespace sfgs::train {
 namespace {
@@ -118,6 +119,7 @@ StepOutputs TrainingStep::run(const StepInputs& in, const body::SmplxPose& pose,
   {
     const StageScope stage("train: observation record");
     result.observation = model::frame_observation(gaussians.means, normals, r.depth, in.camera);
+    result.footprint = model::frame_footprint(gaussians.means, in.camera);
   }
   {
     const StageScope stage("train: image loss");

@@ -61,11 +61,13 @@ class StepInputs {
 };
 
 // What a step leaves on the device for the trainer: the loss terms (watched for divergence), the image's PSNR against
-// the target, and how squarely the frame saw each Gaussian (the observation record, model/observation_prior.h).
+// the target, how squarely the frame saw each Gaussian (the observation record, model/observation_prior.h) and how
+// finely (the sampling record, model/sampling_filter.h).
 struct StepOutputs {
   LossTerms terms;
   at::Tensor psnr;
   at::Tensor observation;  // (N)
+  at::Tensor footprint;  // (N) the world length of a pixel at each Gaussian in view, +inf elsewhere (sampling_filter.h)
   // A recorded step's: 0-dim float on the device, 1 where its splatting went beyond the budget (an incomplete
   // image: the optimiser leaves the step out), else 0. Undefined for eager steps, which are always whole.
   at::Tensor skip_update;

@@ -332,6 +332,8 @@ WebExportSummary export_web_viewer(model::Avatar& avatar, const WebMotion& motio
   buffers["opacities"] = data.add((float_cpu(rest.opacities).clamp(0, 1) * kColourLevels).round().to(at::kByte));
   buffers["joints"] = data.add(influences.joints);
   buffers["weights"] = data.add(influences.weights);
+  // The sampling record (model/sampling_filter.h), which the viewer's shader widens finer views with, as sfgs does.
+  if (avatar->sampling_record().defined()) buffers["sampling"] = data.add(float_cpu(avatar->sampling_record()));
   summary.static_bytes = int64_t(data.pending_bytes());
   data.close("static");
 

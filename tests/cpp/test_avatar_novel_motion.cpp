@@ -11,6 +11,7 @@
 #include "body/parts.h"
 #include "common/constants.h"
 #include "model/observation_prior.h"
+#include "train/run_folder.h"
 #include "test_avatar_utils.h"
 #include "test_files.h"
 #include "test_trainer_utils.h"
@@ -175,6 +176,16 @@ TEST(Avatar, TrainingRecordsWhatItObservedAndTheCheckpointCarriesIt) {
   EXPECT_LE(observation.max().item<float>(), 1.0f);
   EXPECT_GT(observation.max().item<float>(), 0.5f) << "the front faces the camera in every step";
   EXPECT_GT((observation == 0).sum().item<int64_t>(), 0) << "the back is never seen from the front";
+  // The sampling record: a pixel's world length at each Gaussian, the finest any training view gave it.
+  const at::Tensor sampling = trained.avatar->sampling_record();
+  ASSERT_TRUE(sampling.defined());
+  ASSERT_EQ(sampling.size(0), trained.avatar->gaussian_count());
+  EXPECT_TRUE(sampling.isfinite().all().item<bool>());
+  EXPECT_GT(sampling.min().item<float>(), 0.0f);
+  const Camera camera = train::render_camera(video.frames[0]);
+  const double nearest = camera.world_to_camera[11] - 1.0, farthest = camera.world_to_camera[11] + 1.0;
+  EXPECT_GT(sampling.min().item<double>(), nearest / std::sqrt(camera.fx * camera.fy));
+  EXPECT_LT(sampling.max().item<double>(), farthest / std::sqrt(camera.fx * camera.fy));
 }
 
 }  // namespace

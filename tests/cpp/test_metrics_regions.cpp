@@ -59,6 +59,11 @@ TEST(MetricsRegions, RegionPsnrIsThePsnrOfTheRegionsPixelsAndTinyRegionsDoNotCou
   EXPECT_NEAR(scores[0].ssim, map.masked_select(left).mean().item<double>(), 1e-12);
   EXPECT_GT(scores[1].ssim, scores[0].ssim);
   EXPECT_EQ(scores[2].frames, 0) << "9 pixels are fewer than kMinRegionPixels";
+  // The bias: +0.05 in every channel on the left, none on the right (float32 arithmetic on the offset).
+  for (size_t c = 0; c < 3; ++c) {
+    EXPECT_NEAR(scores[0].signed_error[c], 0.05, 1e-6) << c;
+    EXPECT_EQ(scores[1].signed_error[c], 0.0) << c;
+  }
 }
 
 // Two triangles making a square in front of the camera, split along its diagonal: the first is body and seen, the

@@ -289,6 +289,31 @@ TEST(AnimatorCuda, GraphFramesEqualEagerFramesOverAMotion) {
   EXPECT_GE(graphed.stats().captures, 1);
 }
 
+// With a sampling record coarser than the camera samples the body (model/sampling_filter.h): the graph frame widens the
+// Gaussians as the eager one does, and the frame differs from the unwidened one.
+TEST(AnimatorCuda, GraphFramesWidenGaussiansToTheirSamplingRecord) {
+  SKIP_WITHOUT_CUDA();
+  model::Avatar avatar = cuda_avatar();
+  const at::Tensor background = at::full({3}, 0.5);
+  const body::SmplxPose pose = test_pose(17, 0.2, true);
+  at::Tensor unwidened;
+  {
+    animate::Animator plain(avatar, front_camera(96, 128), background);
+    unwidened = plain.render(pose).clone();
+  }
+  // Three times the footprint a 96 x 128 view 3 m away has: as if trained on images a third the size.
+  const Camera camera = front_camera(96, 128);
+  avatar->set_sampling_record(at::full({avatar->gaussian_count()}, 3 * 3.0 / std::sqrt(camera.fx * camera.fy)));
+  animate::AnimatorOptions eager_options;
+  eager_options.use_graph = false;
+  animate::Animator eager(avatar, camera, background, eager_options);
+  animate::Animator graphed(avatar, camera, background);
+  const at::Tensor from_graph = graphed.render(pose).clone();
+  EXPECT_LT(max_difference(from_graph, eager.render(pose)), 1e-6);
+  EXPECT_EQ(graphed.stats().graph_frames, 1);
+  EXPECT_GT(max_difference(from_graph, unwidened), 0.05) << "widened";
+}
+
 TEST(AnimatorCuda, GraphFrameThatOutgrowsItsBudgetIsRenderedAgainWhole) {
   SKIP_WITHOUT_CUDA();
   model::Avatar avatar = cuda_avatar();
