@@ -4,7 +4,6 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
-#include <limits>
 #include <map>
 #include <optional>
 #include <sstream>
@@ -17,6 +16,7 @@
 #include "common/stage_timer.h"
 #include "metrics/image_metrics.h"
 #include "train/avatar_keypoints.h"
+#include "train/training_records.h"
 
 namespace sfgs::train {
 
@@ -79,8 +79,7 @@ TrainingSession::TrainingSession(const data::Dataset& dataset, const TrainConfig
   if (device_.is_cuda() && config.schedule.cuda_graphs && device_graphs_available() &&
       (!refinement_ || !refinement_->per_step()) && !stage_recorder_installed())
     graphs_ = std::make_unique<StepGraphs>(avatar_, device_);
-  observation_sum_ = at::zeros({avatar_->gaussian_count()}, at::TensorOptions().dtype(at::kFloat).device(device_));
-  footprint_minimum_ = at::full_like(observation_sum_, std::numeric_limits<float>::infinity());
+  records_ = std::make_unique<TrainingRecords>(avatar_->gaussian_count(), device_);
   summary_.validation_psnr = std::nan("");
   summary_.has_validation_frames = !dataset.split(data::Split::kVal).empty();
 }
@@ -89,16 +88,11 @@ TrainingSession::~TrainingSession() = default;
 
 void TrainingSession::restore(CheckpointReader& checkpoint) {
   checkpoint.load_avatar(avatar_);
-  // The observation record the checkpoint gives a trained avatar is for rendering it once trained; while training it
-  // stays in observation_sum_, as in a run never paused (an avatar carrying it renders differently in eval mode, so a
-  // resumed run's alignment passes would differ from an uninterrupted run's).
+  // The records go back to records_, not to the avatar (train/training_records.h).
   avatar_->set_observation(at::Tensor());
+  avatar_->set_sampling_record(at::Tensor());
   checkpoint.load_optimizer(*optimizer_);
-  observation_steps_ = checkpoint.info().observation_steps;
-  if (checkpoint.info().observation_sum.defined())
-    observation_sum_ = checkpoint.info().observation_sum.to(observation_sum_.options());
-  if (checkpoint.info().footprint_minimum.defined())
-    footprint_minimum_ = checkpoint.info().footprint_minimum.to(footprint_minimum_.options());
+  records_->restore(checkpoint.info());
   // The schedule may have changed on resume: the groups take the config's rates, not the checkpoint's.
   for (size_t g = 0; g < base_rates_.size(); ++g) adam_options(*optimizer_, g).eps(config_.schedule.adam_epsilon);
   std::istringstream(checkpoint.info().rng_state) >> rng_;
@@ -184,14 +178,7 @@ void TrainingSession::step(int64_t it) {
     adam_->step(outputs.skip_update);
     if (refinement_) refinement_->step(f, it, factor);
   }
-  // A left-out step's record is of an incomplete image: it adds nothing (and still counts, one in thousands).
-  observation_sum_ +=
-      outputs.skip_update.defined() ? outputs.observation * (1 - outputs.skip_update) : outputs.observation;
-  at::minimum_out(footprint_minimum_, footprint_minimum_,
-                  outputs.skip_update.defined()
-                      ? at::where(outputs.skip_update > 0.5, footprint_minimum_, outputs.footprint)
-                      : outputs.footprint);
-  ++observation_steps_;
+  records_->add(outputs);
   LossTerms& terms = outputs.terms;
   // A copy: a recorded step rewrites its outputs at every replay.
   if (terms.count("lpips"))
@@ -332,9 +319,7 @@ void TrainingSession::checkpoint(int64_t done) {
   info.dataset = absolute_dataset_path(dataset_);
   info.dataset_fingerprint = dataset_.fingerprint();
   info.betas = dataset_.betas.to(at::kFloat).cpu();
-  info.observation_sum = observation_sum_;
-  info.observation_steps = observation_steps_;
-  info.footprint_minimum = footprint_minimum_;
+  records_->save(info);
   if (refinement_) info.pose_refinement = refinement_->state();
   try {
     save_checkpoint(run_.checkpoint_file(), info, avatar_, *optimizer_);

@@ -21,6 +21,8 @@
 
 namespace sfgs::train {
 
+class TrainingRecords;
+
 // Adam with the colour networks in their own parameter group (their own learning rate): the optimiser a run's
 // checkpoint holds the state of.
 std::unique_ptr<torch::optim::Adam> make_optimizer(const model::Avatar& avatar, const Schedule& schedule);
@@ -74,11 +76,7 @@ class TrainingSession {
   LossWatch watch_;
   std::mt19937_64 rng_;
   double training_seconds_ = 0;
-  // The observation record (model/observation_prior.h): per Gaussian, the sum over training steps of how squarely
-  // the step's frame saw it, and the number of steps.
-  at::Tensor observation_sum_;
-  int64_t observation_steps_ = 0;
-  at::Tensor footprint_minimum_;  // (N) the sampling record's running minimum (model/sampling_filter.h)
+  std::unique_ptr<TrainingRecords> records_;  // the observation and sampling records
   std::optional<std::vector<unsigned char>> start_fits_;
   int64_t last_checkpoint_ = -1;  // iteration of the newest good checkpoint, -1 for none
   TrainSummary summary_;
