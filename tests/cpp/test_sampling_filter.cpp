@@ -3,6 +3,7 @@
 // unchanged at the training's sampling, covered where a render twice as fine leaves holes.
 #include <cmath>
 #include <limits>
+#include <string>
 
 #include <ATen/ATen.h>
 #include <gtest/gtest.h>
@@ -66,6 +67,18 @@ TEST(SamplingFilter, AFinerRenderAddsTheMissingLowPassOnTheDiagonalOnly) {
   const at::Tensor moved = means - at::tensor({0.0, 0.0, 0.5}, at::kDouble);
   EXPECT_LT((model::sampling_filtered(covariances, moved, placed, record) - filtered).abs().max().item<double>(),
             1e-15);
+}
+
+TEST(SamplingFilter, AnAvatarRefusesABadRecordByName) {
+  model::Avatar avatar(procedural_avatar_body(), subject_betas(), small_config());
+  const int64_t n = avatar->gaussian_count();
+  expect_error([&] { avatar->set_sampling_record(at::ones({n + 1})); }, {"sampling record", std::to_string(n)});
+  expect_error([&] { avatar->set_sampling_record(at::full({n}, -1.0)); }, {"sampling record", "non-negative"});
+  expect_error([&] { avatar->set_sampling_record(at::full({n}, kInfinity)); }, {"sampling record", "finite"});
+  avatar->set_sampling_record(at::full({n}, 0.01));
+  EXPECT_TRUE(avatar->sampling_record().defined());
+  avatar->set_sampling_record(at::Tensor());
+  EXPECT_FALSE(avatar->sampling_record().defined()) << "undefined clears it";
 }
 
 model::Avatar small_gaussian_avatar() {
