@@ -5,6 +5,7 @@
 
 #include "body/tensor_checks.h"
 #include "common/constants.h"
+#include "splat/camera_frame.h"
 
 namespace sfgs::model {
 
@@ -16,25 +17,15 @@ at::Tensor frame_observation(const at::Tensor& means, const at::Tensor& normals,
   TORCH_CHECK(depth.dim() == 2 && depth.size(0) == camera.height && depth.size(1) == camera.width,
               "frame_observation: depth must be (", camera.height, ", ", camera.width, "), got ", describe(depth));
   at::NoGradGuard no_grad;
-  const auto options = means.options();
-  const auto& m = camera.world_to_camera;
   // A camera at the origin (points given in its frame, as a training step gives them) needs no transform, and no
   // upload of one.
-  at::Tensor p = means.detach(), n = normals.detach();
-  if (!camera_at_origin(camera)) {
-    const at::Tensor view = at::tensor(std::vector<double>(m.begin(), m.end()), at::kDouble).view({4, 4}).to(options);
-    const at::Tensor rotation = view.slice(0, 0, 3).slice(1, 0, 3);
-    p = p.matmul(rotation.t()) + view.slice(0, 0, 3).select(1, 3);
-    n = n.matmul(rotation.t());
-  }
+  const at::Tensor p = points_in_camera_frame(means.detach(), camera);
+  const at::Tensor n = directions_in_camera_frame(normals.detach(), camera);
   const at::Tensor z = p.select(1, 2);
   // The cosine between the normal and the direction to the camera (at the origin).
   const at::Tensor facing = -(n * p).sum(1) / p.norm(2, 1).clamp_min(kMinNormalLength);
-  const at::Tensor safe_z = z.clamp_min(camera.near_plane);
-  const at::Tensor u = camera.fx * p.select(1, 0) / safe_z + camera.cx;
-  const at::Tensor v = camera.fy * p.select(1, 1) / safe_z + camera.cy;
-  const at::Tensor inside =
-      (z > camera.near_plane) & (u >= 0) & (u < double(camera.width)) & (v >= 0) & (v < double(camera.height));
+  const PixelView view = pixel_view(p, camera);
+  const at::Tensor &u = view.u, &v = view.v, &inside = view.inside;
   // Non-finite positions (a diverging run) are not inside; their pixel index must still be valid.
   const at::Tensor column = at::nan_to_num(u.floor(), 0, 0, 0).clamp(0, double(camera.width - 1)).to(at::kLong);
   const at::Tensor row = at::nan_to_num(v.floor(), 0, 0, 0).clamp(0, double(camera.height - 1)).to(at::kLong);

@@ -2,12 +2,12 @@
 
 #include <cmath>
 #include <limits>
-#include <vector>
 
 #include <ATen/ATen.h>
 
 #include "common/constants.h"
 #include "common/tensor_description.h"
+#include "splat/camera_frame.h"
 
 namespace sfgs::model {
 namespace {
@@ -19,22 +19,10 @@ double mean_focal(const Camera& camera) { return std::sqrt(camera.fx * camera.fy
 at::Tensor frame_footprint(const at::Tensor& means, const Camera& camera) {
   TORCH_CHECK(means.dim() == 2 && means.size(1) == 3, "frame_footprint: means must be (N, 3), got ", describe(means));
   at::NoGradGuard no_grad;
-  at::Tensor p = means.detach();
-  if (!camera_at_origin(camera)) {
-    const auto& m = camera.world_to_camera;
-    const at::Tensor view =
-        at::tensor(std::vector<double>(m.begin(), m.end()), at::kDouble).view({4, 4}).to(p.options());
-    p = p.matmul(view.slice(0, 0, 3).slice(1, 0, 3).t()) + view.slice(0, 0, 3).select(1, 3);
-  }
-  const at::Tensor z = p.select(1, 2);
-  const at::Tensor safe_z = z.clamp_min(camera.near_plane);
-  const at::Tensor u = camera.fx * p.select(1, 0) / safe_z + camera.cx;
-  const at::Tensor v = camera.fy * p.select(1, 1) / safe_z + camera.cy;
-  // NaN positions compare false: not in view.
-  const at::Tensor inside =
-      (z > camera.near_plane) & (u >= 0) & (u < double(camera.width)) & (v >= 0) & (v < double(camera.height));
-  return at::where(inside, safe_z / mean_focal(camera),
-                   at::full({}, std::numeric_limits<float>::infinity(), z.options()));
+  const PixelView view = pixel_view(points_in_camera_frame(means.detach(), camera), camera);
+  // A non-finite position is not in view.
+  return at::where(view.inside, view.depth / mean_focal(camera),
+                   at::full({}, std::numeric_limits<float>::infinity(), view.depth.options()));
 }
 
 at::Tensor sampling_record(const at::Tensor& minimum_footprint) {
@@ -55,12 +43,7 @@ at::Tensor sampling_filtered(const at::Tensor& covariances, const at::Tensor& me
               "sampling_filtered: covariances (N, 6), means (N, 3) and a record (N) expected, got ",
               describe(covariances), ", ", describe(means), " and ", describe(record));
   // Each mean's depth in the camera's frame (a camera at the origin, as in a recorded frame, needs no transform).
-  at::Tensor depth = means.select(1, 2);
-  if (!camera_at_origin(camera)) {
-    const auto& m = camera.world_to_camera;
-    depth = means.matmul(at::tensor({m[8], m[9], m[10]}, at::kDouble).to(means.options())) + m[11];
-  }
-  const at::Tensor footprint = depth / mean_focal(camera);
+  const at::Tensor footprint = points_in_camera_frame(means, camera).select(1, 2) / mean_focal(camera);
   const at::Tensor added =
       kLowPassVariancePx2 * (record.to(covariances.dtype()).square() - footprint.square()).clamp_min(0);
   // On the diagonal of (xx, xy, xz, yy, yz, zz); no host values, so that a recorded frame can hold it.

@@ -1,5 +1,8 @@
 #include "splat/camera_frame.h"
 
+#include <utility>
+#include <vector>
+
 #include <ATen/ATen.h>
 
 #include "common/tensor_description.h"
@@ -48,6 +51,42 @@ at::Tensor CameraFrame::directions(const at::Tensor& directions) const { return 
 
 at::Tensor CameraFrame::covariances(const at::Tensor& covariances) const {
   return covariances.matmul(covariance_map.t());
+}
+
+namespace {
+
+// world_to_camera's rotation (3, 3) and translation (3) with the options of `like`.
+std::pair<at::Tensor, at::Tensor> placement(const Camera& camera, const at::Tensor& like) {
+  const auto& m = camera.world_to_camera;
+  const at::Tensor view =
+      at::tensor(std::vector<double>(m.begin(), m.end()), at::kDouble).view({4, 4}).to(like.options());
+  return {view.slice(0, 0, 3).slice(1, 0, 3), view.slice(0, 0, 3).select(1, 3)};
+}
+
+}  // namespace
+
+at::Tensor points_in_camera_frame(const at::Tensor& points, const Camera& camera) {
+  if (camera_at_origin(camera)) return points;
+  const auto [rotation, translation] = placement(camera, points);
+  return points.matmul(rotation.t()) + translation;
+}
+
+at::Tensor directions_in_camera_frame(const at::Tensor& directions, const Camera& camera) {
+  if (camera_at_origin(camera)) return directions;
+  return directions.matmul(placement(camera, directions).first.t());
+}
+
+PixelView pixel_view(const at::Tensor& camera_points, const Camera& camera) {
+  TORCH_CHECK(camera_points.dim() == 2 && camera_points.size(1) == 3, "pixel_view: points (N, 3) expected, got ",
+              describe(camera_points));
+  const at::Tensor z = camera_points.select(1, 2);
+  PixelView view;
+  view.depth = z.clamp_min(camera.near_plane);
+  view.u = camera.fx * camera_points.select(1, 0) / view.depth + camera.cx;
+  view.v = camera.fy * camera_points.select(1, 1) / view.depth + camera.cy;
+  view.inside = (z > camera.near_plane) & (view.u >= 0) & (view.u < double(camera.width)) & (view.v >= 0) &
+                (view.v < double(camera.height));
+  return view;
 }
 
 Camera camera_at_origin_of(Camera camera) {

@@ -38,6 +38,21 @@ struct CameraFrame {
   at::Tensor covariances(const at::Tensor& covariances) const;
 };
 
+// World points (N, 3) in `camera`'s frame and directions (N, 3) rotated into it, from the camera on the host (a camera
+// at the origin: returned as given, nothing uploaded). Differentiable; for eager work (a recorded graph reads its
+// placement through a CameraFrame).
+at::Tensor points_in_camera_frame(const at::Tensor& points, const Camera& camera);
+at::Tensor directions_in_camera_frame(const at::Tensor& directions, const Camera& camera);
+
+// Where points (N, 3) in a camera's frame fall in its image: the depth clamped to the near plane (safe to divide by),
+// the pixel coordinates, and whether each point is in view (beyond the near plane and inside the image; a non-finite
+// point is not). No host synchronisation.
+struct PixelView {
+  at::Tensor depth, u, v;  // (N)
+  at::Tensor inside;       // (N) bool
+};
+PixelView pixel_view(const at::Tensor& camera_points, const Camera& camera);
+
 // The camera with its intrinsics and image size at the origin (world_to_camera the identity).
 Camera camera_at_origin_of(Camera camera);
 
