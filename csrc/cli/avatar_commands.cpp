@@ -17,6 +17,7 @@
 #include <nlohmann/json.hpp>
 
 #include "cli/commands.h"
+#include "common/math_constants.h"
 #include "animate/animator.h"
 #include "cli/evaluation_report.h"
 #include "cli/frame_encoder.h"
@@ -36,8 +37,6 @@ namespace sfgs::cli {
 namespace fs = std::filesystem;
 
 namespace {
-
-constexpr double kTwoPi = 6.283185307179586;
 
 // --device, or else the device the run was trained on where this build has it, else the CPU.
 at::Device pick_device(const std::string& name, const train::RunFolder& run) {

@@ -11,7 +11,6 @@
 namespace sfgs::splat::cpu {
 namespace {
 
-constexpr int64_t kGaussiansPerTask = 256;
 constexpr int64_t kTilesPerTask = 16;
 
 // Gaussian-major emission: Gaussian i fills slots [offsets[i], offsets[i + 1]) with its touched tiles, row-major.

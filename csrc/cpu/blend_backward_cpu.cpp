@@ -12,8 +12,6 @@
 namespace sfgs::splat::cpu {
 namespace {
 
-constexpr int64_t kGaussiansPerTask = 256;
-
 // One blended pair remembered while replaying a pixel front to back.
 template <typename T> struct ReplayedPair {
   int64_t slot;  // emission slot = gradient slot of this intersection

@@ -10,8 +10,6 @@
 namespace sfgs::splat::cpu {
 namespace {
 
-constexpr int64_t kGaussiansPerTask = 256;
-
 // The sum of the tile rectangles' areas bounds the Gaussian-tile pairs: the exact test visits every tile of every
 // rectangle, and binning and backward hold state per pair that passes it. Refuses scenes past kCpuMaxTilePairs
 // before any of that work starts.

@@ -18,6 +18,8 @@
 namespace sfgs::splat::cpu {
 
 constexpr int kTilePixels = kTileSize * kTileSize;
+// Gaussians one parallel task takes in the per-Gaussian stages: enough work to pay for a task.
+constexpr int64_t kGaussiansPerTask = 256;
 
 // ---- projection ------------------------------------------------------------------------------------------------
 

@@ -1,4 +1,5 @@
 #include "data/motions.h"
+#include "common/math_constants.h"
 
 #include <algorithm>
 #include <cmath>
@@ -9,7 +10,6 @@
 namespace sfgs::data {
 namespace {
 
-constexpr double kTwoPi = 6.283185307179586;
 constexpr double kMotionHz = 0.5;  // every motion repeats every 2 s: a 60-frame block at 30 frames/s is one cycle
 
 // Joint numbers follow SMPL-X (body_pose holds joints 1..21); axes are the joint's local x, y, z. In the rest pose

@@ -1,4 +1,5 @@
 #include "data/synthetic.h"
+#include "common/math_constants.h"
 #include "common/constants.h"
 
 #include <algorithm>
@@ -27,7 +28,6 @@ namespace fs = std::filesystem;
 
 namespace {
 
-constexpr double kTwoPi = 6.283185307179586;
 constexpr int64_t kSynthBetas = 10;        // shape coefficients drawn for the subject
 constexpr int64_t kSynthExpressions = 10;  // expression coefficients animated
 constexpr double kSubjectFill = 0.8;       // share of the image height the subject spans

@@ -39,16 +39,16 @@ int64_t number_between(const std::string& name, const std::string& prefix, const
   return std::stoll(digits);
 }
 
-std::string numbered(const char* pattern, int64_t number) {
+std::string numbered_file_name(const char* pattern, int64_t number) {
   char buffer[64];
   std::snprintf(buffer, sizeof(buffer), pattern, static_cast<long long>(number));
   return buffer;
 }
 
 SmplxPose read_xhumans_pose(const fs::path& take, int64_t number) {
-  const fs::path json_path = take / "SMPLX" / numbered("mesh-f%05lld_smplx.json", number);
+  const fs::path json_path = take / "SMPLX" / numbered_file_name("mesh-f%05lld_smplx.json", number);
   if (!fs::exists(json_path)) {
-    const fs::path pkl = take / "SMPLX" / numbered("mesh-f%05lld_smplx.pkl", number);
+    const fs::path pkl = take / "SMPLX" / numbered_file_name("mesh-f%05lld_smplx.pkl", number);
     TORCH_CHECK(!fs::exists(pkl), "X-Humans SMPL-X parameters '", pkl.string(),
                 "' are pickles; convert them once with `", kConverter, " ", take.parent_path().parent_path().string(),
                 "`");
@@ -72,7 +72,7 @@ SmplxPose read_xhumans_pose(const fs::path& take, int64_t number) {
   p.expression = j.contains("expression") ? field("expression", {-1}) : at::zeros({0});
   p.transl = field("transl", {3});
   // DECA's 50 expression coefficients replace the 10 of the fit when ExAvatar's face fitting is present.
-  const fs::path flame = take / "render" / "flame_init" / "flame_params" / numbered("%06lld.json", number);
+  const fs::path flame = take / "render" / "flame_init" / "flame_params" / numbered_file_name("%06lld.json", number);
   if (fs::exists(flame)) {
     const nlohmann::json f = read_json_file(flame.string());
     const bool valid = f.value("is_valid", true);
@@ -130,12 +130,12 @@ Dataset read_xhumans(const std::string& subject_folder) {
         r.camera.world_to_camera[12] = r.camera.world_to_camera[13] = r.camera.world_to_camera[14] = 0;
         r.camera.world_to_camera[15] = 1;
         r.image_path = images[i].string();
-        r.mask_path = (render / "depth" / numbered("depth_%06lld.tiff", number)).string();
+        r.mask_path = (render / "depth" / numbered_file_name("depth_%06lld.tiff", number)).string();
         r.mask_encoding = MaskEncoding::kDepthForeground;
         r.pose = read_xhumans_pose(take, number);
         if (!fallback_betas.defined()) {
           const nlohmann::json j =
-              read_json_file((take / "SMPLX" / numbered("mesh-f%05lld_smplx.json", number)).string());
+              read_json_file((take / "SMPLX" / numbered_file_name("mesh-f%05lld_smplx.json", number)).string());
           if (j.contains("betas")) fallback_betas = json_numbers(j.at("betas"), {-1}, "betas");
         }
         d.splits[split].push_back(d.size());

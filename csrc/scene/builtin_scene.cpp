@@ -1,4 +1,5 @@
 #include "scene/builtin_scene.h"
+#include "common/math_constants.h"
 #include "common/constants.h"
 
 #include <cmath>
@@ -9,7 +10,6 @@
 namespace sfgs::scene {
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
 constexpr int64_t kAvatarReferenceCount = 167390;  // Gaussians of a twice-subdivided SMPL-X mesh
 
 at::Tensor log_uniform(int64_t n, int64_t cols, double lo, double hi, at::Generator& gen) {

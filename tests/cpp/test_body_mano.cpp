@@ -11,6 +11,7 @@
 #include "body/smplx.h"
 #include "io/npz.h"
 #include "test_body_utils.h"
+#include "tensor_compare.h"
 
 namespace sfgs::testing {
 namespace {
@@ -20,8 +21,6 @@ using body::ManoInput;
 using body::ManoModelData;
 using body::ManoOptions;
 using body::Side;
-
-double max_error(const at::Tensor& a, const at::Tensor& b) { return (a - b).abs().max().item<double>(); }
 
 ManoOptions mano_options(bool pca, bool flat_hand_mean) {
   ManoOptions o;
@@ -56,11 +55,11 @@ void expect_mano_matches_the_body(const body::SmplxModelData& smplx, const ManoM
       (smplx.weights.index_select(0, ids).index_select(1, at::tensor(joints, at::kLong)).sum(1) > 1 - 1e-12);
   ASSERT_GT(only_hand.sum().item<int64_t>(), ids.size(0) / 2);
   const at::Tensor keep = only_hand.nonzero().flatten();
-  EXPECT_LT(max_error(out.vertices[0].index_select(0, keep), body_vertices.index_select(0, keep)), 1e-9);
+  EXPECT_LT(max_difference(out.vertices[0].index_select(0, keep), body_vertices.index_select(0, keep)), 1e-9);
   // MANO's joints are the body's hand joints.
-  EXPECT_LT(
-      max_error(out.rest_joints[0], smplx.j_regressor.matmul(smplx.v_template).index_select(0, at::tensor(joints))),
-      1e-9);
+  EXPECT_LT(max_difference(out.rest_joints[0],
+                           smplx.j_regressor.matmul(smplx.v_template).index_select(0, at::tensor(joints))),
+            1e-9);
 }
 
 TEST(BodyMano, ProceduralHandsMoveLikeTheBodysHands) {
@@ -84,7 +83,7 @@ TEST(BodyMano, AnnyHandsMoveLikeTheBodysHands) {
   EXPECT_TRUE(repaired.shapedirs.equal(left.shapedirs));
   // The file's rest joints ('J') are the regressor on the template.
   const at::Tensor j = io::NpzArchive(folder + "/anny_mano_right.npz").read("J");
-  EXPECT_LT(max_error(right.j_regressor.matmul(right.v_template), j), 1e-8);
+  EXPECT_LT(max_difference(right.j_regressor.matmul(right.v_template), j), 1e-8);
 }
 
 TEST(BodyMano, TheLeftHandShapedirsRepairRestoresMirrorSymmetry) {
@@ -98,9 +97,9 @@ TEST(BodyMano, TheLeftHandShapedirsRepairRestoresMirrorSymmetry) {
   in.betas = at::randn({1, 10}, at::kDouble);
   const auto mirror_x = [](at::Tensor v) { return v * at::tensor({-1.0, 1.0, 1.0}, at::kDouble); };
   const at::Tensor right = Mano(body.mano_right, mano_options(true, true))->forward(in).vertices;
-  EXPECT_GT(max_error(Mano(bugged, mano_options(true, true))->forward(in).vertices, mirror_x(right)), 1e-3);
+  EXPECT_GT(max_difference(Mano(bugged, mano_options(true, true))->forward(in).vertices, mirror_x(right)), 1e-3);
   EXPECT_TRUE(body::repair_left_mano_shapedirs(bugged, body.mano_right));
-  EXPECT_LT(max_error(Mano(bugged, mano_options(true, true))->forward(in).vertices, mirror_x(right)), 1e-12);
+  EXPECT_LT(max_difference(Mano(bugged, mano_options(true, true))->forward(in).vertices, mirror_x(right)), 1e-12);
   EXPECT_FALSE(body::repair_left_mano_shapedirs(bugged, body.mano_right));  // repairing twice does nothing
 }
 
@@ -115,17 +114,18 @@ TEST(BodyMano, PcaFlatHandMeanAndRotations) {
   ManoInput full = in;
   full.hand_pose = in.hand_pose.matmul(hand.hands_components.narrow(0, 0, 6)).view({2, 15, 3});
   const auto direct = Mano(hand, mano_options(false, false))->forward(full);
-  EXPECT_LT(max_error(pca.vertices, direct.vertices), 1e-12);
-  EXPECT_LT(max_error(pca.full_pose.narrow(1, 1, 15).flatten(1), full.hand_pose.flatten(1) + hand.hands_mean), 1e-14);
+  EXPECT_LT(max_difference(pca.vertices, direct.vertices), 1e-12);
+  EXPECT_LT(max_difference(pca.full_pose.narrow(1, 1, 15).flatten(1), full.hand_pose.flatten(1) + hand.hands_mean),
+            1e-14);
   // flat_hand_mean: a zero pose is the flat template; otherwise the mean pose.
   const auto flat = Mano(hand, mano_options(true, true))->forward(ManoInput{});
-  EXPECT_LT(max_error(flat.vertices[0], hand.v_template), 1e-12);
+  EXPECT_LT(max_difference(flat.vertices[0], hand.v_template), 1e-12);
   const auto relaxed = Mano(hand, mano_options(true, false))->forward(ManoInput{});
-  EXPECT_GT(max_error(relaxed.vertices[0], hand.v_template), 1e-3);
+  EXPECT_GT(max_difference(relaxed.vertices[0], hand.v_template), 1e-3);
   ManoInput by_matrix;
   by_matrix.betas = in.betas;
   by_matrix.rotations = pca.rotations;
-  EXPECT_LT(max_error(Mano(hand, mano_options(true, false))->forward(by_matrix).vertices, pca.vertices), 1e-12);
+  EXPECT_LT(max_difference(Mano(hand, mano_options(true, false))->forward(by_matrix).vertices, pca.vertices), 1e-12);
 }
 
 TEST(BodyMano, GradientsMatchFiniteDifferences) {

@@ -14,6 +14,7 @@
 #include "body/skeleton.h"
 #include "body/smplx.h"
 #include "test_body_utils.h"
+#include "tensor_compare.h"
 
 namespace sfgs::testing {
 namespace {
@@ -22,7 +23,6 @@ namespace J = body::smplx_joint;
 using body::Smplx;
 using body::SmplxInput;
 
-double max_error(const at::Tensor& a, const at::Tensor& b) { return (a - b).abs().max().item<double>(); }
 at::Tensor mirror_x(const at::Tensor& v) { return v * at::tensor({-1.0, 1.0, 1.0}, v.options()); }
 at::Tensor mirrored_joints() {
   return at::tensor(std::vector<int64_t>(body::kSmplxMirroredJoints.begin(), body::kSmplxMirroredJoints.end()));
@@ -102,7 +102,7 @@ TEST(BodyProcedural, CatmullClarkStepOnACube) {
   const at::Tensor points = fine.stencil.apply(coarse);
   const at::Tensor mirror = at::tensor(fine.mirror, at::kLong);
   EXPECT_TRUE(mirror.index_select(0, mirror).equal(at::arange(26, at::kLong)));
-  EXPECT_LT(max_error(points.index_select(0, mirror), mirror_x(points)), 1e-15);
+  EXPECT_LT(max_difference(points.index_select(0, mirror), mirror_x(points)), 1e-15);
   // Vertex points of a cube's corners (valence 3) move to 5/9 of the way: (Q + 2R + 0 S) / 3.
   EXPECT_NEAR(points[7][0].item<double>(), 5.0 / 9.0, 1e-15);
 }
@@ -127,9 +127,9 @@ TEST(BodyProcedural, IsAClosedOutwardSurfaceOfThreeComponents) {
 TEST(BodyProcedural, WeightsAndRegressorAreWellFormedAndSmooth) {
   const auto& d = procedural_body().smplx;
   EXPECT_GE(d.weights.min().item<double>(), 0.0);
-  EXPECT_LT(max_error(d.weights.sum(1), at::ones({d.weights.size(0)}, at::kDouble)), 1e-12);
+  EXPECT_LT(max_difference(d.weights.sum(1), at::ones({d.weights.size(0)}, at::kDouble)), 1e-12);
   EXPECT_GE(d.j_regressor.min().item<double>(), 0.0);
-  EXPECT_LT(max_error(d.j_regressor.sum(1), at::ones({55}, at::kDouble)), 1e-12);
+  EXPECT_LT(max_difference(d.j_regressor.sum(1), at::ones({55}, at::kDouble)), 1e-12);
   // Smooth: no edge crosses a hard boundary between joints (that would change the weights by 2 in L1). The
   // largest changes are where the lips part (head above, jaw below) and along the short finger segments.
   const at::Tensor e = body::mesh_edges(d.faces, d.v_template.size(0)).edges;
@@ -149,9 +149,9 @@ TEST(BodyProcedural, IsExactlyLeftRightSymmetric) {
   const at::Tensor m = b.mirrored_vertices;
   const at::Tensor mj = mirrored_joints();
   EXPECT_TRUE(m.index_select(0, m).equal(at::arange(m.size(0))));  // an involution
-  EXPECT_LT(max_error(d.v_template.index_select(0, m), mirror_x(d.v_template)), 1e-12);
-  EXPECT_LT(max_error(d.weights.index_select(0, m).index_select(1, mj), d.weights), 1e-12);
-  EXPECT_LT(max_error(d.j_regressor.index_select(0, mj).index_select(1, m), d.j_regressor), 1e-15);
+  EXPECT_LT(max_difference(d.v_template.index_select(0, m), mirror_x(d.v_template)), 1e-12);
+  EXPECT_LT(max_difference(d.weights.index_select(0, m).index_select(1, mj), d.weights), 1e-12);
+  EXPECT_LT(max_difference(d.j_regressor.index_select(0, mj).index_select(1, m), d.j_regressor), 1e-15);
   // Mirrored faces, with reversed winding, are faces.
   std::set<std::array<int64_t, 3>> faces;
   const auto canonical = [](std::array<int64_t, 3> t) {
@@ -167,10 +167,10 @@ TEST(BodyProcedural, IsExactlyLeftRightSymmetric) {
   const auto mirror_dirs = [&](const at::Tensor& dirs) {
     return mirror_x(dirs.index_select(0, m).transpose(1, 2)).transpose(1, 2);
   };
-  EXPECT_LT(max_error(mirror_dirs(d.shapedirs), d.shapedirs), 1e-12);
+  EXPECT_LT(max_difference(mirror_dirs(d.shapedirs), d.shapedirs), 1e-12);
   const at::Tensor columns = at::tensor(b.mirrored_expressions);
-  EXPECT_LT(max_error(mirror_dirs(d.exprdirs).index_select(2, columns), d.exprdirs), 1e-12);
-  EXPECT_GT(max_error(d.exprdirs.select(2, 2), d.exprdirs.select(2, 3)), 1e-3);  // the one-sided smiles differ
+  EXPECT_LT(max_difference(mirror_dirs(d.exprdirs).index_select(2, columns), d.exprdirs), 1e-12);
+  EXPECT_GT(max_difference(d.exprdirs.select(2, 2), d.exprdirs.select(2, 3)), 1e-3);  // the one-sided smiles differ
   EXPECT_TRUE(d.part_labels.index_select(0, m).equal(
       at::tensor({0, 1, 3, 2}, at::kInt).to(at::kByte).index_select(0, d.part_labels.to(at::kLong))));
 }
@@ -208,15 +208,15 @@ TEST(BodyProcedural, MirroredPosesGiveMirroredBodies) {
   mirrored.pose.left_hand_pose = (pose - mean).narrow(1, 25, 15).flatten(1);
   mirrored.pose.right_hand_pose = (pose - mean).narrow(1, 40, 15).flatten(1);
   const auto back = model->forward(mirrored);
-  EXPECT_LT(max_error(back.vertices[0].index_select(0, b.mirrored_vertices), mirror_x(out.vertices[0])), 1e-10);
-  EXPECT_LT(max_error(back.joints[0].index_select(0, mirrored_joints()), mirror_x(out.joints[0])), 1e-10);
+  EXPECT_LT(max_difference(back.vertices[0].index_select(0, b.mirrored_vertices), mirror_x(out.vertices[0])), 1e-10);
+  EXPECT_LT(max_difference(back.joints[0].index_select(0, mirrored_joints()), mirror_x(out.joints[0])), 1e-10);
   // With PCA, the same coefficients give mirror-image hands.
   const Smplx pca(b.smplx, options(true));
   SmplxInput hands;
   hands.pose.left_hand_pose = at::randn({1, 6}, at::kDouble);
   hands.pose.right_hand_pose = hands.pose.left_hand_pose;
   const at::Tensor v = pca->forward(hands).vertices[0];
-  EXPECT_LT(max_error(v.index_select(0, b.mirrored_vertices), mirror_x(v)), 1e-10);
+  EXPECT_LT(max_difference(v.index_select(0, b.mirrored_vertices), mirror_x(v)), 1e-10);
 }
 
 TEST(BodyProcedural, FingersAreSeparate) {
@@ -259,7 +259,7 @@ TEST(BodyProcedural, TheJawOpensTheMouthAndTheEyesTurnInPlace) {
   const at::Tensor centre = d.j_regressor[J::kLeftEye].matmul(d.v_template);
   const at::Tensor radius = (d.v_template.index_select(0, eye) - centre).norm(2, 1);
   EXPECT_LT((radius - radius.mean()).abs().max().item<double>(), 1e-12);  // a sphere about the joint
-  EXPECT_LT(max_error((v.index_select(0, eye) - centre).norm(2, 1), radius), 1e-12);
+  EXPECT_LT(max_difference((v.index_select(0, eye) - centre).norm(2, 1), radius), 1e-12);
   EXPECT_GT(moved.index_select(0, eye).max().item<double>(), 0.005);
 }
 
@@ -300,8 +300,8 @@ TEST(BodyProcedural, HandsInTheManoLayout) {
   const auto& b = procedural_body();
   for (const auto* hand : {&b.mano_left, &b.mano_right}) {
     EXPECT_EQ(hand->j_regressor.size(0), 16);
-    EXPECT_LT(max_error(hand->weights.sum(1), at::ones({hand->weights.size(0)}, at::kDouble)), 1e-12);
-    EXPECT_LT(max_error(hand->j_regressor.sum(1), at::ones({16}, at::kDouble)), 1e-12);
+    EXPECT_LT(max_difference(hand->weights.sum(1), at::ones({hand->weights.size(0)}, at::kDouble)), 1e-12);
+    EXPECT_LT(max_difference(hand->j_regressor.sum(1), at::ones({16}, at::kDouble)), 1e-12);
     // Open at the wrist: some edges have one face only.
     const int64_t v = hand->v_template.size(0);
     const at::Tensor e = hand->faces.index_select(1, at::tensor({0, 1, 1, 2, 2, 0})).view({-1, 2});

@@ -5,6 +5,7 @@
 
 #include "body/rotations.h"
 #include "test_body_utils.h"
+#include "tensor_compare.h"
 
 namespace sfgs::testing {
 namespace {
@@ -13,8 +14,6 @@ using body::axis_angle_to_matrix;
 using body::matrix_to_axis_angle;
 using body::matrix_to_rotation_6d;
 using body::rotation_6d_to_matrix;
-
-double max_error(const at::Tensor& a, const at::Tensor& b) { return (a - b).abs().max().item<double>(); }
 
 // Axis-angle vectors with angles spread over [0, pi), plus tiny ones.
 at::Tensor sample_axis_angles(int64_t n, uint64_t seed) {
@@ -27,8 +26,9 @@ at::Tensor sample_axis_angles(int64_t n, uint64_t seed) {
 
 TEST(BodyRotations, RightHandedAxisAngle) {
   const at::Tensor r = axis_angle_to_matrix(at::tensor({0.0, 0.0, M_PI / 2}, at::kDouble));
-  EXPECT_LT(max_error(r.matmul(at::tensor({1.0, 0.0, 0.0}, at::kDouble)), at::tensor({0.0, 1.0, 0.0}, at::kDouble)),
-            1e-15);
+  EXPECT_LT(
+      max_difference(r.matmul(at::tensor({1.0, 0.0, 0.0}, at::kDouble)), at::tensor({0.0, 1.0, 0.0}, at::kDouble)),
+      1e-15);
   EXPECT_TRUE(
       axis_angle_to_matrix(at::zeros({2, 5, 3}, at::kDouble)).equal(at::eye(3, at::kDouble).expand({2, 5, 3, 3})));
 }
@@ -37,8 +37,8 @@ TEST(BodyRotations, MatricesAreRotationsAndAgreeWithTheExponential) {
   const at::Tensor aa = sample_axis_angles(200, 1);
   const at::Tensor r = axis_angle_to_matrix(aa);
   const at::Tensor eye = at::eye(3, at::kDouble);
-  EXPECT_LT(max_error(r.matmul(r.transpose(-1, -2)), eye.expand_as(r)), 1e-14);
-  EXPECT_LT(max_error(at::linalg_det(r), at::ones({200}, at::kDouble)), 1e-14);
+  EXPECT_LT(max_difference(r.matmul(r.transpose(-1, -2)), eye.expand_as(r)), 1e-14);
+  EXPECT_LT(max_difference(at::linalg_det(r), at::ones({200}, at::kDouble)), 1e-14);
   // exp([v]x) by a long Taylor series, independent of Rodrigues' formula.
   const at::Tensor x = aa.select(1, 0), y = aa.select(1, 1), z = aa.select(1, 2), zero = at::zeros_like(x);
   const at::Tensor k = at::stack({zero, -z, y, z, zero, -x, -y, x, zero}, 1).view({-1, 3, 3});
@@ -47,12 +47,12 @@ TEST(BodyRotations, MatricesAreRotationsAndAgreeWithTheExponential) {
     term = term.matmul(k) / n;
     series = series + term;
   }
-  EXPECT_LT(max_error(r, series), 1e-14);
+  EXPECT_LT(max_difference(r, series), 1e-14);
 }
 
 TEST(BodyRotations, AxisAngleRoundTripsIncludingNearZeroAndPi) {
   at::Tensor aa = sample_axis_angles(300, 2);
-  EXPECT_LT(max_error(matrix_to_axis_angle(axis_angle_to_matrix(aa)), aa), 1e-12);
+  EXPECT_LT(max_difference(matrix_to_axis_angle(axis_angle_to_matrix(aa)), aa), 1e-12);
   // Near pi the axis is recovered up to sign, the angle exactly.
   const at::Tensor axis = at::tensor({0.3, -0.5, 0.8}, at::kDouble) / std::sqrt(0.98);
   for (double angle : {M_PI - 1e-6, M_PI}) {
@@ -62,7 +62,7 @@ TEST(BodyRotations, AxisAngleRoundTripsIncludingNearZeroAndPi) {
   }
   // float32 stays accurate too.
   const at::Tensor f = aa.to(at::kFloat);
-  EXPECT_LT(max_error(matrix_to_axis_angle(axis_angle_to_matrix(f)).to(at::kDouble), aa), 2e-5);
+  EXPECT_LT(max_difference(matrix_to_axis_angle(axis_angle_to_matrix(f)).to(at::kDouble), aa), 2e-5);
 }
 
 // The rotation of a unit quaternion (w, x, y, z), written out.
@@ -88,10 +88,10 @@ TEST(BodyRotations, QuaternionsOfEveryRotationIncludingHalfTurns) {
   const at::Tensor q = body::matrix_to_quaternion(r);
   EXPECT_LT((q.norm(2, -1) - 1).abs().max().item<double>(), 1e-12);
   EXPECT_GE(q.select(-1, 0).min().item<double>(), 0.0);
-  EXPECT_LT(max_error(quaternion_to_matrix(q), r), 1e-12);
+  EXPECT_LT(max_difference(quaternion_to_matrix(q), r), 1e-12);
   // The eigenvector frames of an export: a proper rotation whose columns came out flipped in pairs.
   const at::Tensor flipped = r * at::tensor({-1.0, -1.0, 1.0}, at::kDouble);
-  EXPECT_LT(max_error(quaternion_to_matrix(body::matrix_to_quaternion(flipped)), flipped), 1e-12);
+  EXPECT_LT(max_difference(quaternion_to_matrix(body::matrix_to_quaternion(flipped)), flipped), 1e-12);
   expect_error([] { body::matrix_to_quaternion(at::zeros({4, 3})); }, {"matrix"});
 }
 
@@ -100,13 +100,13 @@ TEST(BodyRotations, SixDIsTheFirstTwoRowsAndRoundTrips) {
   const at::Tensor six = matrix_to_rotation_6d(r);
   EXPECT_TRUE(six.narrow(-1, 0, 3).equal(r.select(-2, 0)));
   EXPECT_TRUE(six.narrow(-1, 3, 3).equal(r.select(-2, 1)));
-  EXPECT_LT(max_error(rotation_6d_to_matrix(six), r), 1e-14);
+  EXPECT_LT(max_difference(rotation_6d_to_matrix(six), r), 1e-14);
   // Any two independent vectors give a rotation whose first row points along the first.
   const at::Tensor raw = at::randn({50, 6}, at::kDouble) * 3;
   const at::Tensor m = rotation_6d_to_matrix(raw);
-  EXPECT_LT(max_error(m.matmul(m.transpose(-1, -2)), at::eye(3, at::kDouble).expand_as(m)), 1e-14);
-  EXPECT_LT(max_error(at::linalg_det(m), at::ones({50}, at::kDouble)), 1e-14);
-  EXPECT_LT(max_error(m.select(-2, 0), raw.narrow(-1, 0, 3) / raw.narrow(-1, 0, 3).norm(2, -1, true)), 1e-14);
+  EXPECT_LT(max_difference(m.matmul(m.transpose(-1, -2)), at::eye(3, at::kDouble).expand_as(m)), 1e-14);
+  EXPECT_LT(max_difference(at::linalg_det(m), at::ones({50}, at::kDouble)), 1e-14);
+  EXPECT_LT(max_difference(m.select(-2, 0), raw.narrow(-1, 0, 3) / raw.narrow(-1, 0, 3).norm(2, -1, true)), 1e-14);
 }
 
 TEST(BodyRotations, GradientsAreFiniteAndCorrectAtZeroAndBeyond) {
@@ -130,7 +130,7 @@ TEST(BodyRotations, GradientsAreFiniteAndCorrectAtZeroAndBeyond) {
   const at::Tensor back = matrix_to_axis_angle(axis_angle_to_matrix(v));
   for (int64_t i = 0; i < 3; ++i) {
     const at::Tensor g = torch::autograd::grad({back[i]}, {v}, {}, /*retain_graph=*/true)[0];
-    EXPECT_LT(max_error(g, at::one_hot(at::tensor(i), 3).to(at::kDouble).view({3})), 1e-12);
+    EXPECT_LT(max_difference(g, at::one_hot(at::tensor(i), 3).to(at::kDouble).view({3})), 1e-12);
   }
 }
 

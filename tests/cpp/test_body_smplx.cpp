@@ -14,6 +14,7 @@
 #include "body/smplx.h"
 #include "io/npz.h"
 #include "test_body_utils.h"
+#include "tensor_compare.h"
 
 namespace sfgs::testing {
 namespace {
@@ -22,8 +23,6 @@ using body::Smplx;
 using body::SmplxInput;
 using body::SmplxModelData;
 using body::SmplxOptions;
-
-double max_error(const at::Tensor& a, const at::Tensor& b) { return (a - b).abs().max().item<double>(); }
 
 SmplxOptions double_options(int64_t betas, int64_t expression, bool pca, bool flat_hand_mean, int64_t levels = 0) {
   SmplxOptions o;
@@ -83,13 +82,13 @@ SmplxInput random_input(int64_t batch, int64_t betas, int64_t expression, int64_
 void expect_template_at_rest(const SmplxModelData& data, bool flat_hand_mean) {
   const Smplx model(data, double_options(10, 10, true, flat_hand_mean));
   const auto out = model->forward(SmplxInput{});
-  EXPECT_LT(max_error(out.vertices[0], data.v_template), 1e-12);
-  EXPECT_LT(max_error(out.joints[0], data.j_regressor.matmul(data.v_template)), 1e-12);
-  EXPECT_LT(max_error(out.skinning_transforms, at::eye(4, at::kDouble).expand({1, 55, 4, 4})), 1e-12);
-  EXPECT_LT(
-      max_error(out.joint_transforms.narrow(2, 0, 3).narrow(3, 0, 3), at::eye(3, at::kDouble).expand({1, 55, 3, 3})),
-      1e-12);
-  EXPECT_LT(max_error(out.joint_transforms.select(3, 3).narrow(2, 0, 3), out.joints), 1e-12);
+  EXPECT_LT(max_difference(out.vertices[0], data.v_template), 1e-12);
+  EXPECT_LT(max_difference(out.joints[0], data.j_regressor.matmul(data.v_template)), 1e-12);
+  EXPECT_LT(max_difference(out.skinning_transforms, at::eye(4, at::kDouble).expand({1, 55, 4, 4})), 1e-12);
+  EXPECT_LT(max_difference(out.joint_transforms.narrow(2, 0, 3).narrow(3, 0, 3),
+                           at::eye(3, at::kDouble).expand({1, 55, 3, 3})),
+            1e-12);
+  EXPECT_LT(max_difference(out.joint_transforms.select(3, 3).narrow(2, 0, 3), out.joints), 1e-12);
 }
 
 TEST(BodySmplx, ZeroPoseAndShapeGiveTheTemplate) {
@@ -98,7 +97,7 @@ TEST(BodySmplx, ZeroPoseAndShapeGiveTheTemplate) {
   // Without flat_hand_mean the procedural body's relaxed mean curls the fingers and moves nothing else.
   const auto& data = procedural_body().smplx;
   const auto out = Smplx(data, double_options(10, 10, true, false))->forward(SmplxInput{});
-  EXPECT_LT(max_error(out.full_pose[0].narrow(0, 25, 15).flatten(), data.hands_mean_left), 1e-15);
+  EXPECT_LT(max_difference(out.full_pose[0].narrow(0, 25, 15).flatten(), data.hands_mean_left), 1e-15);
   const at::Tensor moved = ((out.vertices[0] - data.v_template).norm(2, 1) > 1e-9);
   const at::Tensor in_hands = (data.part_labels == 2) | (data.part_labels == 3);
   EXPECT_GT(moved.sum().item<int64_t>(), 1000);
@@ -118,16 +117,16 @@ TEST(BodySmplx, JointsAreTheRegressorAppliedToTheShapedMesh) {
     const auto out = model->forward(in);
     const at::Tensor shaped = d.v_template + at::einsum("vck,bk->bvc", {d.shapedirs.narrow(2, 0, 10), in.betas}) +
                               at::einsum("vck,bk->bvc", {d.exprdirs.narrow(2, 0, e), in.pose.expression});
-    EXPECT_LT(max_error(out.rest_joints, at::einsum("jv,bvc->bjc", {d.j_regressor, shaped})), 1e-12);
-    if (!d.posedirs.defined()) EXPECT_LT(max_error(out.rest_vertices, shaped), 1e-12);
+    EXPECT_LT(max_difference(out.rest_joints, at::einsum("jv,bvc->bjc", {d.j_regressor, shaped})), 1e-12);
+    if (!d.posedirs.defined()) EXPECT_LT(max_difference(out.rest_vertices, shaped), 1e-12);
     // Unposed, the output joints are the regressor on the output mesh, moved by the translation.
     SmplxInput rest;
     rest.betas = in.betas;
     rest.pose.expression = in.pose.expression;
     rest.pose.transl = in.pose.transl;
     const auto still = model->forward(rest);
-    EXPECT_LT(max_error(still.joints, at::einsum("jv,bvc->bjc", {d.j_regressor, still.vertices})), 1e-12);
-    EXPECT_LT(max_error(still.vertices - in.pose.transl.unsqueeze(1), shaped), 1e-12);
+    EXPECT_LT(max_difference(still.joints, at::einsum("jv,bvc->bjc", {d.j_regressor, still.vertices})), 1e-12);
+    EXPECT_LT(max_difference(still.vertices - in.pose.transl.unsqueeze(1), shaped), 1e-12);
   }
 }
 
@@ -139,11 +138,11 @@ TEST(BodySmplx, PoseCorrectivesAreTheFeatureTimesPosedirs) {
   const at::Tensor feature = (out.rotations.narrow(1, 1, 54) - at::eye(3, at::kDouble)).flatten(1);
   const at::Tensor shaped = d.v_template + at::einsum("vck,bk->bvc", {d.shapedirs, in.betas}) +
                             at::einsum("vck,bk->bvc", {d.exprdirs, in.pose.expression});
-  EXPECT_LT(max_error(out.rest_vertices, shaped + at::einsum("vcp,bp->bvc", {d.posedirs, feature})), 1e-12);
+  EXPECT_LT(max_difference(out.rest_vertices, shaped + at::einsum("vcp,bp->bvc", {d.posedirs, feature})), 1e-12);
   // And the posed vertices are the blended transforms applied to that rest mesh.
   const at::Tensor blended = at::einsum("vj,bjrc->bvrc", {d.weights, out.skinning_transforms});
   const at::Tensor homogeneous = at::cat({out.rest_vertices, at::ones({2, 6, 1}, at::kDouble)}, 2);
-  EXPECT_LT(max_error(out.vertices, at::einsum("bvrc,bvc->bvr", {blended, homogeneous}).narrow(2, 0, 3)), 1e-12);
+  EXPECT_LT(max_difference(out.vertices, at::einsum("bvrc,bvc->bvr", {blended, homogeneous}).narrow(2, 0, 3)), 1e-12);
 }
 
 TEST(BodySmplx, SparseAndDenseSkinningWeightsAgree) {
@@ -153,15 +152,15 @@ TEST(BodySmplx, SparseAndDenseSkinningWeightsAgree) {
   const at::Tensor transforms = at::randn({3, 55, 4, 4}, at::kDouble).requires_grad_(true);
   const at::Tensor dense = body::linear_blend_skinning(rest, weights, transforms);
   const at::Tensor sparse = body::linear_blend_skinning(rest, body::sparse_skinning_weights(weights), transforms);
-  EXPECT_LT(max_error(dense, sparse), 1e-13);
+  EXPECT_LT(max_difference(dense, sparse), 1e-13);
   const at::Tensor w = at::randn_like(dense);
   const at::Tensor g_dense = torch::autograd::grad({(dense * w).sum()}, {transforms})[0];
   const at::Tensor g_sparse = torch::autograd::grad({(sparse * w).sum()}, {transforms})[0];
-  EXPECT_LT(max_error(g_dense, g_sparse), 1e-13);
+  EXPECT_LT(max_difference(g_dense, g_sparse), 1e-13);
   // By hand for one vertex: sum_j w_j A_j [v; 1].
   const at::Tensor blended = at::einsum("j,jrc->rc", {weights[7], transforms.detach()[1]});
-  EXPECT_LT(max_error(dense[1][7], blended.narrow(0, 0, 3).narrow(1, 0, 3).matmul(rest[1][7]) +
-                                       blended.narrow(0, 0, 3).select(1, 3)),
+  EXPECT_LT(max_difference(dense[1][7], blended.narrow(0, 0, 3).narrow(1, 0, 3).matmul(rest[1][7]) +
+                                            blended.narrow(0, 0, 3).select(1, 3)),
             1e-13);
 }
 
@@ -187,20 +186,22 @@ void expect_subtree_moves_rigidly(const SmplxModelData& d, int64_t j, const at::
   std::vector<int64_t> subtree, others;
   for (int64_t k = 0; k < 55; ++k) (model->mesh()->tree()->in_subtree(j, k) ? subtree : others).push_back(k);
   const at::Tensor in = at::tensor(subtree, at::kLong), out = at::tensor(others, at::kLong);
-  if (!others.empty()) EXPECT_LT(max_error(b.joints[0].index_select(0, out), a.joints[0].index_select(0, out)), 1e-12);
-  EXPECT_LT(max_error(b.joints[0].index_select(0, in), rigid(a.joints[0].index_select(0, in))), 1e-12);
+  if (!others.empty())
+    EXPECT_LT(max_difference(b.joints[0].index_select(0, out), a.joints[0].index_select(0, out)), 1e-12);
+  EXPECT_LT(max_difference(b.joints[0].index_select(0, in), rigid(a.joints[0].index_select(0, in))), 1e-12);
   const at::Tensor share = d.weights.index_select(1, in).sum(1);
   const at::Tensor still = (share == 0).nonzero().flatten(), carried = (share > 1 - 1e-12).nonzero().flatten();
   EXPECT_GT(carried.size(0), 0) << "joint " << j;
   if (still.size(0) > 0)
-    EXPECT_LT(max_error(b.vertices[0].index_select(0, still), a.vertices[0].index_select(0, still)), 1e-12);
-  EXPECT_LT(max_error(b.vertices[0].index_select(0, carried), rigid(a.vertices[0].index_select(0, carried))), 1e-11)
+    EXPECT_LT(max_difference(b.vertices[0].index_select(0, still), a.vertices[0].index_select(0, still)), 1e-12);
+  EXPECT_LT(max_difference(b.vertices[0].index_select(0, carried), rigid(a.vertices[0].index_select(0, carried))),
+            1e-11)
       << "joint " << j;
   const at::Tensor expected_transform = at::eye(4, at::kDouble);
   expected_transform.narrow(0, 0, 3).narrow(1, 0, 3).copy_(r);
   expected_transform.narrow(0, 0, 3).select(1, 3).copy_(centre - r.matmul(centre));
-  for (int64_t k : subtree) EXPECT_LT(max_error(b.skinning_transforms[0][k], expected_transform), 1e-12);
-  for (int64_t k : others) EXPECT_LT(max_error(b.skinning_transforms[0][k], at::eye(4, at::kDouble)), 1e-12);
+  for (int64_t k : subtree) EXPECT_LT(max_difference(b.skinning_transforms[0][k], expected_transform), 1e-12);
+  for (int64_t k : others) EXPECT_LT(max_difference(b.skinning_transforms[0][k], at::eye(4, at::kDouble)), 1e-12);
 }
 
 TEST(BodySmplx, RotatingOneJointMovesOnlyItsDescendantsRigidly) {
@@ -225,8 +226,8 @@ TEST(BodySmplx, HandPcaIsTheComponentsTimesTheCoefficientsPlusTheMean) {
   as_full.pose.left_hand_pose = in.pose.left_hand_pose.matmul(d.hands_components_left.narrow(0, 0, 6));
   as_full.pose.right_hand_pose = in.pose.right_hand_pose.matmul(d.hands_components_right.narrow(0, 0, 6));
   const auto a = pca->forward(in), b = full->forward(as_full);
-  EXPECT_LT(max_error(a.vertices, b.vertices), 1e-12);
-  EXPECT_LT(max_error(a.full_pose.narrow(1, 25, 15).flatten(1), as_full.pose.left_hand_pose + d.hands_mean_left),
+  EXPECT_LT(max_difference(a.vertices, b.vertices), 1e-12);
+  EXPECT_LT(max_difference(a.full_pose.narrow(1, 25, 15).flatten(1), as_full.pose.left_hand_pose + d.hands_mean_left),
             1e-14);
 }
 
@@ -237,13 +238,13 @@ TEST(BodySmplx, AnnyHandPcaWithIdentityComponentsEqualsTheFullPose) {
   const Smplx pca(anny_smplx(), options);
   const Smplx full(anny_smplx(), double_options(10, 10, false, false));
   const SmplxInput in = random_input(2, 10, 10, 45, 0.4, 22);
-  EXPECT_LT(max_error(pca->forward(in).vertices, full->forward(in).vertices), 1e-12);
+  EXPECT_LT(max_difference(pca->forward(in).vertices, full->forward(in).vertices), 1e-12);
   // Six components: the first six axis-angle values of each hand.
   const Smplx six(anny_smplx(), double_options(10, 10, true, false));
   SmplxInput few = random_input(2, 10, 10, 6, 0.4, 23), padded = few;
   padded.pose.left_hand_pose = at::cat({few.pose.left_hand_pose, at::zeros({2, 39}, at::kDouble)}, 1);
   padded.pose.right_hand_pose = at::cat({few.pose.right_hand_pose, at::zeros({2, 39}, at::kDouble)}, 1);
-  EXPECT_LT(max_error(six->forward(few).vertices, full->forward(padded).vertices), 1e-12);
+  EXPECT_LT(max_difference(six->forward(few).vertices, full->forward(padded).vertices), 1e-12);
 }
 
 TEST(BodySmplx, RotationMatricesCanReplaceTheAxisAngles) {
@@ -257,7 +258,7 @@ TEST(BodySmplx, RotationMatricesCanReplaceTheAxisAngles) {
   by_matrix.pose.transl = in.pose.transl;
   by_matrix.rotations = body::rotation_6d_to_matrix(body::matrix_to_rotation_6d(a.rotations));
   const auto b = model->forward(by_matrix);
-  EXPECT_LT(max_error(a.vertices, b.vertices), 1e-12);
+  EXPECT_LT(max_difference(a.vertices, b.vertices), 1e-12);
   EXPECT_FALSE(b.full_pose.defined());
   SmplxInput both = by_matrix;
   both.pose.jaw_pose = in.pose.jaw_pose;
@@ -271,8 +272,9 @@ TEST(BodySmplx, OffsetsMoveTheTemplateAndTheJoints) {
   in.vertex_offsets = 0.01 * at::randn({d.v_template.size(0), 3}, at::kDouble);
   in.joint_offsets = 0.01 * at::randn({2, 55, 3}, at::kDouble);
   const auto out = model->forward(in);
-  EXPECT_LT(max_error(out.vertices[1], d.v_template + in.vertex_offsets), 1e-12);
-  EXPECT_LT(max_error(out.joints, d.j_regressor.matmul(d.v_template + in.vertex_offsets) + in.joint_offsets), 1e-12);
+  EXPECT_LT(max_difference(out.vertices[1], d.v_template + in.vertex_offsets), 1e-12);
+  EXPECT_LT(max_difference(out.joints, d.j_regressor.matmul(d.v_template + in.vertex_offsets) + in.joint_offsets),
+            1e-12);
 }
 
 TEST(BodySmplx, ConvertingAModuleLeavesTheModelDataAndOtherModulesAlone) {
@@ -294,7 +296,8 @@ TEST(BodySmplx, ConvertingAModuleLeavesTheModelDataAndOtherModulesAlone) {
   }
   in.pose.global_orient = in.pose.jaw_pose = in.pose.leye_pose = in.pose.reye_pose = in.pose.right_hand_pose =
       in.pose.transl = at::Tensor();
-  EXPECT_LT(max_error(converted->forward(as_float).vertices.to(at::kDouble), untouched->forward(in).vertices), 1e-5);
+  EXPECT_LT(max_difference(converted->forward(as_float).vertices.to(at::kDouble), untouched->forward(in).vertices),
+            1e-5);
 }
 
 TEST(BodySmplx, BatchesAreIndependent) {
@@ -315,7 +318,7 @@ TEST(BodySmplx, BatchesAreIndependent) {
                                                                 {&in.pose.expression, &one.pose.expression},
                                                                 {&in.pose.transl, &one.pose.transl}})
       *target = source->narrow(0, b, 1);
-    EXPECT_LT(max_error(model->forward(one).vertices[0], all.vertices[b]), 1e-12);
+    EXPECT_LT(max_difference(model->forward(one).vertices[0], all.vertices[b]), 1e-12);
   }
 }
 
@@ -329,8 +332,8 @@ TEST(BodySmplx, TheSubdividedLayerEqualsTheLayerOfTheSubdividedModel) {
     const SmplxInput in = random_input(2, 10, e, 6, 0.4, 51);
     const auto a = on_the_fly->forward(in), b = precomputed->forward(in);
     EXPECT_EQ(on_the_fly->vertex_count(), precomputed->vertex_count());
-    EXPECT_LT(max_error(a.vertices, b.vertices), 1e-12);
-    EXPECT_LT(max_error(a.joints, b.joints), 1e-12);
+    EXPECT_LT(max_difference(a.vertices, b.vertices), 1e-12);
+    EXPECT_LT(max_difference(a.joints, b.joints), 1e-12);
     EXPECT_TRUE(on_the_fly->faces().equal(precomputed->faces()));
     if (!tiny) {
       EXPECT_TRUE(on_the_fly->uvs().equal(body::subdivide(d, levels).uvs));

@@ -13,17 +13,12 @@
 
 #include "feature_fusion/feature_fusion.h"
 #include "test_metrics_support.h"
+#include "tensor_compare.h"
 
 namespace sfgs::testing {
 namespace {
 
 using feature_fusion::MergeOrder;
-
-const auto kF64 = at::TensorOptions().dtype(at::kDouble);
-
-double max_difference(const at::Tensor& a, const at::Tensor& b) {
-  return a.numel() == 0 ? 0.0 : (a - b).abs().max().item<double>();
-}
 
 std::vector<at::Tensor> mix_inputs(int64_t rows, int64_t columns, uint64_t seed, double logit_scale = 3) {
   at::Generator g = at::detail::createCPUGenerator(seed);

@@ -20,6 +20,7 @@
 #include "model/mlp.h"
 #include "model/structure_offset.h"
 #include "test_files.h"
+#include "tensor_compare.h"
 
 namespace sfgs::testing {
 namespace {
@@ -83,13 +84,8 @@ TEST(GatheredMlp, RefusesBadInputsByName) {
   EXPECT_FALSE(gathered_mlp::fuses(rows, w)) << "CPU tensors take the reference";
 }
 
-const auto kF64 = at::TensorOptions().dtype(at::kDouble);
 // Every pre-activation is moved this far from ReLU's kink, so that no central difference crosses it.
 constexpr double kKinkMargin = 0.1;
-
-double max_difference(const at::Tensor& a, const at::Tensor& b) {
-  return a.numel() == 0 ? 0.0 : (a - b).abs().max().item<double>();
-}
 
 struct FirstLayerInputs {
   at::Tensor rows, group_rows, groups, weights;  // weights: the output's in the loss sum(out * weights)

@@ -14,14 +14,13 @@
 #include "group_norm/group_norm.h"
 #include "model/mlp.h"
 #include "test_files.h"
+#include "tensor_compare.h"
 
 namespace sfgs::testing {
 namespace {
 
 using group_norm::group_norm_relu;
 using group_norm::group_norm_relu_reference;
-
-const auto kF64 = at::TensorOptions().dtype(at::kDouble);
 
 struct Inputs {
   at::Tensor pre, bias, gamma, beta;
@@ -47,8 +46,6 @@ at::Tensor torch_composition(const Inputs& in, int64_t groups) {
   const at::Tensor h = in.bias.defined() ? in.pre + in.bias : in.pre;
   return at::relu(at::group_norm(h, groups, in.gamma, in.beta, kMlpGroupNormEpsilon));
 }
-
-double max_difference(const at::Tensor& a, const at::Tensor& b) { return (a - b).abs().max().item<double>(); }
 
 TEST(GroupNormRelu, MatchesTorchGroupNormWithGradients) {
   struct Case {

@@ -8,13 +8,10 @@
 
 #include "linear/linear.h"
 #include "test_metrics_support.h"
+#include "tensor_compare.h"
 
 namespace sfgs::testing {
 namespace {
-
-const auto kF64 = at::TensorOptions().dtype(at::kDouble);
-
-double max_difference(const at::Tensor& a, const at::Tensor& b) { return (a - b).abs().max().item<double>(); }
 
 TEST(Linear, EqualsAtLinearWithEveryGradient) {
   at::Generator g = at::detail::createCPUGenerator(3);

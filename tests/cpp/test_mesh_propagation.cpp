@@ -8,13 +8,10 @@
 #include "common/constants.h"
 #include "mesh_propagation/mesh_propagation.h"
 #include "mesh_propagation_cases.h"
+#include "tensor_compare.h"
 
 namespace sfgs::testing {
 namespace {
-
-double max_difference(const at::Tensor& a, const at::Tensor& b) {
-  return (a.to(at::kDouble) - b.to(at::kDouble)).abs().max().item<double>();
-}
 
 TEST(MeshPropagation, EqualsItsDefinitionOnABodyWithADetachedPart) {
   const PropagationCase c = body_with_detached_strip();

@@ -16,7 +16,7 @@ using metrics::ImageEvaluator;
 using metrics::Lpips;
 using metrics::LpipsNet;
 
-at::Tensor random_image(int64_t h, int64_t w, uint64_t seed) {
+at::Tensor random_float_image(int64_t h, int64_t w, uint64_t seed) {
   at::manual_seed(seed);
   return at::rand({h, w, 3}, at::kFloat);
 }
@@ -24,7 +24,7 @@ at::Tensor random_image(int64_t h, int64_t w, uint64_t seed) {
 Lpips random_squeeze() { return Lpips(LpipsNet::squeeze, random_lpips_weights(LpipsNet::squeeze, 21)); }
 
 TEST(MetricsComposite, WhiteOutsideTheMask) {
-  const at::Tensor image = random_image(6, 7, 1);
+  const at::Tensor image = random_float_image(6, 7, 1);
   at::Tensor mask = at::zeros({6, 7}, at::kBool);
   mask.slice(0, 1, 4).fill_(true);
   const at::Tensor out = metrics::composite_on_white(image, mask);
@@ -64,10 +64,10 @@ TEST(MetricsRoundTrip, RoundsHalfToEvenAndSaturatesAsOpenCv) {
 }
 
 TEST(MetricsEvaluator, DifferencesOutsideTheGroundTruthMaskDoNotCount) {
-  const at::Tensor target = random_image(32, 40, 2);
+  const at::Tensor target = random_float_image(32, 40, 2);
   at::Tensor mask = at::zeros({32, 40}, at::kFloat);
   mask.slice(0, 8, 24).slice(1, 10, 30).fill_(1.0f);
-  const at::Tensor prediction = at::where(mask.unsqueeze(-1) > 0, target, random_image(32, 40, 3));
+  const at::Tensor prediction = at::where(mask.unsqueeze(-1) > 0, target, random_float_image(32, 40, 3));
   ImageEvaluator evaluator(EvaluationOptions{}, random_squeeze());
   const metrics::FrameMetrics m = evaluator.add_frame(prediction, target, mask);
   EXPECT_TRUE(std::isinf(m.psnr) && m.psnr > 0);
@@ -104,7 +104,7 @@ TEST(MetricsEvaluator, AveragesPerFrameValues) {
   options.composite_on_white = false;
   options.ssim_border = metrics::SsimBorder::valid;
   ImageEvaluator evaluator(options, random_squeeze());
-  const at::Tensor target = (random_image(20, 24, 5) * 0.6 + 0.2).to(at::kDouble);
+  const at::Tensor target = (random_float_image(20, 24, 5) * 0.6 + 0.2).to(at::kDouble);
   at::manual_seed(6);
   const at::Tensor signs = at::where(at::rand_like(target) < 0.5, -at::ones_like(target), at::ones_like(target));
   double ssim_sum = 0;
@@ -127,8 +127,8 @@ TEST(MetricsEvaluator, TcLpipsComparesConsecutiveFramesWithTheGroundTruth) {
   ImageEvaluator evaluator(options, lpips);
   std::vector<at::Tensor> predictions, targets;
   for (uint64_t t = 0; t < 3; ++t) {
-    predictions.push_back(random_image(24, 28, 10 + t));
-    targets.push_back(random_image(24, 28, 20 + t));
+    predictions.push_back(random_float_image(24, 28, 10 + t));
+    targets.push_back(random_float_image(24, 28, 20 + t));
   }
   const metrics::FrameMetrics first = evaluator.add_frame(predictions[0], targets[0]);
   EXPECT_FALSE(first.tc_lpips.has_value()) << "the first frame of a sequence has no predecessor";
@@ -169,8 +169,8 @@ TEST(MetricsEvaluator, MissingWeightsReportLpipsUnavailableNeverZero) {
                                           "/lpips_alex.safetensors' does not exist"),
             std::string::npos)
       << evaluator.lpips_status();
-  const at::Tensor image = random_image(20, 20, 7);
-  const metrics::FrameMetrics m = evaluator.add_frame(image, random_image(20, 20, 8), at::ones({20, 20}));
+  const at::Tensor image = random_float_image(20, 20, 7);
+  const metrics::FrameMetrics m = evaluator.add_frame(image, random_float_image(20, 20, 8), at::ones({20, 20}));
   EXPECT_FALSE(m.lpips.has_value());
   EXPECT_TRUE(std::isfinite(m.psnr));
   const metrics::EvaluationSummary s = evaluator.summary();

@@ -17,7 +17,7 @@ using metrics::SsimBorder;
 
 constexpr SsimBorder kBorders[] = {SsimBorder::valid, SsimBorder::zero, SsimBorder::reflect};
 
-at::Tensor random_image(int64_t h, int64_t w, int64_t c, uint64_t seed) {
+at::Tensor random_channels(int64_t h, int64_t w, int64_t c, uint64_t seed) {
   at::manual_seed(seed);
   return at::rand({h, w, c}, at::kDouble);
 }
@@ -85,14 +85,14 @@ void expect_gradient_matches(const std::function<at::Tensor(const at::Tensor&)>&
 }
 
 TEST(MetricsPsnr, IdenticalImagesGivePositiveInfinity) {
-  const at::Tensor x = random_image(8, 9, 3, 1);
+  const at::Tensor x = random_channels(8, 9, 3, 1);
   const double value = metrics::psnr(x, x.clone()).item<double>();
   EXPECT_TRUE(std::isinf(value) && value > 0) << value;
 }
 
 TEST(MetricsPsnr, KnownNoiseLevel) {
   // +-delta with random signs: the MSE is exactly delta^2 whatever the pattern.
-  const at::Tensor x = random_image(16, 20, 3, 2) * 0.8 + 0.1;
+  const at::Tensor x = random_channels(16, 20, 3, 2) * 0.8 + 0.1;
   at::manual_seed(3);
   const at::Tensor signs = at::where(at::rand_like(x) < 0.5, -at::ones_like(x), at::ones_like(x));
   const double deltas[] = {0.05, 0.01};
@@ -106,7 +106,7 @@ TEST(MetricsPsnr, KnownNoiseLevel) {
 }
 
 TEST(MetricsSsim, IdenticalImagesGiveOneInEveryMode) {
-  const at::Tensor x = random_image(14, 15, 3, 4);
+  const at::Tensor x = random_channels(14, 15, 3, 4);
   for (SsimBorder border : kBorders) EXPECT_NEAR(metrics::ssim(x, x, border).item<double>(), 1.0, 1e-12);
 }
 
@@ -139,8 +139,8 @@ TEST(MetricsSsim, ConstantShiftOfARampMatchesTheHandComputedValue) {
 }
 
 TEST(MetricsSsim, EachBorderModeMatchesItsLoopDefinition) {
-  const at::Tensor x = random_image(13, 17, 2, 5);
-  const at::Tensor y = (x + 0.2 * random_image(13, 17, 2, 6)).clamp(0, 1);
+  const at::Tensor x = random_channels(13, 17, 2, 5);
+  const at::Tensor y = (x + 0.2 * random_channels(13, 17, 2, 6)).clamp(0, 1);
   for (SsimBorder border : kBorders)
     EXPECT_NEAR(metrics::ssim(x, y, border).item<double>(), loop_ssim(x, y, border), 1e-12) << int(border);
 }
@@ -151,9 +151,9 @@ TEST(MetricsSsim, BorderModesDifferOnlyByWhatTheyAverage) {
   // the sum of (1 - SSIM) is shared: (1 - valid)(H-10)(W-10) = (1 - full)HW. Valid, averaging fewer pixels,
   // is lower.
   const int64_t h = 30, w = 34;
-  const at::Tensor x = random_image(h, w, 3, 7);
+  const at::Tensor x = random_channels(h, w, 3, 7);
   at::Tensor y = x.clone();
-  y.slice(0, 13, 17).slice(1, 15, 19).copy_(random_image(4, 4, 3, 8));
+  y.slice(0, 13, 17).slice(1, 15, 19).copy_(random_channels(4, 4, 3, 8));
   const double valid = metrics::ssim(x, y, SsimBorder::valid).item<double>();
   const double zero = metrics::ssim(x, y, SsimBorder::zero).item<double>();
   const double reflect = metrics::ssim(x, y, SsimBorder::reflect).item<double>();
@@ -164,7 +164,7 @@ TEST(MetricsSsim, BorderModesDifferOnlyByWhatTheyAverage) {
 
 TEST(MetricsSsim, GradientAndNoGradientFiltersAgree) {
   // With a gradient the filter is a grouped conv2d, without one shifted in-place sums: same value either way.
-  const at::Tensor x = random_image(15, 19, 3, 30), y = random_image(15, 19, 3, 31);
+  const at::Tensor x = random_channels(15, 19, 3, 30), y = random_channels(15, 19, 3, 31);
   for (SsimBorder border : kBorders) {
     for (at::ScalarType dtype : {at::kDouble, at::kFloat}) {
       const at::Tensor a = x.to(dtype), b = y.to(dtype);
@@ -186,13 +186,13 @@ TEST(MetricsSsim, FlatImagesAgainstThemselvesScoreOneInFloat64) {
 }
 
 TEST(MetricsSsim, ValidModeOnTheSmallestImageUsesOneWindow) {
-  const at::Tensor x = random_image(11, 11, 1, 7), y = random_image(11, 11, 1, 8);
+  const at::Tensor x = random_channels(11, 11, 1, 7), y = random_channels(11, 11, 1, 8);
   EXPECT_NEAR(metrics::ssim(x, y, SsimBorder::valid).item<double>(), loop_ssim(x, y, SsimBorder::valid), 1e-12);
 }
 
 TEST(MetricsSsim, BatchedImagesGiveOneValueEach) {
-  const at::Tensor a = at::stack({random_image(12, 13, 3, 9), random_image(12, 13, 3, 10)});
-  const at::Tensor b = at::stack({random_image(12, 13, 3, 11), a[1]});
+  const at::Tensor a = at::stack({random_channels(12, 13, 3, 9), random_channels(12, 13, 3, 10)});
+  const at::Tensor b = at::stack({random_channels(12, 13, 3, 11), a[1]});
   const at::Tensor values = metrics::ssim(a, b, SsimBorder::zero);
   ASSERT_EQ(values.sizes(), at::IntArrayRef({2}));
   EXPECT_NEAR(values[0].item<double>(), metrics::ssim(a[0], b[0], SsimBorder::zero).item<double>(), 1e-14);
@@ -200,8 +200,8 @@ TEST(MetricsSsim, BatchedImagesGiveOneValueEach) {
 }
 
 TEST(MetricsGradients, SsimAndPsnrMatchFiniteDifferences) {
-  const at::Tensor x = random_image(13, 14, 2, 12);
-  const at::Tensor y = (x + 0.3 * (random_image(13, 14, 2, 13) - 0.5)).clamp(0.05, 0.95);
+  const at::Tensor x = random_channels(13, 14, 2, 12);
+  const at::Tensor y = (x + 0.3 * (random_channels(13, 14, 2, 13) - 0.5)).clamp(0.05, 0.95);
   for (SsimBorder border : kBorders) {
     const std::string mode = "SSIM mode " + std::to_string(int(border));
     expect_gradient_matches([&](const at::Tensor& p) { return metrics::ssim(p, y, border); }, x,
@@ -228,8 +228,8 @@ TEST(MetricsMaskIou, TwoRectangles) {
 }
 
 TEST(MetricsImageValidation, BadInputsAreClearErrors) {
-  const at::Tensor x = random_image(12, 12, 3, 14);
-  expect_error([&] { metrics::psnr(x, random_image(12, 13, 3, 1)); },
+  const at::Tensor x = random_channels(12, 12, 3, 14);
+  expect_error([&] { metrics::psnr(x, random_channels(12, 13, 3, 1)); },
                {"psnr: prediction and target must have the same shape",
                 "a Double tensor of shape [12, 12, 3] on cpu and a Double tensor of shape [12, 13, 3]"});
   expect_error([&] { metrics::ssim(x, x.to(at::kFloat), SsimBorder::valid); },

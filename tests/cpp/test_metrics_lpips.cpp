@@ -18,11 +18,6 @@ namespace {
 using metrics::Lpips;
 using metrics::LpipsNet;
 
-at::Tensor random_image(int64_t h, int64_t w, uint64_t seed, at::ScalarType dtype = at::kDouble) {
-  at::manual_seed(seed);
-  return at::rand({h, w, 3}, dtype);
-}
-
 TEST(MetricsLpips, DistanceProperties) {
   for (LpipsNet net : {LpipsNet::alex, LpipsNet::squeeze}) {
     const Lpips lpips(net, random_lpips_weights(net, 1));

@@ -10,16 +10,12 @@
 #include "metrics/image_metrics.h"
 #include "test_files.h"
 #include "train/region_metrics.h"
+#include "test_metrics_support.h"
 
 namespace sfgs::testing {
 namespace {
 
 using metrics::SsimBorder;
-
-at::Tensor random_image(int64_t h, int64_t w, uint64_t seed) {
-  at::manual_seed(seed);
-  return at::rand({h, w, 3}, at::kDouble);
-}
 
 TEST(MetricsRegions, SsimMapAveragesToSsimInEveryBorderMode) {
   const at::Tensor x = random_image(21, 25, 1), y = (x + 0.3 * random_image(21, 25, 2)).clamp(0, 1);

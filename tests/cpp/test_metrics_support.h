@@ -20,6 +20,12 @@
 
 namespace sfgs::testing {
 
+// A uniform random (h, w, 3) image in [0, 1) of `dtype`, the same for the same seed.
+inline at::Tensor random_image(int64_t h, int64_t w, uint64_t seed, at::ScalarType dtype = at::kDouble) {
+  at::manual_seed(seed);
+  return at::rand({h, w, 3}, dtype);
+}
+
 // $SFGS_SHARED_DIR, else <repository root>/../shared (the root found from this file's path).
 inline std::string shared_dir() {
   if (const char* dir = std::getenv("SFGS_SHARED_DIR"); dir && *dir) return dir;

@@ -7,11 +7,10 @@
 
 #include "mlp_inference_cases.h"
 #include "model/mlp.h"
+#include "tensor_compare.h"
 
 namespace sfgs::testing {
 namespace {
-
-double max_difference(const at::Tensor& a, const at::Tensor& b) { return (a - b).abs().max().item<double>(); }
 
 // A GroupNorm network of the avatar's kind, in float64, with a non-zero output layer.
 model::Mlp random_mlp(const std::vector<int64_t>& input_widths) {

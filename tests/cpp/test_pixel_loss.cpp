@@ -12,6 +12,7 @@
 
 #include "pixel_loss/pixel_loss.h"
 #include "test_files.h"
+#include "tensor_compare.h"
 
 namespace sfgs::testing {
 namespace {
@@ -19,16 +20,12 @@ namespace {
 using pixel_loss::pixel_losses;
 using pixel_loss::pixel_losses_reference;
 
-const auto kF64 = at::TensorOptions().dtype(at::kDouble);
-
 // Values in [-0.1, 1.1] (some clamped), a dark corner (the linear branches) and the rest in between.
 at::Tensor test_image(int64_t height, int64_t width, at::Generator& g) {
   at::Tensor image = at::rand({height, width, 3}, g, kF64) * 1.2 - 0.1;
   image.narrow(0, 0, height / 2).narrow(1, 0, width / 2).mul_(0.02);
   return image;
 }
-
-double max_difference(const at::Tensor& a, const at::Tensor& b) { return (a - b).abs().max().item<double>(); }
 
 TEST(PixelLoss, MatchesTheCompositionWithGradients) {
   at::Generator g = at::detail::createCPUGenerator(2);

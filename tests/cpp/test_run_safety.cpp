@@ -37,7 +37,7 @@ train::TrainConfig tiny_config() {
   return c;
 }
 
-data::Dataset tiny_video(const TempFolder& folder, const std::string& name = "video", uint64_t seed = 1) {
+data::Dataset six_frame_video(const TempFolder& folder, const std::string& name = "video", uint64_t seed = 1) {
   return testing::tiny_video(folder, 6, 24, name, seed);
 }
 
@@ -90,7 +90,7 @@ TEST(LossWatch, NamesTheFirstNonFiniteIterationAndTerm) {
 // the first non-finite loss, name it, log it, and leave the checkpoint it resumed from untouched.
 TEST(TrainerDivergence, StopsAtTheFirstNonFiniteLossAndKeepsTheLastGoodCheckpoint) {
   TempFolder folder;
-  const data::Dataset dataset = tiny_video(folder);
+  const data::Dataset dataset = six_frame_video(folder);
   const train::RunFolder run = paused_run(folder, dataset);
   {
     train::CheckpointReader reader(run.checkpoint_file());
@@ -125,7 +125,7 @@ TEST(TrainerDivergence, StopsAtTheFirstNonFiniteLossAndKeepsTheLastGoodCheckpoin
 
 TEST(Checkpoint, RefusesToWriteNonFiniteParameters) {
   TempFolder folder;
-  const data::Dataset dataset = tiny_video(folder);
+  const data::Dataset dataset = six_frame_video(folder);
   const train::TrainConfig config = tiny_config();
   model::Avatar avatar = train::make_avatar(config, dataset.betas, at::kCPU);
   auto optimizer = train::make_optimizer(avatar, config.schedule);
@@ -145,7 +145,7 @@ TEST(Checkpoint, RefusesToWriteNonFiniteParameters) {
 // Damage of every kind is refused by eval, render and export (all load through load_trained_avatar), naming what.
 TEST(Checkpoint, DamagedFilesAreRefusedByName) {
   TempFolder folder;
-  const data::Dataset dataset = tiny_video(folder);
+  const data::Dataset dataset = six_frame_video(folder);
   train::TrainConfig config = tiny_config();
   config.schedule.iterations = 1;
   const train::RunFolder run{folder / "run"};
@@ -202,7 +202,7 @@ TEST(Checkpoint, DamagedFilesAreRefusedByName) {
 // file of the run is touched.
 TEST(TrainerResume, RefusesUnsafeResumesAndRewritesNothing) {
   TempFolder folder;
-  const data::Dataset dataset = tiny_video(folder);
+  const data::Dataset dataset = six_frame_video(folder);
   const train::RunFolder run = paused_run(folder, dataset);
   const std::string checkpoint = file_bytes(run.checkpoint_file()), config = file_bytes(run.config_file()),
                     log = file_bytes(run.log_file());
@@ -214,7 +214,7 @@ TEST(TrainerResume, RefusesUnsafeResumesAndRewritesNothing) {
   expect_error_mentioning([&] { train::train_avatar(dataset, wider, run, resume); },
                           "keys that change the model, its objective or its data: avatar.plane_resolution (16 -> 32), "
                           "avatar.hidden_width (16 -> 32)");
-  const data::Dataset other = tiny_video(folder, "other", 7);
+  const data::Dataset other = six_frame_video(folder, "other", 7);
   expect_error_mentioning([&] { train::train_avatar(other, tiny_config(), run, resume); },
                           "is not the one this run was trained on");
   train::TrainConfig shorter = tiny_config();
@@ -251,7 +251,7 @@ TEST(TrainerResume, RefusesUnsafeResumesAndRewritesNothing) {
 // the resume drops those rows and the temporary, so each iteration is logged once.
 TEST(TrainerResume, RewindsTheLogAndRemovesWhatAKilledRunLeft) {
   TempFolder folder;
-  const data::Dataset dataset = tiny_video(folder);
+  const data::Dataset dataset = six_frame_video(folder);
   const train::RunFolder run = paused_run(folder, dataset);
   {
     std::ofstream log(run.log_file(), std::ios::app);
@@ -290,7 +290,7 @@ TEST(FolderLock, OneHolderPerFolderAndPurposeNamedWhenRefused) {
     expect_error_mentioning([&] { FolderLock second(run, "train"); },
                             "is in use by another sfgs train (pid " + std::to_string(::getpid()) + ", `");
     // The trainer takes the same lock: a second train into the folder is refused before it writes anything.
-    const data::Dataset dataset = tiny_video(folder);
+    const data::Dataset dataset = six_frame_video(folder);
     expect_error_mentioning([&] { train::train_avatar(dataset, tiny_config(), train::RunFolder{run}, quiet()); },
                             "is in use by another sfgs train");
     EXPECT_FALSE(fs::exists(train::RunFolder{run}.config_file()));

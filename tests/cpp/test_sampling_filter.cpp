@@ -22,7 +22,7 @@ constexpr double kInfinity = std::numeric_limits<double>::infinity();
 
 // A camera 3 m in front of the body (+z), looking back at it with y up in the image, the whole body in view; `scale`
 // times the pixels.
-Camera front_camera(int64_t scale = 1) {
+Camera whole_body_camera(int64_t scale = 1) {
   Camera c = Camera::looking_forward(30.0 * double(scale), 48 * scale, 64 * scale);
   c.world_to_camera = {1, 0, 0, 0, 0, -1, 0, 0.3, 0, 0, -1, 3, 0, 0, 0, 1};
   return c;
@@ -104,11 +104,12 @@ TEST(SamplingFilter, TheAnimatorIsUnchangedAtTheTrainingsSamplingAndCoveredAtTwi
   {
     at::NoGradGuard no_grad;
     avatar->eval();
-    record = model::sampling_record(model::frame_footprint(avatar->forward(pose, std::nullopt).means, front_camera()));
+    record =
+        model::sampling_record(model::frame_footprint(avatar->forward(pose, std::nullopt).means, whole_body_camera()));
   }
   const auto render = [&](const at::Tensor& r, int64_t scale) {
     avatar->set_sampling_record(r);
-    animate::Animator animator(avatar, front_camera(scale), background);
+    animate::Animator animator(avatar, whole_body_camera(scale), background);
     animator.render(pose);
     return std::pair{animator.latest().image.clone(), animator.latest().alpha.clone()};
   };

@@ -6,6 +6,7 @@
 #include <torch/csrc/autograd/autograd.h>
 
 #include "skin/skin.h"
+#include "tensor_compare.h"
 
 namespace sfgs::testing {
 namespace {
@@ -33,8 +34,6 @@ Scene random_scene(int64_t n, int64_t j, at::ScalarType dtype, uint64_t seed) {
   s.rest = at::randn({n, 3}, options);
   return s;
 }
-
-double max_difference(const at::Tensor& a, const at::Tensor& b) { return (a - b).abs().max().item<double>(); }
 
 TEST(SkinOp, MatchesTheLibTorchReferenceInFloat64AndFloat32) {
   for (const auto dtype : {at::kDouble, at::kFloat}) {

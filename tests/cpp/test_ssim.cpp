@@ -13,14 +13,13 @@
 #include "metrics/image_metrics.h"
 #include "ssim/ssim.h"
 #include "test_metrics_support.h"
+#include "tensor_compare.h"
 
 namespace sfgs::testing {
 namespace {
 
 using metrics::SsimBorder;
 using ssim::fused_ssim;
-
-const auto kF64 = at::TensorOptions().dtype(at::kDouble);
 
 struct ImagePair {
   at::Tensor prediction, target;
@@ -46,8 +45,6 @@ ImagePair structured_pair(int64_t h, int64_t w) {
 double reference_ssim(const ImagePair& p) {
   return metrics::ssim(p.prediction, p.target, SsimBorder::zero).item<double>();
 }
-
-double max_difference(const at::Tensor& a, const at::Tensor& b) { return (a - b).abs().max().item<double>(); }
 
 // The gradient of `scale` times the mean SSIM in the prediction, by the fused op or by autograd of the reference.
 at::Tensor fused_gradient(const ImagePair& p, double scale) {

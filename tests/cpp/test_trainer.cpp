@@ -29,7 +29,7 @@ namespace {
 constexpr double kMinimumPsnrGain = 0.3;   // dB on the training frames
 constexpr double kMaximumLossRatio = 0.7;  // mean loss of the last five steps over the first five
 
-data::Dataset tiny_video(const TempFolder& folder) { return testing::tiny_video(folder, 10, 32); }
+data::Dataset ten_frame_video(const TempFolder& folder) { return testing::tiny_video(folder, 10, 32); }
 
 // Every parameter and buffer of a run's checkpoint, by name ("avatar.<module path>"), with its top-level tensors.
 // (LibTorch names the optimiser's state by parameter address, which differs between processes; a lost or wrong
@@ -77,7 +77,7 @@ double training_psnr(const data::Dataset& dataset, const train::RunFolder& run) 
 // from rising.
 TEST(Trainer, TrainingLowersTheLossAndRaisesTheTrainingPsnr) {
   TempFolder folder;
-  const data::Dataset dataset = tiny_video(folder);
+  const data::Dataset dataset = ten_frame_video(folder);
   train::TrainConfig config = tiny_train_config();
   config.schedule.iterations = 40;
   config.schedule.learning_rate = config.schedule.colour_learning_rate = 3e-3;
@@ -112,7 +112,7 @@ TEST(Trainer, TrainingLowersTheLossAndRaisesTheTrainingPsnr) {
 
 TEST(Trainer, ResumedRunEqualsUninterruptedRun) {
   TempFolder folder;
-  const data::Dataset dataset = tiny_video(folder);
+  const data::Dataset dataset = ten_frame_video(folder);
   const train::TrainConfig config = tiny_train_config();
   train::TrainOptions quiet;
   quiet.progress = false;
@@ -163,7 +163,7 @@ TEST(Trainer, ResumedRunEqualsUninterruptedRun) {
 
 TEST(Trainer, ErrorCurveHoldsEveryValidation) {
   TempFolder folder;
-  const data::Dataset dataset = tiny_video(folder);
+  const data::Dataset dataset = ten_frame_video(folder);
   train::TrainOptions quiet;
   quiet.progress = false;
   const train::RunFolder run{folder / "run"};
@@ -196,7 +196,7 @@ TEST(Trainer, ErrorCurveHoldsEveryValidation) {
 
 TEST(Trainer, NeverOverwritesARunUnasked) {
   TempFolder folder;
-  const data::Dataset dataset = tiny_video(folder);
+  const data::Dataset dataset = ten_frame_video(folder);
   train::TrainConfig config = tiny_train_config();
   config.schedule.iterations = 1;
   train::TrainOptions quiet;

@@ -22,16 +22,13 @@
 #include "metrics/image_metrics.h"
 #include "skin/skin.h"
 #include "test_avatar_utils.h"
+#include "tensor_compare.h"
 
 namespace sfgs::testing {
 namespace {
 
 #define SKIP_WITHOUT_CUDA() \
   if (!torch::cuda::is_available()) GTEST_SKIP() << "no CUDA device"
-
-double max_difference(const at::Tensor& a, const at::Tensor& b) {
-  return (a.cpu() - b.cpu()).abs().max().item<double>();
-}
 
 void expect_skinning_parity(at::ScalarType dtype, int64_t n, double bound) {
   at::manual_seed(7);

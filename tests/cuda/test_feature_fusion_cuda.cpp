@@ -11,16 +11,12 @@
 #include <torch/cuda.h>
 
 #include "feature_fusion/feature_fusion.h"
+#include "tensor_compare.h"
 
 namespace sfgs::testing {
 namespace {
 
 using feature_fusion::MergeOrder;
-
-double max_difference(const at::Tensor& a, const at::Tensor& b) {
-  if (a.numel() == 0) return 0.0;
-  return (a.to(at::kCPU, at::kDouble) - b.to(at::kCPU, at::kDouble)).abs().max().item<double>();
-}
 
 // The mix and its gradients (logits, a, b) of `inputs` (float64 CPU) run on `device` in `dtype`, as float64 CPU.
 // `offset` > 0 starts every array that many values into a larger one (no float4 path).

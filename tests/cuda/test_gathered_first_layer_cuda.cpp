@@ -13,17 +13,13 @@
 #include <torch/cuda.h>
 
 #include "gathered_mlp/gathered_mlp.h"
+#include "tensor_compare.h"
 
 namespace sfgs::testing {
 namespace {
 
-const auto kF64 = at::TensorOptions().dtype(at::kDouble);
 const auto kLongs = at::TensorOptions().dtype(at::kLong);
 constexpr double kSingleTolerance = 1e-5;  // float32 against float64, relative to the largest value
-
-double max_difference(const at::Tensor& a, const at::Tensor& b) {
-  return a.numel() == 0 ? 0.0 : (a - b).abs().max().item<double>();
-}
 
 double largest(const at::Tensor& t) { return t.numel() == 0 ? 0.0 : t.abs().max().item<double>(); }
 

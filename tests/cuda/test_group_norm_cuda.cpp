@@ -11,6 +11,7 @@
 
 #include "common/constants.h"
 #include "group_norm/group_norm.h"
+#include "tensor_compare.h"
 
 namespace sfgs::testing {
 namespace {
@@ -42,8 +43,6 @@ Result run_on(at::Device device, at::ScalarType dtype, int64_t rows, int64_t cha
   for (at::Tensor& t : r.grads) t = t.to(at::kCPU, at::kDouble);
   return r;
 }
-
-double max_difference(const at::Tensor& a, const at::Tensor& b) { return (a - b).abs().max().item<double>(); }
 
 void expect_parity(int64_t rows, int64_t channels, int64_t groups, bool bias, double tolerance) {
   const Result cpu = run_on(at::kCPU, at::kDouble, rows, channels, groups, bias, 3);

@@ -11,13 +11,10 @@
 #include "common/constants.h"
 #include "mesh_propagation/mesh_propagation.h"
 #include "mesh_propagation_cases.h"
+#include "tensor_compare.h"
 
 namespace sfgs::testing {
 namespace {
-
-double max_difference(const at::Tensor& a, const at::Tensor& b) {
-  return (a.to(at::kCPU, at::kDouble) - b.to(at::kCPU, at::kDouble)).abs().max().item<double>();
-}
 
 TEST(MeshPropagationCuda, MatchesTheCpuBackend) {
   if (!torch::cuda::is_available()) GTEST_SKIP() << "no CUDA device";

@@ -11,6 +11,7 @@
 #include <torch/cuda.h>
 
 #include "pixel_loss/pixel_loss.h"
+#include "tensor_compare.h"
 
 namespace sfgs::testing {
 namespace {
@@ -28,7 +29,6 @@ std::pair<at::Tensor, at::Tensor> run_on(at::Device device, at::ScalarType dtype
   return {means.detach().to(at::kCPU, at::kDouble), grad.to(at::kCPU, at::kDouble)};
 }
 
-double max_difference(const at::Tensor& a, const at::Tensor& b) { return (a - b).abs().max().item<double>(); }
 // Relative to the largest value of b.
 double relative_difference(const at::Tensor& a, const at::Tensor& b) {
   return max_difference(a, b) / b.abs().max().item<double>();

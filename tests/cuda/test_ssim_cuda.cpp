@@ -10,6 +10,7 @@
 #include <torch/cuda.h>
 
 #include "ssim/ssim.h"
+#include "tensor_compare.h"
 
 namespace sfgs::testing {
 namespace {
@@ -32,8 +33,6 @@ Result run_on(at::Device device, at::ScalarType dtype, int64_t h, int64_t w, int
   const at::Tensor gradient = torch::autograd::grad({value}, {x})[0];
   return {value.item<double>(), gradient.to(at::kCPU, at::kDouble)};
 }
-
-double max_difference(const at::Tensor& a, const at::Tensor& b) { return (a - b).abs().max().item<double>(); }
 
 void expect_parity(int64_t h, int64_t w, int64_t c) {
   const Result cpu = run_on(at::kCPU, at::kDouble, h, w, c, 3);
