@@ -4,9 +4,9 @@
 // CUDA: graph frames are also timed per back-facing cull cosine (--cull-cosines, default 0.3,0.5,0.7,1; 1 culls
 // nothing), each with the lowest PSNR of its frames against the exact render (the LibTorch float32 structure
 // offset, nothing culled): the cull's run time against its error. And per forward-blend segment length
-// (--blend-segments, default 0,128,192,256,384,512; 0 never cuts a tile's run; csrc/cuda/blend_forward.cu) and per
-// cut share (--blend-cut-shares, default 0,0.5,1,1.5,2,4: runs longer than that many times the intersections per
-// resident block are cut; 0 cuts every run longer than a segment; kBlendCutShare) the median graph frame and the
+// (--blend-segments, default 0,128,192,256,384,512; 0 never cuts a tile's run; csrc/ops/splat/cuda/blend_forward.cu)
+// and per cut share (--blend-cut-shares, default 0,0.5,1,1.5,2,4: runs longer than that many times the intersections
+// per resident block are cut; 0 cuts every run longer than a segment; kBlendCutShare) the median graph frame and the
 // largest difference to the uncut image.
 // Usage: bench_animate [--device cpu|cuda] [--shared DIR] [--run DIR] [--levels L] [--sizes 800x1200,540x960]
 //                      [--frames N] [--cull-cosines C,...] [--blend-segments L,...] [--blend-cut-shares S,...]
@@ -40,7 +40,7 @@
 #include "common/host_memory.h"
 #ifdef SFGS_BENCH_CUDA_KERNELS
 #include "common/constants.h"
-#include "cuda/diagnostics.h"
+#include "ops/splat/cuda/diagnostics.h"
 #endif
 #include "metrics/image_metrics.h"
 #include "model/observation_prior.h"

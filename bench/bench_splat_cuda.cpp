@@ -27,9 +27,9 @@
 #include <torch/csrc/autograd/autograd.h>
 #include <torch/cuda.h>
 
-#include "cuda/diagnostics.h"
-#include "splat/backend.h"
-#include "splat/splat.h"
+#include "ops/splat/cuda/diagnostics.h"
+#include "ops/splat/backend.h"
+#include "ops/splat/splat.h"
 
 namespace {
 

@@ -10,7 +10,7 @@
 #if defined(SFGS_WITH_CUDA)
 #include <nvtx3/nvToolsExt.h>
 
-#include "cuda/diagnostics.h"
+#include "ops/splat/cuda/diagnostics.h"
 #endif
 
 namespace sfgs::bench {

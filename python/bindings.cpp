@@ -12,7 +12,7 @@
 #include "data/motion_file.h"
 #include "model/sampling_filter.h"
 #include "scene/builtin_scene.h"
-#include "splat/splat.h"
+#include "ops/splat/splat.h"
 #include "train/run_folder.h"
 #include "python_values.h"
 

@@ -8,7 +8,7 @@
 #include <torch/extension.h>
 
 #include "data/dataset.h"
-#include "splat/splat.h"
+#include "ops/splat/splat.h"
 
 namespace sfgs::python {
 

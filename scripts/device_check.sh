@@ -124,9 +124,9 @@ set(CMAKE_CXX_STANDARD 17)
 set(CMAKE_CUDA_STANDARD 17)
 set(CMAKE_CUDA_ARCHITECTURES 90)
 find_package(Torch REQUIRED)
-file(GLOB SPLAT_SOURCES $root/csrc/splat/*.cpp $root/csrc/cpu/*.cpp $root/csrc/cuda/*.cu
-  $root/csrc/common/tensor_description.cpp)
-add_library(sfgs_core STATIC \${SPLAT_SOURCES} $root/csrc/cuda/splat_cuda.cpp)
+file(GLOB SPLAT_SOURCES $root/csrc/ops/splat/*.cpp $root/csrc/ops/splat/cpu/*.cpp $root/csrc/ops/splat/cuda/*.cu
+  $root/csrc/ops/splat/cuda/*.cpp $root/csrc/common/tensor_description.cpp)
+add_library(sfgs_core STATIC \${SPLAT_SOURCES})
 target_include_directories(sfgs_core PUBLIC $root/csrc $root/.device/include)
 target_link_libraries(sfgs_core PUBLIC \${TORCH_LIBRARIES})
 target_compile_options(sfgs_core PRIVATE "\$<\$<COMPILE_LANGUAGE:CUDA>:--expt-relaxed-constexpr;-diag-suppress=20012;-lineinfo>")

@@ -1,4 +1,4 @@
-// WebGL2 splatting with sfgs::render's arithmetic (csrc/splat/pair_math.h): each Gaussian's EWA projection with the
+// WebGL2 splatting with sfgs::render's arithmetic (csrc/ops/splat/pair_math.h): each Gaussian's EWA projection with the
 // field-of-view guard and the low-pass dilation, an instanced quad over its alpha >= min_alpha ellipse, alpha =
 // min(max_alpha, opacity exp(-sigma)) at the pixel centres, premultiplied back to front into a float render target
 // (so no 8-bit rounding accumulates), then presented rounded to 8 bits as the C++ PNGs are. The blend has no early

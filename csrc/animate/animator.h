@@ -6,7 +6,7 @@
 // pose; the camera's placement and the time), one launch, and one wait for the image at the end.
 //
 // The camera's placement (world_to_camera) is an input of the recorded frame, not part of it: the posed Gaussians
-// are moved into the camera's frame on the device (splat/camera_frame.h, as the training step does) and splatted by
+// are moved into the camera's frame on the device (ops/splat/camera_frame.h, as the training step does) and splatted by
 // a camera at the origin with the same intrinsics,
 // so a moving camera (every frame of a video or a dataset) replays the same graph. A new intrinsic matrix, image
 // size, pose layout, or a change between replayed (timed) and new-motion frames records again.
@@ -27,9 +27,9 @@
 #include "body/smplx_pose.h"
 #include "common/constants.h"
 #include "model/avatar.h"
-#include "splat/camera_frame.h"
-#include "splat/growing_budget.h"
-#include "splat/splat.h"
+#include "ops/splat/camera_frame.h"
+#include "ops/splat/growing_budget.h"
+#include "ops/splat/splat.h"
 
 namespace sfgs {
 class DeviceGraph;

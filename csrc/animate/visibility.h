@@ -10,7 +10,7 @@
 // docs/performance.md has the figures.
 #include <ATen/core/Tensor.h>
 
-#include "splat/splat.h"
+#include "ops/splat/splat.h"
 
 namespace sfgs::animate {
 

@@ -18,7 +18,7 @@
 
 #include "common/host_memory.h"
 #include "cli/commands.h"
-#include "splat/splat.h"
+#include "ops/splat/splat.h"
 
 namespace {
 

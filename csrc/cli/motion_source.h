@@ -10,7 +10,7 @@
 #include "data/dataset.h"
 #include "data/motion_file.h"
 #include "model/avatar.h"
-#include "splat/splat.h"
+#include "ops/splat/splat.h"
 
 namespace sfgs::cli {
 

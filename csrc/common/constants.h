@@ -44,8 +44,8 @@ inline constexpr double kMinTransmittance = 1e-4;
 // Side of the square screen tiles (pixels). Kernels assume 16 x 16 = 256 threads per tile.
 inline constexpr int kTileSize = 16;
 // The CUDA forward blend cuts a tile's run longer than this many intersections into segments of this length, each
-// composited by its own block and joined by the tile's last segment to finish (csrc/cuda/blend_forward.cu), so that
-// the face's and hands' runs of thousands spread over many blocks. Measured on the avatars (bench_animate
+// composited by its own block and joined by the tile's last segment to finish (csrc/ops/splat/cuda/blend_forward.cu),
+// so that the face's and hands' runs of thousands spread over many blocks. Measured on the avatars (bench_animate
 // --blend-segments, docs/performance.md): shorter is faster down to 256 (one batch of the block), 2048 gains nothing.
 inline constexpr long kBlendSegmentLength = 256;
 // Largest accepted image side (pixels); larger images are refused with a clear error.
@@ -82,7 +82,7 @@ inline constexpr int kSsimWindowSize = 11;
 inline constexpr double kSsimSigma = 1.5;
 inline constexpr double kSsimK1 = 0.01;
 inline constexpr double kSsimK2 = 0.03;
-// The fused SSIM's CUDA kernels (ssim/ssim.h) filter tiles of 32 columns and this many rows of one channel in
+// The fused SSIM's CUDA kernels (ops/ssim/ssim.h) filter tiles of 32 columns and this many rows of one channel in
 // shared memory; a tile reads its rows plus 10 of halo, so taller tiles re-read less, and 16 keeps a float32 block
 // within 26 KiB. float64 (the parity tests) takes half as many rows, within the 48 KiB of static shared memory.
 inline constexpr int kSsimTileRows = 16;
@@ -126,8 +126,8 @@ inline constexpr double kMinHandPoseBasisNorm = 1e-6;
 inline constexpr double kMinCheekPuffRadialLength = 1e-9;
 
 // ---- avatar model (docs/avatar.md) ------------------------------------------------------------------------
-// The planes' backward (plane_sampling/plane_sampling.h) sums the reads of one texel in chunks of at most this many,
-// one warp each: a texel thousands of points read does not hold up the kernel (the last warp) behind it.
+// The planes' backward (ops/plane_sampling/plane_sampling.h) sums the reads of one texel in chunks of at most this
+// many, one warp each: a texel thousands of points read does not hold up the kernel (the last warp) behind it.
 inline constexpr long kPlaneReadChunk = 32;
 // The feature planes are read at the points' positions in SFGS's star ("big") pose: both hips rotated this far
 // (radians) about the forward axis, so the inner thighs no longer share plane texels.
@@ -141,7 +141,7 @@ inline constexpr double kPlaneInitStd = 0.1;
 // GroupNorm of the authors' head MLPs: channel groups, and the epsilon of torch.nn.GroupNorm.
 inline constexpr long kMlpGroupNormGroups = 4;
 inline constexpr double kMlpGroupNormEpsilon = 1e-5;
-// The fused GroupNorm + ReLU kernel (group_norm/group_norm.h) keeps a row in one warp's registers, at most 8 values
+// The fused GroupNorm + ReLU kernel (ops/group_norm/group_norm.h) keeps a row in one warp's registers, at most 8 values
 // a lane: the avatar's widths (64-256) fit; wider rows take the LibTorch composition.
 inline constexpr long kGroupNormMaxChannels = 256;
 // CIELAB's f(t): the cube root above (6/29)^3, its tangent-like linear branch at and below (the standard's).

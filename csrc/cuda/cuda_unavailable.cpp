@@ -3,17 +3,12 @@
 #include <c10/util/Exception.h>
 
 #include "body/body_backend.h"
-#include "feature_fusion/backend.h"
-#include "gathered_mlp/backend.h"
-#include "group_norm/backend.h"
-#include "linear/backend.h"
-#include "mesh_propagation/backend.h"
-#include "mlp_inference/backend.h"
-#include "pixel_loss/backend.h"
-#include "plane_sampling/backend.h"
-#include "skin/backend.h"
-#include "ssim/backend.h"
-#include "splat/backend.h"
+#include "ops/feature_fusion/backend.h"
+#include "ops/gathered_mlp/backend.h"
+#include "ops/mesh_propagation/backend.h"
+#include "ops/mlp_inference/backend.h"
+#include "ops/plane_sampling/backend.h"
+#include "ops/splat/backend.h"
 
 namespace sfgs::splat::cuda {
 
@@ -29,20 +24,6 @@ InputGradients backward(const SplatInputs&, const CameraSpec&, const BackendSett
 }
 
 }  // namespace sfgs::splat::cuda
-
-namespace sfgs::skin::cuda {
-
-bool available() { return false; }
-void forward(const SkinArrays<float>&, at::Device) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
-void forward(const SkinArrays<double>&, at::Device) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
-void backward(const SkinGradientArrays<float>&, at::Device) {
-  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
-}
-void backward(const SkinGradientArrays<double>&, at::Device) {
-  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
-}
-
-}  // namespace sfgs::skin::cuda
 
 namespace sfgs::gathered_mlp::cuda {
 
@@ -87,54 +68,6 @@ void vertex_normals(const VertexNormalArrays&, at::Device) {
 
 }  // namespace sfgs::body::cuda
 
-namespace sfgs::group_norm::cuda {
-
-bool available() { return false; }
-bool supports(int64_t, int64_t) { return false; }
-int64_t partial_rows(int64_t, at::Device) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
-void forward(const GroupNormArrays<float>&, at::Device) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
-void forward(const GroupNormArrays<double>&, at::Device) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
-void backward(const GroupNormGradientArrays<float>&, at::Device) {
-  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
-}
-void backward(const GroupNormGradientArrays<double>&, at::Device) {
-  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
-}
-
-}  // namespace sfgs::group_norm::cuda
-
-namespace sfgs::ssim::cuda {
-
-bool available() { return false; }
-int64_t partial_sums(int64_t, int64_t, int64_t, at::ScalarType) {
-  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
-}
-void forward(const SsimArrays<float>&, at::Device) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
-void forward(const SsimArrays<double>&, at::Device) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
-void backward(const SsimGradientArrays<float>&, at::Device) {
-  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
-}
-void backward(const SsimGradientArrays<double>&, at::Device) {
-  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
-}
-
-}  // namespace sfgs::ssim::cuda
-
-namespace sfgs::pixel_loss::cuda {
-
-bool available() { return false; }
-int64_t partials(int, int) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
-void forward(const PixelLossArrays<float>&, at::Device) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
-void forward(const PixelLossArrays<double>&, at::Device) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
-void backward(const PixelLossGradientArrays<float>&, at::Device) {
-  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
-}
-void backward(const PixelLossGradientArrays<double>&, at::Device) {
-  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
-}
-
-}  // namespace sfgs::pixel_loss::cuda
-
 namespace sfgs::plane_sampling::cuda {
 
 void gradient(const PlaneGradientArrays<float>&, at::Device) {
@@ -167,13 +100,6 @@ void gather_rows(const RowGatherArrays<double>&, at::Device) {
 }
 
 }  // namespace sfgs::feature_fusion::cuda
-
-namespace sfgs::linear::cuda {
-
-bool available() { return false; }
-at::Tensor column_sum(const at::Tensor&) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
-
-}  // namespace sfgs::linear::cuda
 
 namespace sfgs::mesh_propagation::cuda {
 

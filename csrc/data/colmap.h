@@ -5,7 +5,7 @@
 #include <string>
 #include <vector>
 
-#include "splat/splat.h"
+#include "ops/splat/splat.h"
 
 namespace sfgs::data {
 

@@ -11,7 +11,7 @@
 
 #include "body/smplx_pose.h"
 #include "data/image_io.h"
-#include "splat/splat.h"
+#include "ops/splat/splat.h"
 
 namespace sfgs::data {
 

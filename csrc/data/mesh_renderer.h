@@ -6,7 +6,7 @@
 
 #include <ATen/core/Tensor.h>
 
-#include "splat/splat.h"
+#include "ops/splat/splat.h"
 
 namespace sfgs::data {
 

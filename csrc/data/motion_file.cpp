@@ -16,7 +16,7 @@
 #include "data/json_values.h"
 #include "data/neuman.h"
 #include "io/npz.h"
-#include "splat/splat.h"
+#include "ops/splat/splat.h"
 
 namespace sfgs::data {
 namespace fs = std::filesystem;

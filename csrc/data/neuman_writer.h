@@ -10,7 +10,7 @@
 #include <vector>
 
 #include "body/smplx_pose.h"
-#include "splat/splat.h"
+#include "ops/splat/splat.h"
 
 namespace sfgs::data {
 

@@ -7,7 +7,7 @@
 #include <ATen/core/Generator.h>
 #include <ATen/core/Tensor.h>
 
-#include "splat/splat.h"
+#include "ops/splat/splat.h"
 
 namespace sfgs::data {
 

@@ -10,7 +10,7 @@
 
 #include "common/constants.h"
 #include "metrics/image_layout.h"
-#include "ssim/ssim_math.h"
+#include "ops/ssim/ssim_math.h"
 
 namespace sfgs::metrics {
 namespace {

@@ -18,7 +18,7 @@
 #include "common/stage_timer.h"
 #include "model/inference_cache.h"
 #include "model/observation_prior.h"
-#include "skin/skin.h"
+#include "ops/skin/skin.h"
 
 namespace sfgs::model {
 

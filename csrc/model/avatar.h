@@ -29,8 +29,8 @@
 #include "model/heads.h"
 #include "model/shading.h"
 #include "model/structure_offset.h"
-#include "skin/skin.h"
-#include "splat/splat.h"
+#include "ops/skin/skin.h"
+#include "ops/splat/splat.h"
 
 namespace sfgs::mesh_propagation {
 struct Plan;

@@ -3,7 +3,7 @@
 // template is the subject's shape and whose blend shapes are the expressions — midpoint-subdivided, with one
 // Gaussian per subdivided vertex. The canonical frame is the model's rest pose (the T-pose): there the expression
 // blend shapes and pose correctives are defined, and the mesh's own skinning transforms, applied to any canonical
-// point (the fused skinning op, skin/skin.h), carry the Gaussians into the frame. Beside the mesh it keeps what the
+// point (the fused skinning op, ops/skin/skin.h), carry the Gaussians into the frame. Beside the mesh it keeps what the
 // avatar needs per point: part labels, dominant joints, initial scales and the star pose the feature planes are read
 // in.
 #include <cstdint>
@@ -14,7 +14,7 @@
 #include "body/skeleton.h"
 #include "body/skinned_mesh.h"
 #include "body/smplx.h"
-#include "skin/skin.h"
+#include "ops/skin/skin.h"
 
 namespace sfgs::model {
 

@@ -6,13 +6,13 @@
 //
 // The hexplane's XY, XZ and YZ planes do not depend on time, and the linear map is a sum over its input planes,
 // so the spatial half (and the gate's triplane half) is computed once per point set: StaticFeatures, cacheable.
-// The gate's mix and the merge of body and face rows are single fused passes (feature_fusion/feature_fusion.h).
+// The gate's mix and the merge of body and face rows are single fused passes (ops/feature_fusion/feature_fusion.h).
 #include <cstdint>
 
 #include <torch/nn/module.h>
 #include <torch/nn/pimpl.h>
 
-#include "feature_fusion/feature_fusion.h"
+#include "ops/feature_fusion/feature_fusion.h"
 #include "model/mlp.h"
 #include "model/planes.h"
 

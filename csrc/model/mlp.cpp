@@ -10,8 +10,8 @@
 
 #include "body/tensor_checks.h"
 #include "common/constants.h"
-#include "group_norm/group_norm.h"
-#include "linear/linear.h"
+#include "ops/group_norm/group_norm.h"
+#include "ops/linear/linear.h"
 
 namespace sfgs::model {
 namespace {

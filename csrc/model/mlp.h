@@ -9,8 +9,8 @@
 #include <torch/nn/module.h>
 #include <torch/nn/pimpl.h>
 
-#include "gathered_mlp/gathered_mlp.h"
-#include "mlp_inference/mlp_inference.h"
+#include "ops/gathered_mlp/gathered_mlp.h"
+#include "ops/mlp_inference/mlp_inference.h"
 
 namespace sfgs::model {
 
@@ -20,7 +20,7 @@ struct MlpShape {
   int64_t output_width = 0;            // no hidden layers: the first layer is the (linear) output
   bool group_norm = false;             // GroupNorm(kMlpGroupNormGroups) before every ReLU, as the authors' heads
                                        // (fused with its affine map, the ReLU and the layer's bias:
-                                       // group_norm/group_norm.h)
+                                       // ops/group_norm/group_norm.h)
   bool zero_output = false;            // the output layer starts at zero, so the network starts as the constant 0
 };
 

@@ -5,7 +5,7 @@
 
 #include "body/tensor_checks.h"
 #include "common/constants.h"
-#include "splat/camera_frame.h"
+#include "ops/splat/camera_frame.h"
 
 namespace sfgs::model {
 

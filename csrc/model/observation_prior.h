@@ -6,8 +6,8 @@
 #include <ATen/core/Tensor.h>
 
 #include "body/mesh.h"
-#include "mesh_propagation/mesh_propagation.h"
-#include "splat/splat.h"
+#include "ops/mesh_propagation/mesh_propagation.h"
+#include "ops/splat/splat.h"
 
 namespace sfgs::model {
 
@@ -22,7 +22,7 @@ at::Tensor frame_observation(const at::Tensor& means, const at::Tensor& normals,
 // kWellObservedFraction on.
 at::Tensor observation_confidence(const at::Tensor& observed_fraction);
 
-// The propagation below as a fixed plan (mesh_propagation/mesh_propagation.h): which points the front from the
+// The propagation below as a fixed plan (ops/mesh_propagation/mesh_propagation.h): which points the front from the
 // well-observed surface reaches in which ring depends on the confidence alone, so it is found once per observation
 // record (on the host) and every frame applies it without a host read (a CUDA graph records the application).
 using PropagationPlan = mesh_propagation::Plan;

@@ -10,7 +10,7 @@
 #include <torch/nn/module.h>
 #include <torch/nn/pimpl.h>
 
-#include "plane_sampling/plane_sampling.h"
+#include "ops/plane_sampling/plane_sampling.h"
 
 namespace sfgs::model {
 

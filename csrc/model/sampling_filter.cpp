@@ -7,7 +7,7 @@
 
 #include "common/constants.h"
 #include "common/tensor_description.h"
-#include "splat/camera_frame.h"
+#include "ops/splat/camera_frame.h"
 
 namespace sfgs::model {
 namespace {

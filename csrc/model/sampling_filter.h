@@ -9,7 +9,7 @@
 // training's. A render at the training's sampling or coarser is left unchanged.
 #include <ATen/core/Tensor.h>
 
-#include "splat/splat.h"
+#include "ops/splat/splat.h"
 
 namespace sfgs::model {
 

@@ -3,7 +3,7 @@
 #include <ATen/Functions.h>
 
 #include "body/tensor_checks.h"
-#include "gathered_mlp/gathered_mlp.h"
+#include "ops/gathered_mlp/gathered_mlp.h"
 
 namespace sfgs::model {
 namespace {

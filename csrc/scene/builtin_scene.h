@@ -2,7 +2,7 @@
 // Gaussian scenes generated in code, so the demo, tests and benchmarks need no external files.
 #include <cstdint>
 
-#include "splat/splat.h"
+#include "ops/splat/splat.h"
 
 namespace sfgs::scene {
 

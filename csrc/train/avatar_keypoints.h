@@ -12,7 +12,7 @@
 #include "body/wholebody_keypoints.h"
 #include "fit/fit_losses.h"
 #include "model/avatar.h"
-#include "splat/splat.h"
+#include "ops/splat/splat.h"
 
 namespace sfgs::train {
 

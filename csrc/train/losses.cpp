@@ -5,8 +5,8 @@
 #include "body/mesh.h"
 #include "body/parts.h"
 #include "metrics/image_metrics.h"
-#include "pixel_loss/pixel_loss.h"
-#include "ssim/ssim.h"
+#include "ops/pixel_loss/pixel_loss.h"
+#include "ops/ssim/ssim.h"
 
 namespace sfgs::train {
 namespace {
@@ -41,10 +41,10 @@ void ImageLoss::add_terms(const at::Tensor& prediction, const at::Tensor& target
   TORCH_CHECK(prediction.sizes() == target.sizes() && prediction.dim() == 3 && prediction.size(2) == 3,
               "ImageLoss: prediction and target must both be (H, W, 3), got ", prediction.sizes(), " and ",
               target.sizes());
-  // L1, CIELAB L1 and the image gradients' L1 in one fused op (pixel_loss/pixel_loss.h): their means.
+  // L1, CIELAB L1 and the image gradients' L1 in one fused op (ops/pixel_loss/pixel_loss.h): their means.
   const at::Tensor pixel = pixel_loss::pixel_losses(prediction, target.detach());
   const at::Tensor l1 = pixel[0];
-  // metrics::ssim's zero-border value in one fused pass each way (ssim/ssim.h), which differentiates the prediction
+  // metrics::ssim's zero-border value in one fused pass each way (ops/ssim/ssim.h), which differentiates the prediction
   // only: the target is data.
   const at::Tensor ssim = 1 - ssim::fused_ssim(prediction, target.detach());
   at::Tensor photometric = l1 + ssim;

@@ -31,7 +31,7 @@
 #include "common/constants.h"
 #include "data/dataset.h"
 #include "model/avatar.h"
-#include "splat/splat.h"
+#include "ops/splat/splat.h"
 #include "train/avatar_keypoints.h"
 #include "train/losses.h"
 #include "train/pose_fit_evaluation.h"

@@ -21,9 +21,9 @@
 #include "common/device_graph.h"
 #include "model/avatar.h"
 #include "model/inference_cache.h"
-#include "splat/camera_frame.h"
-#include "splat/growing_budget.h"
-#include "splat/splat.h"
+#include "ops/splat/camera_frame.h"
+#include "ops/splat/growing_budget.h"
+#include "ops/splat/splat.h"
 #include "train/avatar_keypoints.h"
 #include "train/losses.h"
 
@@ -76,7 +76,7 @@ struct FitEvaluation {
 // The stages' evaluations recorded as CUDA graphs (common/device_graph.h), one per kind of stage (run_loss, image
 // size, focal lengths and pixel share, pose layout, time, mask, keypoints), in one memory pool: the camera's placement
 // and principal point are read from a buffer (with_centred_principal_point), so the crops of one size share a graph.
-// The splatting's buffers are sized from a budget (splat/growing_budget.h); each replay's counts are read with its
+// The splatting's buffers are sized from a budget (ops/splat/growing_budget.h); each replay's counts are read with its
 // loss, and a replay beyond the budget grows it, records again and evaluates again, so every returned loss is of a
 // whole image.
 class PoseFitGraphs {

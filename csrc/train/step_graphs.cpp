@@ -5,7 +5,7 @@
 #include <ATen/ATen.h>
 
 #include "common/constants.h"
-#include "splat/splat.h"
+#include "ops/splat/splat.h"
 
 namespace sfgs::train {
 

@@ -5,7 +5,7 @@
 // each graph keeps its outputs and the parameters' gradients, which the trainer reads after a replay (the optimiser
 // runs outside the graphs, so learning rates and step counts stay host values).
 //
-// The splatting's intersection buffers are sized from a budget (splat/growing_budget.h) instead of the count read
+// The splatting's intersection buffers are sized from a budget (ops/splat/growing_budget.h) instead of the count read
 // that a graph cannot hold, and the host never waits for a replayed step: each replay's true counts are copied to
 // page-locked memory in stream order and read two steps later, when that step has long finished (a DeviceEvent, not
 // a wait for the queue). A step beyond its budget rendered an incomplete image, so its outputs carry skip_update = 1
@@ -30,7 +30,7 @@
 #include "common/constants.h"
 #include "common/device_graph.h"
 #include "model/avatar.h"
-#include "splat/growing_budget.h"
+#include "ops/splat/growing_budget.h"
 #include "train/training_step.h"
 
 namespace sfgs::train {

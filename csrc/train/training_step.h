@@ -12,8 +12,8 @@
 
 #include "body/smplx_pose.h"
 #include "model/avatar.h"
-#include "splat/camera_frame.h"
-#include "splat/splat.h"
+#include "ops/splat/camera_frame.h"
+#include "ops/splat/splat.h"
 #include "train/losses.h"
 
 namespace sfgs::train {

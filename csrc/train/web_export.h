@@ -12,7 +12,7 @@
 #include <string>
 
 #include "model/avatar.h"
-#include "splat/splat.h"
+#include "ops/splat/splat.h"
 
 namespace sfgs::train {
 

@@ -1,5 +1,5 @@
 #pragma once
-// Random GroupNorm networks for the MLP inference tests (mlp_inference/mlp_inference.h): weights as
+// Random GroupNorm networks for the MLP inference tests (ops/mlp_inference/mlp_inference.h): weights as
 // torch.nn.Linear's initialisation draws them, GroupNorm's gamma and beta away from identity, and inputs.
 #include <cmath>
 #include <vector>
@@ -7,7 +7,7 @@
 #include <ATen/ATen.h>
 
 #include "common/constants.h"
-#include "mlp_inference/mlp_inference.h"
+#include "ops/mlp_inference/mlp_inference.h"
 
 namespace sfgs::testing {
 

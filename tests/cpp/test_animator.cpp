@@ -15,7 +15,7 @@
 
 #include "animate/animator.h"
 #include "animate/visibility.h"
-#include "splat/camera_frame.h"
+#include "ops/splat/camera_frame.h"
 #include "metrics/image_metrics.h"
 #include "test_avatar_utils.h"
 
@@ -117,7 +117,7 @@ Gaussians moved_into(const Gaussians& g, const CameraFrame& frame) {
 }
 
 TEST(Animator, GaussiansMovedIntoTheCameraFrameRenderAsSeenByTheCamera) {
-  // splat/camera_frame.h: the Gaussians moved into the camera's frame give the same image, alpha and depth.
+  // ops/splat/camera_frame.h: the Gaussians moved into the camera's frame give the same image, alpha and depth.
   at::manual_seed(3);
   const auto [g, full] = random_gaussians(300);
   Camera camera = Camera::looking_forward(80, 64, 48);

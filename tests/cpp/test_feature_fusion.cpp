@@ -1,4 +1,4 @@
-// The feature-fusion ops (feature_fusion/feature_fusion.h) on the CPU backend: the gated mix against its LibTorch
+// The feature-fusion ops (ops/feature_fusion/feature_fusion.h) on the CPU backend: the gated mix against its LibTorch
 // composition (values, autograd gradients, central differences in float64, logits far beyond the sigmoid's range),
 // the row merge against cat + index_select (values and gradients exactly, an empty subset), and the errors at their
 // boundary.
@@ -11,7 +11,7 @@
 #include <gtest/gtest.h>
 #include <torch/csrc/autograd/autograd.h>
 
-#include "feature_fusion/feature_fusion.h"
+#include "ops/feature_fusion/feature_fusion.h"
 #include "test_metrics_support.h"
 #include "tensor_compare.h"
 

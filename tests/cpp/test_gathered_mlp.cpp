@@ -1,4 +1,4 @@
-// The gathered MLP (csrc/gathered_mlp/gathered_mlp.h) on the CPU, where it is its LibTorch reference: the same
+// The gathered MLP (csrc/ops/gathered_mlp/gathered_mlp.h) on the CPU, where it is its LibTorch reference: the same
 // function as the structure offset's network on the concatenated inputs, the structure offset's inference path equal
 // to its training path, and clear errors at its boundary. The fused CUDA kernel is compared with this reference in
 // tests/cuda/test_animate_cuda.cpp. The first layer as a training op (gathered_first_layer) on the CPU backend: its
@@ -16,7 +16,7 @@
 #include <string>
 #include <vector>
 
-#include "gathered_mlp/gathered_mlp.h"
+#include "ops/gathered_mlp/gathered_mlp.h"
 #include "model/mlp.h"
 #include "model/structure_offset.h"
 #include "test_files.h"

@@ -1,4 +1,4 @@
-// The fused GroupNorm + ReLU op (group_norm/group_norm.h) on the CPU backend: against torch.nn.GroupNorm with its
+// The fused GroupNorm + ReLU op (ops/group_norm/group_norm.h) on the CPU backend: against torch.nn.GroupNorm with its
 // affine map and a ReLU (forward and every gradient, float64), against central differences, its LibTorch reference,
 // float32 against float64, a group of equal values, and the errors at its boundary.
 #include <algorithm>
@@ -11,9 +11,10 @@
 #include <torch/csrc/autograd/autograd.h>
 
 #include "common/constants.h"
-#include "group_norm/group_norm.h"
+#include "ops/group_norm/group_norm.h"
 #include "model/mlp.h"
 #include "test_files.h"
+#include "op_check.h"
 #include "tensor_compare.h"
 
 namespace sfgs::testing {
@@ -229,6 +230,31 @@ TEST(GroupNormRelu, PlainMlpKeepsTheFirstBiasInTheProjection) {
   refused([&] { mlp->project_add(0, a, base.narrow(0, 0, 1)); }, "Mlp::project_add: base must be a Double (8, 16)");
   refused([&] { mlp->finish_activated(base.narrow(1, 0, 15)); },
           "Mlp::finish_activated: the first activation must have shape (N, 16)");
+}
+
+TEST(GroupNormRelu, TheOpsAreDispatcherOpsWhoseMetaKernelsDescribeTheirOutputs) {
+  expect_backend_kernels("sfgs::group_norm_relu", true);
+  expect_backend_kernels("sfgs::linear_group_norm_relu", true);
+  expect_backend_kernels("sfgs::group_norm_relu_backward", false);
+  for (const bool with_bias : {true, false}) {
+    const at::NoGradGuard no_grad;
+    const Inputs in = random_inputs(12, 8, with_bias, 4);
+    const c10::IValue bias = with_bias ? c10::IValue(in.bias) : c10::IValue();
+    expect_meta_describes_cpu("sfgs::group_norm_relu", {in.pre, bias, in.gamma, in.beta, int64_t(2), 1e-5});
+    const c10::IValue layer_bias = with_bias ? c10::IValue(in.bias.narrow(0, 0, 6)) : c10::IValue();
+    expect_meta_describes_cpu("sfgs::linear_group_norm_relu",
+                              {in.pre, at::randn({6, 8}, kF64), layer_bias, in.gamma.narrow(0, 0, 6),
+                               in.beta.narrow(0, 0, 6), int64_t(3), 1e-5});
+    const std::vector<c10::IValue> forward =
+        call_boxed(registered_op("sfgs::group_norm_relu"), {in.pre, bias, in.gamma, in.beta, int64_t(2), 1e-5});
+    EXPECT_TRUE(at::equal(forward[0].toTensor(), group_norm_relu(in.pre, in.bias, in.gamma, in.beta, 2, 1e-5)));
+    expect_meta_describes_cpu("sfgs::group_norm_relu_backward",
+                              {at::randn({12, 8}, kF64), in.pre, bias, in.gamma, in.beta, forward[1], forward[2]});
+  }
+  const Inputs in = random_inputs(12, 8, true, 5);
+  EXPECT_THROW(
+      call_boxed(registered_op("sfgs::group_norm_relu"), {in.pre, in.bias, in.gamma, in.beta, int64_t(3), 1e-5}),
+      c10::Error);
 }
 
 }  // namespace

@@ -1,4 +1,4 @@
-// The networks' linear layer (linear/linear.h) against at::linear: values and every gradient in float64, with and
+// The networks' linear layer (ops/linear/linear.h) against at::linear: values and every gradient in float64, with and
 // without a bias and with inputs that need no gradient; the column sum against at::sum; the errors at the boundary.
 #include <vector>
 
@@ -6,8 +6,9 @@
 #include <gtest/gtest.h>
 #include <torch/csrc/autograd/autograd.h>
 
-#include "linear/linear.h"
+#include "ops/linear/linear.h"
 #include "test_metrics_support.h"
+#include "op_check.h"
 #include "tensor_compare.h"
 
 namespace sfgs::testing {
@@ -50,6 +51,18 @@ TEST(Linear, BadInputsAreClearErrors) {
   expect_error([&] { linear::linear(x, weight, at::zeros({4}, kF64)); }, {"linear: bias must be a Double (3) tensor"});
   expect_error([&] { linear::linear(x.flatten(), weight, at::Tensor()); }, {"linear: x must be a floating (N, I)"});
   expect_error([&] { linear::column_sum(at::zeros({4}, kF64)); }, {"column_sum: rows must be a floating (R, C)"});
+}
+
+TEST(Linear, TheOpsAreDispatcherOpsWhoseMetaKernelsDescribeTheirOutputs) {
+  expect_backend_kernels("sfgs::linear", true);
+  expect_backend_kernels("sfgs::column_sum", false);
+  const at::Tensor x = at::randn({7, 5}, kF64), weight = at::randn({3, 5}, kF64), bias = at::randn({3}, kF64);
+  for (const c10::IValue& b : {c10::IValue(bias), c10::IValue()})
+    expect_meta_describes_cpu("sfgs::linear", {x, weight, b});
+  expect_meta_describes_cpu("sfgs::column_sum", {x});
+  EXPECT_TRUE(at::equal(call_boxed(registered_op("sfgs::linear"), {x, weight, bias})[0].toTensor(),
+                        linear::linear(x, weight, bias)));
+  EXPECT_THROW(call_boxed(registered_op("sfgs::linear"), {x, weight.t().contiguous(), bias}), c10::Error);
 }
 
 }  // namespace

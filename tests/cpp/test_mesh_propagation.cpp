@@ -1,4 +1,4 @@
-// The mesh propagation (mesh_propagation/mesh_propagation.h) on the CPU against its definition: rings, smoothing
+// The mesh propagation (ops/mesh_propagation/mesh_propagation.h) on the CPU against its definition: rings, smoothing
 // passes, trust blend, a part no front reaches, float32 and float64; its plan; and the errors at its boundary.
 #include <limits>
 
@@ -6,7 +6,7 @@
 #include <gtest/gtest.h>
 
 #include "common/constants.h"
-#include "mesh_propagation/mesh_propagation.h"
+#include "ops/mesh_propagation/mesh_propagation.h"
 #include "mesh_propagation_cases.h"
 #include "tensor_compare.h"
 

@@ -1,4 +1,4 @@
-// The MLP inference op (mlp_inference/mlp_inference.h) on the CPU: its reference is the avatar's GroupNorm MLP
+// The MLP inference op (ops/mlp_inference/mlp_inference.h) on the CPU: its reference is the avatar's GroupNorm MLP
 // (model/mlp.h), whole and with a group given as column blocks over a base; run() falls back to it; bad shapes,
 // dtypes and gradients are refused by name. The fused kernel is tested on the device (tests/cuda).
 #include <ATen/ATen.h>

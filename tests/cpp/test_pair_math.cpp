@@ -5,7 +5,7 @@
 
 #include <gtest/gtest.h>
 
-#include "splat/pair_math.h"
+#include "ops/splat/pair_math.h"
 
 namespace sfgs::splat {
 namespace {

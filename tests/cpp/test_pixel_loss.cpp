@@ -1,4 +1,4 @@
-// The fused pixel-loss op (pixel_loss/pixel_loss.h) on the CPU backend: against its LibTorch composition (the four
+// The fused pixel-loss op (ops/pixel_loss/pixel_loss.h) on the CPU backend: against its LibTorch composition (the four
 // means and the prediction's gradient for any weighting, float64) on images with values beyond [0, 1] (the sRGB
 // clamp) and dark ones (CIELAB's linear branch), against central differences, float32 against float64, and the
 // errors at its boundary.
@@ -10,8 +10,9 @@
 #include <gtest/gtest.h>
 #include <torch/csrc/autograd/autograd.h>
 
-#include "pixel_loss/pixel_loss.h"
+#include "ops/pixel_loss/pixel_loss.h"
 #include "test_files.h"
+#include "op_check.h"
 #include "tensor_compare.h"
 
 namespace sfgs::testing {
@@ -80,6 +81,19 @@ TEST(PixelLoss, RejectsBadInputs) {
   expect_error_mentioning([&] { pixel_losses(image, image.to(at::kDouble)); }, "target must be like the prediction");
   expect_error_mentioning([&] { pixel_losses(image, image.narrow(0, 0, 4)); }, "target must be like the prediction");
   expect_error_mentioning([&] { pixel_losses(image, image.clone().requires_grad_(true)); }, "detach it first");
+}
+
+TEST(PixelLoss, IsADispatcherOpWhoseMetaKernelsDescribeItsOutputs) {
+  expect_backend_kernels("sfgs::pixel_losses", true);
+  expect_backend_kernels("sfgs::pixel_losses_backward", false);
+  at::Generator g = at::detail::createCPUGenerator(9);
+  const at::Tensor prediction = test_image(7, 9, g), target = test_image(7, 9, g);
+  expect_meta_describes_cpu("sfgs::pixel_losses", {prediction, target});
+  expect_meta_describes_cpu("sfgs::pixel_losses_backward", {at::rand({4}, kF64), prediction, target});
+  EXPECT_TRUE(at::equal(call_boxed(registered_op("sfgs::pixel_losses"), {prediction, target})[0].toTensor(),
+                        pixel_loss::pixel_losses(prediction, target)));
+  EXPECT_THROW(call_boxed(registered_op("sfgs::pixel_losses_backward"), {at::rand({3}, kF64), prediction, target}),
+               c10::Error);
 }
 
 }  // namespace

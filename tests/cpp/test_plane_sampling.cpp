@@ -1,15 +1,15 @@
-// The fixed-point plane sampling (plane_sampling/plane_sampling.h) against LibTorch's grid_sample (bilinear, border,
-// align_corners): the same values, and the planes' gradient of its gather-backward equal to grid_sample's scattered
-// one in float64 (points beyond the border, on the far edges, and a thousand on one texel, cut into chunks), and to
-// central differences; float32 within rounding; the triplane keeps its reads only while the coordinates are the same;
-// mistakes are clear errors.
+// The fixed-point plane sampling (ops/plane_sampling/plane_sampling.h) against LibTorch's grid_sample (bilinear,
+// border, align_corners): the same values, and the planes' gradient of its gather-backward equal to grid_sample's
+// scattered one in float64 (points beyond the border, on the far edges, and a thousand on one texel, cut into chunks),
+// and to central differences; float32 within rounding; the triplane keeps its reads only while the coordinates are the
+// same; mistakes are clear errors.
 #include <ATen/ATen.h>
 #include <gtest/gtest.h>
 #include <torch/csrc/autograd/autograd.h>
 
 #include "common/constants.h"
 #include "model/planes.h"
-#include "plane_sampling/plane_sampling.h"
+#include "ops/plane_sampling/plane_sampling.h"
 #include "test_files.h"
 
 namespace sfgs::testing {

@@ -1,11 +1,12 @@
-// The fused skinning op (csrc/skin/skin.h) against its LibTorch reference composition: forward in float64 and
+// The fused skinning op (csrc/ops/skin/skin.h) against its LibTorch reference composition: forward in float64 and
 // float32, gradients against the reference's autograd and against central finite differences in float64, the
 // reference fallback when the transforms need a gradient, the sparse weight rows, and the checks of its inputs.
 #include <ATen/ATen.h>
 #include <gtest/gtest.h>
 #include <torch/csrc/autograd/autograd.h>
 
-#include "skin/skin.h"
+#include "ops/skin/skin.h"
+#include "op_check.h"
 #include "tensor_compare.h"
 
 namespace sfgs::testing {
@@ -138,6 +139,48 @@ TEST(SkinOp, RefusesBadInputsWithClearErrors) {
             std::string::npos);
   EXPECT_NE(message([&] { skin::SkinningWeights::from_dense(at::ones({3})); }).find("floating (N, J)"),
             std::string::npos);
+}
+
+// The op through the dispatcher, as torch.ops.sfgs.skin_gaussians is called: its kernels, a Meta kernel that describes
+// the outputs, and the backward op.
+std::vector<c10::IValue> op_arguments(const Scene& s, bool with_rest) {
+  const skin::SkinningWeights w = skin::SkinningWeights::from_dense(s.dense);
+  const int64_t j = s.transforms.size(0);
+  return {s.means,  s.log_scales, with_rest ? c10::IValue(s.rest) : c10::IValue(),
+          w.joints, w.weights,    s.transforms.narrow(1, 0, 3).reshape({j, 12}).contiguous()};
+}
+
+TEST(SkinOp, IsADispatcherOpWhoseMetaKernelsDescribeItsOutputs) {
+  expect_backend_kernels("sfgs::skin_gaussians", true);
+  expect_backend_kernels("sfgs::skin_gaussians_backward", false);
+  const Scene s = random_scene(40, 6, at::kFloat, 6);
+  for (const bool with_rest : {true, false}) {
+    expect_meta_describes_cpu("sfgs::skin_gaussians", op_arguments(s, with_rest));
+    const std::vector<c10::IValue> forward = op_arguments(s, with_rest);
+    const at::Tensor covariances = call_boxed(registered_op("sfgs::skin_gaussians"), forward)[1].toTensor();
+    expect_meta_describes_cpu("sfgs::skin_gaussians_backward",
+                              {forward[3], forward[4], forward[5], covariances, at::randn({40, 3}), c10::IValue(),
+                               with_rest ? c10::IValue(at::randn({40, 3})) : c10::IValue()});
+  }
+}
+
+TEST(SkinOp, TheDispatcherCallIsTheFunctionAndAJointOutOfRangeGivesNan) {
+  const Scene s = random_scene(30, 5, at::kDouble, 7);
+  std::vector<c10::IValue> arguments = op_arguments(s, true);
+  const std::vector<c10::IValue> out = call_boxed(registered_op("sfgs::skin_gaussians"), arguments);
+  const skin::SkinnedGaussians direct =
+      skin::skin_gaussians(skin::SkinningWeights::from_dense(s.dense), s.transforms, s.means, s.log_scales, s.rest);
+  EXPECT_TRUE(at::equal(out[0].toTensor(), direct.means));
+  EXPECT_TRUE(at::equal(out[1].toTensor(), direct.covariances));
+  EXPECT_TRUE(at::equal(out[2].toTensor(), direct.posed_rest));
+  at::Tensor joints = arguments[3].toTensor().clone();
+  joints[2][0] = 5;  // one past the last joint (its weight is non-zero: every row's first pick is its largest)
+  arguments[3] = joints;
+  const at::Tensor means = call_boxed(registered_op("sfgs::skin_gaussians"), arguments)[0].toTensor();
+  EXPECT_TRUE(means[2].isnan().all().item<bool>());
+  EXPECT_TRUE(at::equal(means.narrow(0, 3, 27), direct.means.narrow(0, 3, 27)));
+  arguments[1] = s.log_scales.narrow(0, 0, 29);
+  EXPECT_THROW(call_boxed(registered_op("sfgs::skin_gaussians"), arguments), c10::Error);
 }
 
 }  // namespace

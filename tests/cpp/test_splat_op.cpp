@@ -1,4 +1,4 @@
-// The dispatcher operator sfgs::render_gaussians (csrc/splat/op.h): its kernels, one autograd node per render, the
+// The dispatcher operator sfgs::render_gaussians (csrc/ops/splat/op.h): its kernels, one autograd node per render, the
 // Meta kernel's description of the outputs, and inputs the op prepares itself (non-contiguous, (N, 1) opacities).
 #include <string>
 

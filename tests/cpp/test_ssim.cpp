@@ -1,4 +1,4 @@
-// The fused SSIM (ssim/ssim.h) on the CPU backend: its value against metrics::ssim with the zero border (random and
+// The fused SSIM (ops/ssim/ssim.h) on the CPU backend: its value against metrics::ssim with the zero border (random and
 // structured images, odd sizes, images smaller than the window, constant images), its gradient against autograd
 // through metrics::ssim and against central differences, float32 against float64, and the errors at its boundary.
 #include <cmath>
@@ -11,8 +11,9 @@
 #include <torch/csrc/autograd/autograd.h>
 
 #include "metrics/image_metrics.h"
-#include "ssim/ssim.h"
+#include "ops/ssim/ssim.h"
 #include "test_metrics_support.h"
+#include "op_check.h"
 #include "tensor_compare.h"
 
 namespace sfgs::testing {
@@ -178,6 +179,23 @@ TEST(SsimValidation, BadInputsAreClearErrors) {
                {"fused_ssim: the target must not require a gradient", "use metrics::ssim for both"});
   const at::Tensor meta = at::empty({4, 4, 3}, at::TensorOptions(at::kMeta).dtype(at::kDouble));
   expect_error([&] { fused_ssim(meta, p.target); }, {"fused_ssim: prediction must be on the CPU or a CUDA device"});
+}
+
+TEST(SsimOp, IsADispatcherOpWhoseMetaKernelsDescribeItsOutputs) {
+  expect_backend_kernels("sfgs::fused_ssim", true);
+  expect_backend_kernels("sfgs::fused_ssim_with_derivatives", false);
+  expect_backend_kernels("sfgs::fused_ssim_backward", false);
+  const ImagePair p = noisy_pair(13, 17, 2, 8);
+  expect_meta_describes_cpu("sfgs::fused_ssim", {p.prediction, p.target});
+  const std::vector<c10::IValue> forward =
+      call_boxed(registered_op("sfgs::fused_ssim_with_derivatives"), {p.prediction, p.target});
+  expect_meta_describes_cpu("sfgs::fused_ssim_with_derivatives", {p.prediction, p.target});
+  expect_meta_describes_cpu("sfgs::fused_ssim_backward",
+                            {at::ones({}, kF64), p.prediction, p.target, forward[1].toTensor()});
+  EXPECT_TRUE(at::equal(forward[0].toTensor(), ssim::fused_ssim(p.prediction, p.target)));
+  EXPECT_THROW(call_boxed(registered_op("sfgs::fused_ssim_backward"),
+                          {at::ones({}, kF64), p.prediction, p.target, forward[1].toTensor().narrow(1, 0, 1)}),
+               c10::Error);
 }
 
 }  // namespace

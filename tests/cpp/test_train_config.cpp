@@ -3,7 +3,7 @@
 #include <gtest/gtest.h>
 
 #include "test_files.h"
-#include "pixel_loss/pixel_loss.h"
+#include "ops/pixel_loss/pixel_loss.h"
 #include "train/losses.h"
 #include "train/train_config.h"
 #include "train/trainer.h"

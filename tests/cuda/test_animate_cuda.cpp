@@ -18,9 +18,9 @@
 #include "body/kinematics.h"
 #include "body/mesh.h"
 #include "body/rotations.h"
-#include "gathered_mlp/gathered_mlp.h"
+#include "ops/gathered_mlp/gathered_mlp.h"
 #include "metrics/image_metrics.h"
-#include "skin/skin.h"
+#include "ops/skin/skin.h"
 #include "test_avatar_utils.h"
 #include "tensor_compare.h"
 

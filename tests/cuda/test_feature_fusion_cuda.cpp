@@ -1,4 +1,4 @@
-// The feature-fusion ops' CUDA kernels (feature_fusion/feature_fusion.h) against the CPU backend: float64 parity of
+// The feature-fusion ops' CUDA kernels (ops/feature_fusion/feature_fusion.h) against the CPU backend: float64 parity of
 // the gated mix and the row merge with their gradients at the training size (215,782 points, 96 channels) and odd
 // shapes, float32 through the float4 paths and through the scalar ones (unaligned and odd-width arrays), and small
 // cases for compute-sanitizer. Skips without a CUDA device.
@@ -10,7 +10,7 @@
 #include <torch/csrc/autograd/autograd.h>
 #include <torch/cuda.h>
 
-#include "feature_fusion/feature_fusion.h"
+#include "ops/feature_fusion/feature_fusion.h"
 #include "tensor_compare.h"
 
 namespace sfgs::testing {

@@ -1,8 +1,8 @@
-// The gathered first layer's CUDA kernels (gathered_mlp/gathered_mlp.h: gathered_first_layer) against the CPU backend:
-// float64 parity of the value and both gradients at the training size (215,782 rows of 128 in 55 groups, every group
-// used) and odd shapes, group tables that opt in to more shared memory or exceed it, float32 through the float4 and
-// the scalar forward against float64, rows of an out-of-range group (NaN, no gradient, the other rows and the groups'
-// gradient unchanged), and small cases for compute-sanitizer. Skips without a CUDA device.
+// The gathered first layer's CUDA kernels (ops/gathered_mlp/gathered_mlp.h: gathered_first_layer) against the CPU
+// backend: float64 parity of the value and both gradients at the training size (215,782 rows of 128 in 55 groups, every
+// group used) and odd shapes, group tables that opt in to more shared memory or exceed it, float32 through the float4
+// and the scalar forward against float64, rows of an out-of-range group (NaN, no gradient, the other rows and the
+// groups' gradient unchanged), and small cases for compute-sanitizer. Skips without a CUDA device.
 #include <algorithm>
 #include <string>
 #include <vector>
@@ -12,7 +12,7 @@
 #include <torch/csrc/autograd/autograd.h>
 #include <torch/cuda.h>
 
-#include "gathered_mlp/gathered_mlp.h"
+#include "ops/gathered_mlp/gathered_mlp.h"
 #include "tensor_compare.h"
 
 namespace sfgs::testing {

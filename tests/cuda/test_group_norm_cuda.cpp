@@ -1,4 +1,4 @@
-// The fused GroupNorm + ReLU op's CUDA kernels (group_norm/group_norm.h) against its CPU backend: float64 parity of
+// The fused GroupNorm + ReLU op's CUDA kernels (ops/group_norm/group_norm.h) against its CPU backend: float64 parity of
 // the forward and of every gradient over the group layouts the kernels take, float32 at the avatar's size, a layout
 // the kernels do not take (the reference), and a small case for compute-sanitizer. Skips without a CUDA device.
 #include <string>
@@ -10,7 +10,7 @@
 #include <torch/cuda.h>
 
 #include "common/constants.h"
-#include "group_norm/group_norm.h"
+#include "ops/group_norm/group_norm.h"
 #include "tensor_compare.h"
 
 namespace sfgs::testing {

@@ -1,6 +1,6 @@
-// The linear layer's CUDA column sum (linear/linear.h) against at::sum in float64 and float32 at the networks' sizes
-// (215,782 rows of 128, 96 and 3 columns; the fused GroupNorm's partial rows) and odd ones, the same bits on every
-// run, the layer's gradients on CUDA against at::linear's, and small cases for compute-sanitizer. Skips without a
+// The linear layer's CUDA column sum (ops/linear/linear.h) against at::sum in float64 and float32 at the networks'
+// sizes (215,782 rows of 128, 96 and 3 columns; the fused GroupNorm's partial rows) and odd ones, the same bits on
+// every run, the layer's gradients on CUDA against at::linear's, and small cases for compute-sanitizer. Skips without a
 // CUDA device.
 #include <algorithm>
 #include <utility>
@@ -11,7 +11,7 @@
 #include <torch/csrc/autograd/autograd.h>
 #include <torch/cuda.h>
 
-#include "linear/linear.h"
+#include "ops/linear/linear.h"
 
 namespace sfgs::testing {
 namespace {

@@ -1,4 +1,4 @@
-// The mesh propagation's CUDA kernels (mesh_propagation/mesh_propagation.h) against the CPU backend, in float64 and
+// The mesh propagation's CUDA kernels (ops/mesh_propagation/mesh_propagation.h) against the CPU backend, in float64 and
 // float32, with and without smoothing passes, and recorded in a CUDA graph and replayed on other values. Skips
 // without a CUDA device.
 #include <ATen/ATen.h>
@@ -9,7 +9,7 @@
 #include <torch/cuda.h>
 
 #include "common/constants.h"
-#include "mesh_propagation/mesh_propagation.h"
+#include "ops/mesh_propagation/mesh_propagation.h"
 #include "mesh_propagation_cases.h"
 #include "tensor_compare.h"
 

@@ -1,4 +1,4 @@
-// The fused MLP inference kernel (mlp_inference/mlp_inference.h) against its float64 reference: the avatar's shapes
+// The fused MLP inference kernel (ops/mlp_inference/mlp_inference.h) against its float64 reference: the avatar's shapes
 // (heads: one block of 96 columns; colour offset: two blocks of weight column slices over a base), one to three
 // hidden layers, one to eight outputs, row counts off the 16-row tile, no rows, a NaN row that stays its own, and
 // recorded in a CUDA graph. Skips without a CUDA device.

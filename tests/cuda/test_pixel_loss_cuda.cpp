@@ -1,4 +1,4 @@
-// The fused pixel-loss op's CUDA kernels (pixel_loss/pixel_loss.h) against its CPU backend: float64 parity of the
+// The fused pixel-loss op's CUDA kernels (ops/pixel_loss/pixel_loss.h) against its CPU backend: float64 parity of the
 // four means and the prediction's gradient at training sizes and odd ones, float32 at 800 x 1200 against float64,
 // and a small case for compute-sanitizer. Skips without a CUDA device.
 #include <string>
@@ -10,7 +10,7 @@
 #include <torch/csrc/autograd/autograd.h>
 #include <torch/cuda.h>
 
-#include "pixel_loss/pixel_loss.h"
+#include "ops/pixel_loss/pixel_loss.h"
 #include "tensor_compare.h"
 
 namespace sfgs::testing {

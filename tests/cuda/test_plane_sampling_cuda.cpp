@@ -1,4 +1,4 @@
-// The planes' backward on the GPU (plane_sampling/plane_sampling.h): the CUDA kernel against the CPU backend in
+// The planes' backward on the GPU (ops/plane_sampling/plane_sampling.h): the CUDA kernel against the CPU backend in
 // float64 (the reads made on each device; the triplanes and the time planes), and against grid_sample's own CUDA
 // backward in float32, at the avatar's scale (215k points clustered like a body, a crowded texel); a small case for
 // compute-sanitizer (PlaneSamplingCudaSanitizer.*). Skips without a CUDA device.
@@ -7,7 +7,7 @@
 #include <torch/csrc/autograd/autograd.h>
 #include <torch/cuda.h>
 
-#include "plane_sampling/plane_sampling.h"
+#include "ops/plane_sampling/plane_sampling.h"
 
 namespace sfgs::testing {
 namespace {

@@ -10,7 +10,7 @@
 #include <torch/csrc/autograd/autograd.h>
 #include <torch/cuda.h>
 
-#include "cuda/diagnostics.h"
+#include "ops/splat/cuda/diagnostics.h"
 #include "splat_test_utils.h"
 
 namespace sfgs::testing {
@@ -23,7 +23,7 @@ constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 constexpr double kInf = std::numeric_limits<double>::infinity();
 
 // float64 parity: relative L2 error of every output and of every gradient. Both backends evaluate the same functions
-// (splat/pair_math.h, splat/stages.h) in the same order per pixel; what differs is the order of sums (warp
+// (ops/splat/pair_math.h, ops/splat/stages.h) in the same order per pixel; what differs is the order of sums (warp
 // reductions, atomics, per-tile partials) and fused multiply-adds, which cost a few ulps per operation, about 1e-13
 // relative on these scenes (the CPU reference agrees with its brute-force twin to 1e-12). 1e-9 leaves four orders of
 // magnitude for accumulation over deep pixels; to be confirmed on the GPU.

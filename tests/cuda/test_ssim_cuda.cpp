@@ -1,4 +1,4 @@
-// The fused SSIM's CUDA kernels (ssim/ssim.h) against its CPU backend: float64 parity of the value and the
+// The fused SSIM's CUDA kernels (ops/ssim/ssim.h) against its CPU backend: float64 parity of the value and the
 // prediction's gradient at the training size (800 x 1200) and at sizes that are not multiples of the tiles, float32
 // at 800 x 1200 against float64, the device check at the boundary, and a small case for compute-sanitizer. Skips
 // without a CUDA device.
@@ -9,7 +9,7 @@
 #include <torch/csrc/autograd/autograd.h>
 #include <torch/cuda.h>
 
-#include "ssim/ssim.h"
+#include "ops/ssim/ssim.h"
 #include "tensor_compare.h"
 
 namespace sfgs::testing {

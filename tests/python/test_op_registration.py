@@ -1,5 +1,5 @@
 """The splatting op as a dispatcher operator: after `import sfgs`, torch.ops.sfgs.render_gaussians is the op that
-sfgs.render calls, with CPU, CUDA, Meta and Autograd kernels (csrc/splat/op.cpp)."""
+sfgs.render calls, with CPU, CUDA, Meta and Autograd kernels (csrc/ops/splat/op.cpp)."""
 import pytest
 import torch
 
