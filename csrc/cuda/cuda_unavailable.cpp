@@ -3,7 +3,6 @@
 #include <c10/util/Exception.h>
 
 #include "body/body_backend.h"
-#include "ops/feature_fusion/backend.h"
 #include "ops/gathered_mlp/backend.h"
 #include "ops/mesh_propagation/backend.h"
 #include "ops/mlp_inference/backend.h"
@@ -78,28 +77,6 @@ void gradient(const PlaneGradientArrays<double>&, at::Device) {
 }
 
 }  // namespace sfgs::plane_sampling::cuda
-
-namespace sfgs::feature_fusion::cuda {
-
-bool available() { return false; }
-void gated_mix(const GatedMixArrays<float>&, at::Device) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
-void gated_mix(const GatedMixArrays<double>&, at::Device) {
-  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
-}
-void gated_mix_backward(const GatedMixGradientArrays<float>&, at::Device) {
-  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
-}
-void gated_mix_backward(const GatedMixGradientArrays<double>&, at::Device) {
-  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
-}
-void gather_rows(const RowGatherArrays<float>&, at::Device) {
-  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
-}
-void gather_rows(const RowGatherArrays<double>&, at::Device) {
-  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
-}
-
-}  // namespace sfgs::feature_fusion::cuda
 
 namespace sfgs::mesh_propagation::cuda {
 

@@ -13,6 +13,7 @@
 
 #include "ops/feature_fusion/feature_fusion.h"
 #include "test_metrics_support.h"
+#include "op_check.h"
 #include "tensor_compare.h"
 
 namespace sfgs::testing {
@@ -144,6 +145,38 @@ TEST(FeatureFusion, BadInputsAreClearErrors) {
                {"merge_rows: the order must be int64 (5) tensors"});
   expect_error([&] { feature_fusion::merge_rows(x.narrow(0, 0, 2), x.narrow(0, 0, 2).narrow(1, 0, 5), order); },
                {"merge_rows: second must be a Double (N2, 6) tensor"});
+}
+
+TEST(FeatureFusion, TheOpsAreDispatcherOpsWhoseMetaKernelsDescribeTheirOutputs) {
+  for (const char* name : {"sfgs::gated_mix", "sfgs::merge_rows"}) expect_backend_kernels(name, true);
+  for (const char* name : {"sfgs::gated_mix_backward", "sfgs::merge_rows_backward"})
+    expect_backend_kernels(name, false);
+  const std::vector<at::Tensor> mix = mix_inputs(6, 5, 3);
+  expect_meta_describes_cpu("sfgs::gated_mix", {mix[0], mix[1], mix[2]});
+  expect_meta_describes_cpu("sfgs::gated_mix_backward", {at::randn({6, 5}, kF64), mix[0], mix[1], mix[2]});
+  const auto [first_points, second_points] = random_subsets(9, 4, 5);
+  const feature_fusion::MergeOrder order = feature_fusion::MergeOrder::of(first_points, second_points);
+  const at::Tensor first = at::randn({4, 3}, kF64), second = at::randn({5, 3}, kF64);
+  expect_meta_describes_cpu("sfgs::merge_rows", {first, second, order.source, order.inverse});
+  expect_meta_describes_cpu("sfgs::merge_rows_backward", {at::randn({9, 3}, kF64), order.inverse, int64_t(4)});
+}
+
+TEST(FeatureFusion, AMergeSourceOutOfRangeGivesANanRow) {
+  const auto [first_points, second_points] = random_subsets(9, 4, 6);
+  const feature_fusion::MergeOrder order = feature_fusion::MergeOrder::of(first_points, second_points);
+  const at::Tensor first = at::randn({4, 3}, kF64), second = at::randn({5, 3}, kF64);
+  at::Tensor source = order.source.clone();
+  source[2] = 9;
+  source[5] = -1;
+  const at::Tensor merged =
+      call_boxed(registered_op("sfgs::merge_rows"), {first, second, source, order.inverse})[0].toTensor();
+  const at::Tensor expected = feature_fusion::merge_rows_reference(first, second, order);
+  for (int64_t row = 0; row < 9; ++row) {
+    if (row == 2 || row == 5)
+      EXPECT_TRUE(merged[row].isnan().all().item<bool>()) << row;
+    else
+      EXPECT_TRUE(at::equal(merged[row], expected[row])) << row;
+  }
 }
 
 }  // namespace

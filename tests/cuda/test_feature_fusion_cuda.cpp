@@ -6,6 +6,7 @@
 #include <vector>
 
 #include <ATen/ATen.h>
+#include <ATen/core/dispatch/Dispatcher.h>
 #include <gtest/gtest.h>
 #include <torch/csrc/autograd/autograd.h>
 #include <torch/cuda.h>
@@ -102,6 +103,34 @@ TEST(FeatureFusionCuda, MergeRowsMatchesTheCpuBackend) {
   expect_merge_parity(64, 64, 32);                               // an empty second subset
   expect_merge_parity(215782, 146000, 96, /*transposed=*/true);  // the planes' samples: the tiled gather
   expect_merge_parity(1001, 500, 7, /*transposed=*/true);
+}
+
+// torch.ops reaches the merge without MergeOrder's checks: a source index out of range gives a NaN row on every
+// gather path (float4 rows, scalar rows, transposed tiles), never a read out of bounds.
+TEST(FeatureFusionCudaSanitizer, ASourceOutOfRangeGivesANanRowOnEveryPath) {
+  if (!torch::cuda::is_available()) GTEST_SKIP() << "no CUDA device";
+  for (const auto& [columns, transposed] : std::vector<std::pair<int64_t, bool>>{{8, false}, {7, false}, {35, true}}) {
+    const at::Tensor points = at::arange(40, at::TensorOptions().dtype(at::kLong));
+    const MergeOrder order = MergeOrder::of(points.narrow(0, 0, 25), points.narrow(0, 25, 15)).to(at::kCUDA);
+    const at::Tensor cpu_first = at::randn({25, columns}), cpu_second = at::randn({15, columns});
+    const auto on_gpu = [&](const at::Tensor& t) {
+      return transposed ? t.t().contiguous().to(at::kCUDA).t() : t.to(at::kCUDA);
+    };
+    at::Tensor source = order.source.clone();
+    source[3] = 40;
+    source[30] = -5;
+    const auto op = c10::Dispatcher::singleton().findSchemaOrThrow("sfgs::merge_rows", "");
+    std::vector<c10::IValue> stack{on_gpu(cpu_first), on_gpu(cpu_second), source, order.inverse};
+    op.callBoxed(&stack);
+    const at::Tensor merged = stack[0].toTensor().cpu();
+    const at::Tensor expected = at::cat({cpu_first, cpu_second});
+    for (int64_t row = 0; row < 40; ++row) {
+      if (row == 3 || row == 30)
+        EXPECT_TRUE(merged[row].isnan().all().item<bool>()) << columns << " " << row;
+      else
+        EXPECT_TRUE(at::equal(merged[row], expected[row])) << columns << " " << row;
+    }
+  }
 }
 
 TEST(FeatureFusionCudaSanitizer, SmallCases) {

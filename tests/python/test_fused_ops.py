@@ -92,3 +92,23 @@ def test_linear_passes_opcheck(device, with_bias):
     rows = torch.randn(300, 7, generator=gen, dtype=torch.float64).to(device)
     opcheck()(torch.ops.sfgs.column_sum.default, (rows,))
     assert torch.allclose(torch.ops.sfgs.column_sum(rows), rows.sum(0))
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_feature_fusion_ops_pass_opcheck(device):
+    gen = torch.Generator().manual_seed(5)
+    randn = lambda *shape: torch.randn(*shape, generator=gen, dtype=torch.float64).to(device)  # noqa: E731
+    opcheck()(torch.ops.sfgs.gated_mix.default, [randn(6, 8).requires_grad_(True) for _ in range(3)])
+    points = torch.randperm(9, generator=gen)
+    order = sfgs_merge_order(points[:4], points[4:])
+    first, second = randn(4, 3).requires_grad_(True), randn(5, 3).requires_grad_(True)
+    opcheck()(torch.ops.sfgs.merge_rows.default, (first, second, order[0].to(device), order[1].to(device)))
+
+
+def sfgs_merge_order(first_points, second_points):
+    """feature_fusion::MergeOrder in Python: source[i] is point i's row in cat(first, second); inverse the rows'
+    points."""
+    inverse = torch.cat([first_points, second_points])
+    source = torch.empty_like(inverse)
+    source[inverse] = torch.arange(len(inverse))
+    return source, inverse

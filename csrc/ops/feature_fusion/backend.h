@@ -19,7 +19,6 @@ void gather_rows(const RowGatherArrays<double>& arrays);
 
 // On `device`'s current stream.
 namespace cuda {
-bool available();
 void gated_mix(const GatedMixArrays<float>& arrays, at::Device device);
 void gated_mix(const GatedMixArrays<double>& arrays, at::Device device);
 void gated_mix_backward(const GatedMixGradientArrays<float>& arrays, at::Device device);

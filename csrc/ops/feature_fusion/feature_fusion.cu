@@ -2,6 +2,7 @@
 // writes one (backward: four and three), the merge moves each row once. float arrays go four values a load (float4)
 // when their addresses and lengths allow, which keeps more bytes in flight per thread.
 #include <algorithm>
+#include <cmath>
 #include <cstdint>
 #include <type_traits>
 
@@ -71,6 +72,9 @@ __global__ void __launch_bounds__(kThreads) mix_backward_kernel4(const GatedMixG
   }
 }
 
+template <typename V> __device__ V not_a_number() { return V(NAN); }
+template <> __device__ float4 not_a_number<float4>() { return make_float4(NAN, NAN, NAN, NAN); }
+
 // A warp per row (threadIdx.y), its lanes over the row's `vectors` values of V (T, or float4 for float rows of a
 // multiple of four): for sources whose rows are contiguous.
 template <typename V, typename T>
@@ -79,7 +83,7 @@ __global__ void __launch_bounds__(32 * kRowsPerBlock) gather_kernel(const RowGat
        row += int64_t(gridDim.x) * blockDim.y) {
     const V* from = reinterpret_cast<const V*>(gather_source_row(r, row).values);
     V* to = reinterpret_cast<V*>(gather_destination_row(r, row));
-    for (int64_t c = threadIdx.x; c < vectors; c += 32) to[c] = from[c];
+    for (int64_t c = threadIdx.x; c < vectors; c += 32) to[c] = from != nullptr ? from[c] : not_a_number<V>();
   }
 }
 
@@ -97,7 +101,7 @@ __global__ void __launch_bounds__(32 * kRowsPerBlock)
       const int i = lanes_over_rows ? threadIdx.x : k, j = lanes_over_rows ? k : threadIdx.x;
       if (row0 + i < r.rows && column0 + j < r.columns) {
         const SourceRow<T> from = gather_source_row(r, row0 + i);
-        tile[i][j] = from.values[(column0 + j) * from.column_stride];
+        tile[i][j] = from.values != nullptr ? from.values[(column0 + j) * from.column_stride] : not_a_number<T>();
       }
     }
     __syncthreads();

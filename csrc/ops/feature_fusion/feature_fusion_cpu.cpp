@@ -1,5 +1,6 @@
 // CPU backend of the feature-fusion ops: feature_fusion_math.h's element and row steps over parallel ranges.
 #include <algorithm>
+#include <limits>
 
 #include <ATen/Parallel.h>
 
@@ -33,7 +34,9 @@ template <typename T> void gather(const RowGatherArrays<T>& r) {
                      for (int64_t row = begin; row < end; ++row) {
                        const SourceRow<T> from = gather_source_row(r, row);
                        T* to = gather_destination_row(r, row);
-                       for (int64_t c = 0; c < r.columns; ++c) to[c] = from.values[c * from.column_stride];
+                       for (int64_t c = 0; c < r.columns; ++c)
+                         to[c] = from.values != nullptr ? from.values[c * from.column_stride]
+                                                        : std::numeric_limits<T>::quiet_NaN();
                      }
                    });
 }

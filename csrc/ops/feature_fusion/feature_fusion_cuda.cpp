@@ -7,8 +7,6 @@
 namespace sfgs::feature_fusion::cuda {
 using cuda_glue::launch_on_device;
 
-bool available() { return true; }
-
 void gated_mix(const GatedMixArrays<float>& a, at::Device d) { launch_on_device(a, d, cuda_kernels::gated_mix<float>); }
 void gated_mix(const GatedMixArrays<double>& a, at::Device d) {
   launch_on_device(a, d, cuda_kernels::gated_mix<double>);

@@ -45,6 +45,7 @@ template <typename T> struct RowGatherArrays {
   int64_t out_first_rows;
   int64_t rows;  // destination rows in all
   int64_t columns;
+  int64_t source_rows;  // rows of first and second together: a source index outside [0, source_rows) gives NaNs
 };
 
 // sigmoid without overflow: exp of a non-positive number only.
@@ -74,8 +75,11 @@ template <typename T> struct SourceRow {
   int64_t column_stride;
 };
 
+// Null values for a source index out of range: the destination row is NaN (the op's kernels are reachable from
+// torch.ops without MergeOrder's checks, and checking the indices on the host would cost a device read).
 template <typename T> SFGS_HD SourceRow<T> gather_source_row(const RowGatherArrays<T>& r, int64_t row) {
   const int64_t s = r.source[row];
+  if (s < 0 || s >= r.source_rows) return {nullptr, 0};
   if (s < r.first_rows) return {r.first + s * r.first_row_stride, r.first_column_stride};
   return {r.second + (s - r.first_rows) * r.second_row_stride, r.second_column_stride};
 }
