@@ -28,19 +28,6 @@ namespace sfgs::gathered_mlp::cuda {
 
 bool available() { return false; }
 void forward(const GatheredMlpArrays&, at::Device) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
-int64_t first_layer_partial_rows(int64_t, at::Device) { TORCH_CHECK(false, "sfgs: this build has no CUDA backend"); }
-void first_layer_forward(const FirstLayerArrays<float>&, at::Device) {
-  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
-}
-void first_layer_forward(const FirstLayerArrays<double>&, at::Device) {
-  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
-}
-void first_layer_backward(const FirstLayerGradientArrays<float>&, at::Device) {
-  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
-}
-void first_layer_backward(const FirstLayerGradientArrays<double>&, at::Device) {
-  TORCH_CHECK(false, "sfgs: this build has no CUDA backend");
-}
 
 }  // namespace sfgs::gathered_mlp::cuda
 

@@ -20,6 +20,7 @@
 #include "model/mlp.h"
 #include "model/structure_offset.h"
 #include "test_files.h"
+#include "op_check.h"
 #include "tensor_compare.h"
 
 namespace sfgs::testing {
@@ -243,6 +244,19 @@ TEST(GatheredMlpFirstLayer, BadInputsAreClearErrors) {
                           "gathered_first_layer: groups must be an int64 (8) tensor on cpu, got a Int");
   expect_error_mentioning([&] { gathered_first_layer(rows, group_rows, groups.narrow(0, 0, 7)); },
                           "groups must be an int64 (8) tensor on cpu, got a Long tensor of shape [7]");
+}
+
+TEST(GatheredFirstLayer, IsADispatcherOpWhoseMetaKernelsDescribeItsOutputs) {
+  expect_backend_kernels("sfgs::gathered_first_layer", true);
+  expect_backend_kernels("sfgs::gathered_first_layer_backward", false);
+  const at::Tensor rows = at::randn({11, 6}, kF64), group_rows = at::randn({4, 6}, kF64);
+  const at::Tensor groups = at::randint(0, 4, {11}, at::TensorOptions().dtype(at::kLong));
+  expect_meta_describes_cpu("sfgs::gathered_first_layer", {rows, group_rows, groups});
+  const at::Tensor out =
+      call_boxed(registered_op("sfgs::gathered_first_layer"), {rows, group_rows, groups})[0].toTensor();
+  EXPECT_TRUE(at::equal(out, gathered_mlp::gathered_first_layer_reference(rows, group_rows, groups)));
+  expect_meta_describes_cpu("sfgs::gathered_first_layer_backward", {at::randn({11, 6}, kF64), out, groups, int64_t(4)});
+  EXPECT_THROW(call_boxed(registered_op("sfgs::gathered_first_layer"), {rows, group_rows, groups + 1}), c10::Error);
 }
 
 }  // namespace

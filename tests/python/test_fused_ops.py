@@ -112,3 +112,12 @@ def sfgs_merge_order(first_points, second_points):
     source = torch.empty_like(inverse)
     source[inverse] = torch.arange(len(inverse))
     return source, inverse
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_gathered_first_layer_passes_opcheck(device):
+    gen = torch.Generator().manual_seed(6)
+    rows = torch.randn(11, 6, generator=gen, dtype=torch.float64).to(device).requires_grad_(True)
+    group_rows = torch.randn(4, 6, generator=gen, dtype=torch.float64).to(device).requires_grad_(True)
+    groups = torch.randint(0, 4, (11,), generator=gen).to(device)
+    opcheck()(torch.ops.sfgs.gathered_first_layer.default, (rows, group_rows, groups))

@@ -102,7 +102,8 @@ void check_inputs(const at::Tensor& prediction, const at::Tensor& target, bool o
     const char* name = image == &prediction ? "prediction" : "target";
     TORCH_CHECK(image->defined() && image->dim() == 3 && is_float_or_double(*image), "fused_ssim: ", name,
                 " must be a float32 or float64 image (H, W, C), got ", describe(*image));
-    TORCH_CHECK(image->numel() > 0, "fused_ssim: ", name, " must not be empty, got ", describe(*image));
+    // Meta kernels leave out what needs the element count: under tracing the sizes may be symbolic.
+    if (!on_meta) TORCH_CHECK(image->numel() > 0, "fused_ssim: ", name, " must not be empty, got ", describe(*image));
     TORCH_CHECK(image->is_cpu() || image->is_cuda() || (on_meta && image->is_meta()), "fused_ssim: ", name,
                 " must be on the CPU or a CUDA device, got ", describe(*image));
   }
@@ -115,7 +116,7 @@ void check_inputs(const at::Tensor& prediction, const at::Tensor& target, bool o
               "fused_ssim: prediction and target must share dtype and device, got ", describe(prediction), " and ",
               describe(target));
   // The backends index planes of H x W x C values with 32-bit sizes.
-  TORCH_CHECK(prediction.numel() <= std::numeric_limits<int>::max(),
+  TORCH_CHECK(on_meta || prediction.numel() <= std::numeric_limits<int>::max(),
               "fused_ssim: images of at most 2^31 - 1 values, got ", describe(prediction));
 }
 
@@ -170,7 +171,7 @@ std::tuple<at::Tensor, at::Tensor> with_derivatives_meta(const at::Tensor& predi
 void check_backward_inputs(const at::Tensor& grad_mean, const at::Tensor& prediction, const at::Tensor& target,
                            const at::Tensor& derivative_maps, bool on_meta = false) {
   check_inputs(prediction, target, on_meta);
-  TORCH_CHECK(grad_mean.numel() == 1 && grad_mean.scalar_type() == prediction.scalar_type() &&
+  TORCH_CHECK((on_meta || grad_mean.numel() == 1) && grad_mean.scalar_type() == prediction.scalar_type() &&
                   grad_mean.device() == prediction.device(),
               "sfgs::fused_ssim_backward: grad_mean must be one ", prediction.scalar_type(), " value on ",
               prediction.device(), ", got ", describe(grad_mean));
