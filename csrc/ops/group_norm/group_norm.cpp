@@ -271,10 +271,12 @@ class GroupNormReluFunction : public torch::autograd::Function<GroupNormReluFunc
     const auto& [activation, mean, rstd] = out;
     ctx->save_for_backward({pre, bias_or_empty(bias, pre), gamma, beta, mean, rstd});
     ctx->mark_non_differentiable({mean, rstd});
+    ctx->set_materialize_grads(false);  // the moments never get a gradient: no zero-filled tensors for them
     return {activation, mean, rstd};
   }
 
   static variable_list backward(AutogradContext* ctx, variable_list grads) {
+    if (!grads[0].defined()) return variable_list(6);
     const variable_list v = ctx->get_saved_variables();
     const auto [pre, bias, gamma, beta] =
         backward_op().call(grads[0], v[0], v[1].numel() > 0 ? optional(v[1]) : c10::nullopt, v[2], v[3], v[4], v[5]);
@@ -297,10 +299,12 @@ class LinearGroupNormReluFunction : public torch::autograd::Function<LinearGroup
     const auto& [activation, mean, rstd] = out;
     ctx->save_for_backward({x, weight, bias_or_empty(bias, x), gamma, beta, mean, rstd});
     ctx->mark_non_differentiable({mean, rstd});
+    ctx->set_materialize_grads(false);  // the moments never get a gradient: no zero-filled tensors for them
     return {activation, mean, rstd};
   }
 
   static variable_list backward(AutogradContext* ctx, variable_list grads) {
+    if (!grads[0].defined()) return variable_list(7);
     const variable_list v = ctx->get_saved_variables();
     const at::Tensor& x = v[0];
     const at::Tensor& weight = v[1];
