@@ -1,5 +1,7 @@
-// Stands in for the CUDA backend in builds without a CUDA LibTorch: render() checks available() first and
-// reports a clear error, so these entry points are only reached by a caller that bypasses it.
+// Stands in for the CUDA backends that are not dispatcher kernels (the body's kernels, and the inference networks,
+// mesh propagation and plane sampling, not yet registered: ops/registration.h) in builds without a CUDA LibTorch: their
+// callers check available() first and report a clear error, so these entry points are only reached by a caller that
+// bypasses it. The registered ops need none: a build without CUDA registers no CUDA kernel.
 #include <c10/util/Exception.h>
 
 #include "body/body_backend.h"
@@ -7,22 +9,6 @@
 #include "ops/mesh_propagation/backend.h"
 #include "ops/mlp_inference/backend.h"
 #include "ops/plane_sampling/backend.h"
-#include "ops/splat/backend.h"
-
-namespace sfgs::splat::cuda {
-
-bool available() { return false; }
-
-Forward forward(const SplatInputs&, const CameraSpec&, const BackendSettings&) {
-  TORCH_CHECK(false, "sfgs: this build has no CUDA backend (rebuild against a CUDA LibTorch)");
-}
-
-InputGradients backward(const SplatInputs&, const CameraSpec&, const BackendSettings&, const at::Tensor&,
-                        const ForwardContext&, const OutputGradients&) {
-  TORCH_CHECK(false, "sfgs: this build has no CUDA backend (rebuild against a CUDA LibTorch)");
-}
-
-}  // namespace sfgs::splat::cuda
 
 namespace sfgs::gathered_mlp::cuda {
 

@@ -104,7 +104,6 @@ InputGradients backward(const SplatInputs& in, const CameraSpec& camera, const B
 }  // namespace cpu
 
 namespace cuda {
-bool available();  // compiled with CUDA support
 // Per-intersection state is in sorted order: each tile's run holds its Gaussians by (depth, index).
 struct ForwardContext {
   at::Tensor projected;            // (N, kProjectedWidth) ProjectedField rows; rows of culled Gaussians not written

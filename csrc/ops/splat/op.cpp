@@ -19,6 +19,7 @@
 #include <torch/csrc/autograd/custom_function.h>
 #include <torch/library.h>
 
+#include "ops/registration.h"
 #include "ops/splat/validation.h"
 
 namespace sfgs::splat {
@@ -118,6 +119,7 @@ RenderOutputs cpu_kernel(SFGS_OP_PARAMETERS) {
   return as_tuple(f.outputs);
 }
 
+#if defined(SFGS_WITH_CUDA)
 RenderOutputs cuda_kernel(SFGS_OP_PARAMETERS) {
   const Arguments a = checked_arguments(means, scales, rotations, covariances, opacities, features, background,
                                         SFGS_OP_NON_TENSOR_ARGUMENTS, true);
@@ -125,6 +127,7 @@ RenderOutputs cuda_kernel(SFGS_OP_PARAMETERS) {
   ContextCapture::offer(a, std::move(f.context));
   return as_tuple(f.outputs);
 }
+#endif
 
 RenderOutputs meta_kernel(SFGS_OP_PARAMETERS) {
   const Arguments a = checked_arguments(means, scales, rotations, covariances, opacities, features, background,
@@ -221,10 +224,15 @@ class SplatFunction : public torch::autograd::Function<SplatFunction> {
     }
     const InputGradients g = std::visit(
         [&](const auto& context) -> InputGradients {
-          if constexpr (std::is_same_v<std::decay_t<decltype(context)>, cpu::ForwardContext>)
+          if constexpr (std::is_same_v<std::decay_t<decltype(context)>, cpu::ForwardContext>) {
             return cpu::backward(in, state.camera, state.settings, context, grads);
-          else
+          } else {
+#if defined(SFGS_WITH_CUDA)
             return cuda::backward(in, state.camera, state.settings, saved.image, context, grads);
+#else
+            TORCH_CHECK(false, "sfgs::render: a CUDA forward context in a build without CUDA");
+#endif
+          }
         },
         state.backend);
     // Opacities may have come as (N, 1).
@@ -249,7 +257,9 @@ RenderOutputs autograd_kernel(SFGS_OP_PARAMETERS) {
 TORCH_LIBRARY(sfgs, m) { m.def(kSchema); }
 
 TORCH_LIBRARY_IMPL(sfgs, CPU, m) { m.impl("render_gaussians", TORCH_FN(cpu_kernel)); }
+#if defined(SFGS_WITH_CUDA)
 TORCH_LIBRARY_IMPL(sfgs, CUDA, m) { m.impl("render_gaussians", TORCH_FN(cuda_kernel)); }
+#endif
 TORCH_LIBRARY_IMPL(sfgs, Meta, m) { m.impl("render_gaussians", TORCH_FN(meta_kernel)); }
 TORCH_LIBRARY_IMPL(sfgs, Autograd, m) { m.impl("render_gaussians", TORCH_FN(autograd_kernel)); }
 

@@ -13,6 +13,7 @@
 #include "common/tensor_description.h"
 #include "ops/splat/op.h"
 #include "ops/splat/validation.h"
+#include "ops/registration.h"
 
 namespace sfgs {
 
@@ -129,7 +130,7 @@ std::string camera_problem(const Camera& c) {
   return "";
 }
 
-bool cuda_backend_available() { return splat::cuda::available(); }
+bool cuda_backend_available() { return ops::kBuiltWithCuda; }
 
 namespace {
 thread_local const BinningBudget* installed_budget = nullptr;

@@ -1,5 +1,6 @@
 // Argument checks of the splatting op (validation.h).
 #include "ops/splat/validation.h"
+#include "ops/registration.h"
 
 #include <limits>
 #include <sstream>
@@ -46,7 +47,7 @@ template <typename T> void check_opacity_values(const T* v, int64_t count) {
 void check_backend_device(const at::Tensor& means) {
   TORCH_CHECK(means.is_cpu() || means.is_cuda(), "sfgs::render: tensors must be on the CPU or a CUDA device, got ",
               describe(means));
-  TORCH_CHECK(!means.is_cuda() || cuda::available(),
+  TORCH_CHECK(!means.is_cuda() || ops::kBuiltWithCuda,
               "sfgs::render: got CUDA tensors but this build of sfgs has no CUDA backend (rebuild against a CUDA "
               "LibTorch), got ",
               describe(means));

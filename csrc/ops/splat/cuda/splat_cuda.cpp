@@ -219,8 +219,6 @@ InputGradients backward_typed(const SplatInputs& in, const CameraSpec& camera, c
 
 }  // namespace
 
-bool available() { return true; }
-
 Forward forward(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings) {
   check_inputs(in);
   if (in.means.scalar_type() == at::kDouble) return forward_typed<double>(in, camera, settings);
