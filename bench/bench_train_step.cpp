@@ -22,6 +22,7 @@
 #include "flags.h"
 #include "profiled_range.h"
 #include "stage_clock.h"
+#include "train/rounds.h"
 #include "train/trainer.h"
 
 namespace {

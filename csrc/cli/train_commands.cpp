@@ -20,6 +20,7 @@
 #include "train/checkpoint.h"
 #include "train/evaluate.h"
 #include "train/results.h"
+#include "train/rounds.h"
 #include "train/trainer.h"
 
 namespace sfgs::cli {
@@ -121,26 +122,11 @@ int run_train(Arguments& args) {
   options.overwrite = args.flag("force");
   options.progress = !args.flag("quiet");
   options.stop_at = args.integer("stop-at", 0, 1, kMaxIterations);  // 0: not given
-  options.start_fits = args.text("start-fits", "");
   // A run folder stands for its refined fits.
-  if (fs::is_directory(options.start_fits)) {
-    const train::RunFolder earlier{options.start_fits};
-    TORCH_CHECK(fs::exists(earlier.checkpoint_file()), "--start-fits: '", earlier.path,
-                "' is a folder without a checkpoint.pt, not a trained run; give a run folder or a refined-fits file");
-    TORCH_CHECK(fs::exists(earlier.refined_fits_file()) &&
-                    train::CheckpointReader(earlier.checkpoint_file()).info().pose_refinement.defined(),
-                "--start-fits: run '", earlier.path, "' did not refine its poses (no refined fits beside its ",
-                "checkpoint); give a run trained with pose_refinement.enabled, or a refined-fits file");
-    options.start_fits = earlier.refined_fits_file();
-  }
+  options.start_fits = train::start_fits_file(args.text("start-fits", ""));
   std::string data_folder = args.text("data", "");
   train::TrainConfig config;
-  // A run of several rounds paused before its last has its config.yaml but its checkpoint in a round folder.
-  const train::RunFolder first_round{run.round_folder(1)};
-  const std::string resumed_checkpoint = fs::exists(run.checkpoint_file()) ? run.checkpoint_file()
-                                         : fs::exists(run.config_file()) && fs::exists(first_round.checkpoint_file())
-                                             ? first_round.checkpoint_file()
-                                             : "";
+  const std::string resumed_checkpoint = train::resumable_checkpoint(run);
   if (options.resume && (!resumed_checkpoint.empty() || fs::exists(run.config_file()))) {
     // The run's own config and data unless told otherwise; train_avatar refuses changes that are not safe.
     std::optional<train::CheckpointReader> checkpoint;

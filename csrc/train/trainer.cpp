@@ -34,18 +34,6 @@ struct RunPlan {
   int64_t start = 0, end = 0;
 };
 
-void refuse_unsafe_changes(const TrainConfig& trained, const TrainConfig& requested, const RunFolder& run) {
-  std::string refused;
-  for (const ConfigChange& c : config_changes(trained, requested))
-    if (!change_allowed_on_resume(c.key))
-      refused += (refused.empty() ? "" : ", ") + c.key + " (" + c.before + " -> " + c.after + ")";
-  TORCH_CHECK(refused.empty(), "cannot resume run '", run.path, "': the config asked for differs from the one it was ",
-              "trained with in keys that change the model, its objective or its data: ", refused, ". On resume only ",
-              "schedule.* and run.log_every, run.validate_every, run.checkpoint_every, run.validation_frames and ",
-              "run.device may change; resume with the run's own config (no --config, config.yaml unchanged), or ",
-              "start a new run (--force or another --out)");
-}
-
 void refuse_other_data(const CheckpointInfo& info, const data::Dataset& dataset) {
   if (!info.dataset_fingerprint.empty()) {
     TORCH_CHECK(info.dataset_fingerprint == dataset.fingerprint(), "cannot resume: dataset '", dataset.source,
@@ -59,14 +47,6 @@ void refuse_other_data(const CheckpointInfo& info, const data::Dataset& dataset)
   const fs::path a = fs::weakly_canonical(info.dataset, ec), b = fs::weakly_canonical(dataset.source, ec);
   TORCH_CHECK(ec || a == b, "cannot resume: dataset '", dataset.source, "' is not the one this run was trained on ('",
               info.dataset, "')");
-}
-
-// A run of several rounds keeps its iterations a round: --stop-at counts them, and its earlier rounds ran them.
-void refuse_rounds_iterations_change(const TrainConfig& trained, const TrainConfig& requested, const RunFolder& run) {
-  TORCH_CHECK(requested.pose_refinement.rounds == 1 || trained.schedule.iterations == requested.schedule.iterations,
-              "cannot resume run '", run.path, "' with ", requested.schedule.iterations,
-              " iterations a round: its rounds have ", trained.schedule.iterations,
-              ", and a run of several rounds keeps them (--stop-at counts them); start a new run to change them");
 }
 
 // `before`: the iterations of the run's earlier rounds, which options.stop_at counts too.
@@ -94,12 +74,6 @@ RunPlan plan_run(const data::Dataset& dataset, const TrainConfig& config, const 
               "' to pause at --stop-at ", before + options.stop_at, ": it is already at iteration ",
               before + plan.start, before > 0 ? " (counting its earlier rounds)" : "");
   return plan;
-}
-
-std::vector<unsigned char> file_bytes(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  TORCH_CHECK(in.good(), "cannot read '", path, "'");
-  return std::vector<unsigned char>(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
 }
 
 // A run's start fits: the dataset with them applied, and the file's bytes, read once (the run keeps this copy).
@@ -166,6 +140,31 @@ void rewind_log(const RunFolder& run, int64_t iteration) {
 
 }  // namespace
 
+void refuse_unsafe_changes(const TrainConfig& trained, const TrainConfig& requested, const RunFolder& run) {
+  std::string refused;
+  for (const ConfigChange& c : config_changes(trained, requested))
+    if (!change_allowed_on_resume(c.key))
+      refused += (refused.empty() ? "" : ", ") + c.key + " (" + c.before + " -> " + c.after + ")";
+  TORCH_CHECK(refused.empty(), "cannot resume run '", run.path, "': the config asked for differs from the one it was ",
+              "trained with in keys that change the model, its objective or its data: ", refused, ". On resume only ",
+              "schedule.* and run.log_every, run.validate_every, run.checkpoint_every, run.validation_frames and ",
+              "run.device may change; resume with the run's own config (no --config, config.yaml unchanged), or ",
+              "start a new run (--force or another --out)");
+}
+
+void refuse_rounds_iterations_change(const TrainConfig& trained, const TrainConfig& requested, const RunFolder& run) {
+  TORCH_CHECK(requested.pose_refinement.rounds == 1 || trained.schedule.iterations == requested.schedule.iterations,
+              "cannot resume run '", run.path, "' with ", requested.schedule.iterations,
+              " iterations a round: its rounds have ", trained.schedule.iterations,
+              ", and a run of several rounds keeps them (--stop-at counts them); start a new run to change them");
+}
+
+std::vector<unsigned char> file_bytes(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  TORCH_CHECK(in.good(), "cannot read '", path, "'");
+  return std::vector<unsigned char>(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+}
+
 double learning_rate_factor(const Schedule& schedule, int64_t iteration) {
   double factor = 1.0;
   if (schedule.warmup_iterations > 0 && iteration < schedule.warmup_iterations)
@@ -175,10 +174,6 @@ double learning_rate_factor(const Schedule& schedule, int64_t iteration) {
   return factor;
 }
 
-namespace {
-
-// One round, in `run` (whose lock the caller holds): a whole training run as train_avatar describes it for one round,
-// after `before` iterations of earlier rounds.
 TrainSummary train_round(const data::Dataset& given, const TrainConfig& config, const RunFolder& run,
                          const TrainOptions& options, int64_t before) {
   for (const std::string& name : remove_stale_temporaries(run.path))
@@ -212,158 +207,8 @@ TrainSummary train_round(const data::Dataset& given, const TrainConfig& config, 
   return session.run(plan.start, plan.end);
 }
 
-bool finished_at(const RunFolder& run, int64_t iterations) {
-  return fs::exists(run.checkpoint_file()) && CheckpointReader(run.checkpoint_file()).info().iteration >= iterations;
-}
-
-TrainSummary in_round(TrainSummary summary, int64_t round, int64_t rounds, const RunFolder& folder) {
-  summary.round = round;
-  summary.rounds = rounds;
-  summary.folder = folder.path;
-  return summary;
-}
-
-// options.stop_at, which counts the iterations of the whole run, as an iteration of round `round` (0: none).
-int64_t round_stop(const TrainOptions& options, const TrainConfig& config, const RunFolder& run, int64_t round) {
-  if (options.stop_at == 0) return 0;
-  const int64_t before = (round - 1) * config.schedule.iterations;
-  TORCH_CHECK(options.stop_at > before, "cannot resume run '", run.path, "' to pause at --stop-at ", options.stop_at,
-              ": its first ", round - 1, " round(s) are done, iterations 1-", before, " of the run's ",
-              config.pose_refinement.rounds * config.schedule.iterations, " (", config.pose_refinement.rounds,
-              " rounds of ", config.schedule.iterations, ")");
-  return options.stop_at - before;
-}
-
-// The rounds before the last (train_avatar): trains or continues those not finished. Returns the start fits of the
-// last round, or the summary of a round the run paused in or at the end of.
-std::variant<std::string, TrainSummary> train_earlier_rounds(const data::Dataset& dataset, const TrainConfig& config,
-                                                             const RunFolder& run, const TrainOptions& options) {
-  const int64_t rounds = config.pose_refinement.rounds, iterations = config.schedule.iterations;
-  TrainConfig one_round = config;
-  one_round.pose_refinement.rounds = 1;
-  TrainOptions round_options = options;
-  for (int64_t r = 1; r < rounds; ++r) {
-    const RunFolder folder{run.round_folder(r)};
-    if (!options.resume || !finished_at(folder, iterations)) {
-      round_options.resume = options.resume && fs::exists(folder.checkpoint_file());
-      round_options.stop_at = round_stop(options, config, run, r);
-      if (options.progress)
-        std::fprintf(stderr, "sfgs train: round %lld of %lld, in '%s'\n", (long long)r, (long long)rounds,
-                     folder.path.c_str());
-      const FolderLock lock(folder.path, "train");
-      TrainSummary summary = train_round(dataset, one_round, folder, round_options, (r - 1) * iterations);
-      if (!summary.finished || (options.stop_at > 0 && options.stop_at <= r * iterations)) {
-        summary.finished = false;  // the run is not
-        return in_round(std::move(summary), r, rounds, folder);
-      }
-    }
-    round_options.start_fits = folder.refined_fits_file();
-  }
-  return round_options.start_fits;
-}
-
-// The round folders of `run` numbered `from` and up, claimed: each one's train and eval locks are held until they go,
-// so that no process trains or evaluates a folder that is being removed, and one that another process holds is
-// refused before anything goes.
-struct ClaimedRounds {
-  std::vector<fs::path> folders;
-  std::vector<std::unique_ptr<FolderLock>> locks;
-
-  void remove() const {
-    for (const fs::path& folder : folders) fs::remove_all(folder);
-  }
-};
-
-ClaimedRounds claim_rounds_from(const RunFolder& run, int64_t from) {
-  ClaimedRounds claimed;
-  if (!fs::is_directory(run.path)) return claimed;
-  for (const fs::directory_entry& entry : fs::directory_iterator(run.path)) {
-    const std::string name = entry.path().filename().string();
-    if (!entry.is_directory() || name.rfind("round-", 0) != 0) continue;
-    const std::string number = name.substr(6);
-    const bool numbered = !number.empty() && number.size() < 10 &&
-                          std::all_of(number.begin(), number.end(), [](unsigned char c) { return std::isdigit(c); });
-    if (numbered && std::stoll(number) >= from) claimed.folders.push_back(entry.path());
-  }
-  for (const fs::path& folder : claimed.folders)
-    for (const char* purpose : {"train", "eval"})
-      claimed.locks.push_back(std::make_unique<FolderLock>(folder.string(), purpose));
-  return claimed;
-}
-
-// A resume of a run of several rounds (or of one round where such a run paused) checked against what the run stored:
-// before its last round, the config.yaml written before its round 1 (the same model, objective and data keys, rounds
-// among them, and iterations a round; from its last round on, plan_run checks them against the checkpoint), and for
-// several rounds the start fits its round 1 began from.
-void check_resumed_rounds(const TrainConfig& config, const RunFolder& run, const TrainOptions& options) {
-  if (!fs::exists(run.checkpoint_file()) && fs::exists(run.config_file())) {
-    const TrainConfig stored = TrainConfig::from_stored_yaml_file(run.config_file());
-    refuse_unsafe_changes(stored, config, run);
-    refuse_rounds_iterations_change(stored, config, run);
-  }
-  if (config.pose_refinement.rounds == 1 || options.start_fits.empty()) return;
-  const RunFolder first_round{run.round_folder(1)};
-  TORCH_CHECK(fs::exists(first_round.start_fits_file()) &&
-                  file_bytes(first_round.start_fits_file()) == file_bytes(options.start_fits),
-              "cannot resume run '", run.path, "' from start fits '", options.start_fits,
-              "': its round 1 started from other fits; resume without --start-fits, or start a new run (--force or ",
-              "another --out)");
-}
-
-}  // namespace
-
-TrainSummary train_avatar(const data::Dataset& dataset, const TrainConfig& config, const RunFolder& run,
-                          const TrainOptions& options) {
-  config.validate();
-  TORCH_CHECK(!dataset.split(data::Split::kTrain).empty(), "dataset '", dataset.source, "' has no training frames");
-  TORCH_CHECK(config.device != "cuda" || cuda_backend_available(),
-              "run.device is cuda but this build of sfgs has no CUDA backend");
-  const FolderLock lock(run.path, "train");
-  const int64_t rounds = config.pose_refinement.rounds;
-  const RunFolder first_round{run.round_folder(1)};
-  TORCH_CHECK(options.resume || options.overwrite ||
-                  !(fs::exists(run.checkpoint_file()) || fs::exists(first_round.checkpoint_file())),
-              "run folder '", run.path, "' already holds a checkpoint",
-              fs::exists(run.checkpoint_file()) ? "" : " (of its round 1)",
-              ": pass --resume to continue it or --force to start afresh");
-  // A new run replaces what commands derived from the older one's checkpoint (its evaluations).
-  if (!options.resume) remove_derived_outputs(run);
-  // A resume of several rounds, or of one round where a run of several paused before its last.
-  if (options.resume && (rounds > 1 || (fs::is_directory(first_round.path) && !fs::exists(run.checkpoint_file()))))
-    check_resumed_rounds(config, run, options);
-  TrainOptions last_round = options;
-  if (rounds > 1 && options.resume && fs::exists(run.checkpoint_file())) {
-    last_round.start_fits.clear();  // round 1's, checked above; the last round resumes from its own copy
-  } else if (rounds > 1) {
-    if (!options.resume) {
-      // A new run: its start fits are checked before the folder's older run goes. Its config is written now, so that
-      // a resume finds a run paused before its last round.
-      TrainOptions first_round_start;
-      first_round_start.start_fits = options.start_fits;
-      read_start_fits(dataset, first_round, first_round_start);
-      claim_rounds_from(run, 1).remove();
-      for (const std::string& file : {run.checkpoint_file(), run.refined_fits_file(), run.start_fits_file()})
-        fs::remove(file);
-      const std::string config_text = config.to_yaml();
-      write_file_atomically(run.config_file(), std::vector<unsigned char>(config_text.begin(), config_text.end()),
-                            true);
-    }
-    std::variant<std::string, TrainSummary> earlier = train_earlier_rounds(dataset, config, run, options);
-    if (std::holds_alternative<TrainSummary>(earlier)) return std::get<TrainSummary>(std::move(earlier));
-    last_round.start_fits = std::get<std::string>(earlier);
-    last_round.resume = false;  // a new round, not a resume without a checkpoint
-    if (options.progress)
-      std::fprintf(stderr, "sfgs train: round %lld of %lld, in '%s'\n", (long long)rounds, (long long)rounds,
-                   run.path.c_str());
-  }
-  last_round.stop_at = round_stop(options, config, run, rounds);
-  // A new run of one round claims an older run's round folders now, and removes them once it has trained.
-  const ClaimedRounds older_rounds = !options.resume && rounds == 1 ? claim_rounds_from(run, 1) : ClaimedRounds();
-  TrainSummary summary = train_round(dataset, config, run, last_round, (rounds - 1) * config.schedule.iterations);
-  older_rounds.remove();
-  // Evaluations of the checkpoint this call replaced no longer describe the run.
-  remove_stale_results(run);
-  return in_round(std::move(summary), rounds, rounds, run);
+void check_start_fits(const data::Dataset& dataset, const RunFolder& run, const TrainOptions& options) {
+  read_start_fits(dataset, run, options);
 }
 
 }  // namespace sfgs::train

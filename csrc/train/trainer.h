@@ -1,6 +1,7 @@
 #pragma once
-// The C++ trainer: Adam with per-group learning rates, linear warm-up and step decay, random background colours,
-// periodic validation, atomic checkpoints that resume to an identical continuation, a progress bar and JSON-lines logs.
+// The C++ trainer, one round of a run (train/rounds.h runs a run's rounds): Adam with per-group learning rates, linear
+// warm-up and step decay, random background colours, periodic validation, atomic checkpoints that resume to an
+// identical continuation, a progress bar and JSON-lines logs.
 // A run folder belongs to one training process at a time (FolderLock); a resumed run keeps the model and data it was
 // trained with (only schedule and logging may change), and a diverging run stops at the first non-finite loss with
 // its last good checkpoint intact.
@@ -55,20 +56,25 @@ struct ErrorCurvePoint {
 // also written atomically as CSV to `csv_path`: the run-time-versus-error curve.
 std::vector<ErrorCurvePoint> write_error_curve_csv(const RunFolder& run, const std::string& csv_path);
 
-// Trains (or, with options.resume and a checkpoint in `run`, continues) the avatar `config` describes on `dataset`.
-// Everything is validated before any file of the run is touched: a resume with a config that changes the model or
-// its objective (anything but schedule and logging keys), on another dataset, or to an iteration the run has
-// passed, is refused with the reason, and the run's files stay as they were.
-// With pose_refinement.rounds N > 1 the rounds train one after the other: round K < N in run.round_folder(K) (a run
-// folder of its own, config rounds 1; round 1 starts from options.start_fits), each later one from the refined fits
-// of the one before, round N in `run`. The run's config.yaml (rounds N) is written before round 1, so that a resume
-// finds a run paused in an earlier round; a resume continues the round in progress, and options.stop_at counts the
-// iterations of the whole run (rounds x schedule.iterations: 2,000 with rounds of 1,500 pauses round 2 at 500), and
-// a resume keeps the rounds, the iterations a round and round 1's start fits. A new run that is not forced is refused
-// where the run or its round 1 holds a checkpoint; a forced one of several rounds clears the old run's checkpoint
-// before its round 1 (once its start fits are checked), and every new run removes the older run's round folders
-// (refused, before it trains, while another process trains or evaluates one of them).
-TrainSummary train_avatar(const data::Dataset& dataset, const TrainConfig& config, const RunFolder& run,
-                          const TrainOptions& options);
+// One round of a run (train/rounds.h's train_avatar runs the rounds): trains, or with options.resume and a checkpoint
+// in `run` continues, the avatar `config` describes on `dataset`, in `run`, whose train lock the caller holds, after
+// `before` iterations of the run's earlier rounds (which options.stop_at counts too). Everything is validated before
+// any file of the round is touched: a resume with a config that changes the model or its objective, on another
+// dataset, or to an iteration the round has passed, is refused with the reason, and its files stay as they were.
+TrainSummary train_round(const data::Dataset& dataset, const TrainConfig& config, const RunFolder& run,
+                         const TrainOptions& options, int64_t before);
+
+// What a resume may not change, refused with the keys and the way out: `requested` against what `run` was trained
+// with (`trained`) in anything but the schedule and logging keys; and for a run of several rounds, the iterations a
+// round.
+void refuse_unsafe_changes(const TrainConfig& trained, const TrainConfig& requested, const RunFolder& run);
+void refuse_rounds_iterations_change(const TrainConfig& trained, const TrainConfig& requested, const RunFolder& run);
+
+// Checks the start fits a round of `run` would begin from (options.start_fits, or the copy a resumed round keeps)
+// against `dataset`, as train_round does before it writes anything.
+void check_start_fits(const data::Dataset& dataset, const RunFolder& run, const TrainOptions& options);
+
+// The bytes of a file (refused by name when it cannot be read).
+std::vector<unsigned char> file_bytes(const std::string& path);
 
 }  // namespace sfgs::train

@@ -15,6 +15,7 @@
 #include "test_avatar_utils.h"
 #include "test_files.h"
 #include "test_trainer_utils.h"
+#include "train/rounds.h"
 
 namespace sfgs::testing {
 namespace {

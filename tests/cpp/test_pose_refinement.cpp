@@ -26,6 +26,7 @@
 #include "train/pose_fit.h"
 #include "train/pose_refinement.h"
 #include "train/run_folder.h"
+#include "train/rounds.h"
 #include "train/trainer.h"
 
 namespace sfgs::testing {

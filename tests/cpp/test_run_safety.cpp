@@ -21,6 +21,7 @@
 #include "test_trainer_utils.h"
 #include "train/checkpoint.h"
 #include "train/loss_watch.h"
+#include "train/rounds.h"
 #include "train/trainer.h"
 #include "train/training_session.h"
 

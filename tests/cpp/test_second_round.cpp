@@ -22,6 +22,7 @@
 #include "train/checkpoint.h"
 #include "train/pose_refinement.h"
 #include "train/run_folder.h"
+#include "train/rounds.h"
 #include "train/trainer.h"
 
 namespace sfgs::testing {
@@ -73,6 +74,16 @@ TEST(TrainPoseRefinement, ASecondRoundStartsFromAnEarlierRunsRefinedFits) {
   train::train_avatar(dataset, plain, second, start);
   expect_training_fits(train::read_run_dataset(train::load_trained_avatar(second, at::kCPU), ""), first_fits, dataset,
                        "plain second round");
+
+  // A run folder stands for its refined fits; one that did not refine, or holds no run, is refused by name.
+  EXPECT_EQ(train::start_fits_file(first.path), first.refined_fits_file());
+  EXPECT_EQ(train::start_fits_file(first.refined_fits_file()), first.refined_fits_file());
+  const std::string empty = folder / "empty";
+  std::filesystem::create_directories(empty);
+  expect_error([&] { train::start_fits_file(second.path); }, {"did not refine its poses"});
+  expect_error([&] { train::start_fits_file(empty); }, {"without a checkpoint.pt"});
+  EXPECT_EQ(train::resumable_checkpoint(first), first.checkpoint_file());
+  EXPECT_EQ(train::resumable_checkpoint(train::RunFolder{empty}), "");
 
   // With refinement, paused and resumed (naming the same fits again): its own refined fits, over the start fits.
   start.stop_at = 3;

@@ -20,6 +20,7 @@
 #include "test_trainer_utils.h"
 #include "train/evaluate.h"
 #include "train/run_folder.h"
+#include "train/rounds.h"
 #include "train/trainer.h"
 
 namespace sfgs::testing {

@@ -18,6 +18,7 @@
 #include "train/step_graphs.h"
 #include "train/training_session.h"
 #include "train/training_step.h"
+#include "train/rounds.h"
 
 namespace sfgs::testing {
 namespace {
