@@ -10,7 +10,6 @@
 #include <torch/csrc/autograd/grad_mode.h>
 
 #include "animate/visibility.h"
-#include "common/constants.h"
 #include "common/device_graph.h"
 #include "common/stage_timer.h"
 #include "common/tensor_description.h"

@@ -3,6 +3,8 @@
 // without a CUDA LibTorch. Each has a LibTorch composition as its reference and the path for everything else.
 #include <cstdint>
 
+#include "body/constants.h"
+
 namespace sfgs::body {
 
 // KinematicTreeImpl::pose (kinematics.h).

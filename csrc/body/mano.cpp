@@ -11,7 +11,7 @@
 #include "body/rotations.h"
 #include "body/skeleton.h"
 #include "body/tensor_checks.h"
-#include "common/constants.h"
+#include "body/constants.h"
 #include "io/npz.h"
 
 namespace sfgs::body {

@@ -8,7 +8,7 @@
 #include "body/parts.h"
 #include "body/skeleton.h"
 #include "body/tensor_checks.h"
-#include "common/constants.h"
+#include "body/constants.h"
 
 namespace sfgs::body {
 namespace {

@@ -32,6 +32,7 @@
 #include "train/pose_refinement.h"
 #include "train/results.h"
 #include "train/run_folder.h"
+#include "train/constants.h"
 
 namespace sfgs::cli {
 namespace fs = std::filesystem;

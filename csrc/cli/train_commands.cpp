@@ -14,7 +14,7 @@
 #include "cli/evaluation_report.h"
 #include "cli/plot.h"
 #include "common/atomic_file.h"
-#include "common/constants.h"
+#include "train/constants.h"
 #include "common/folder_lock.h"
 #include "data/synthetic.h"
 #include "train/checkpoint.h"

@@ -10,6 +10,7 @@
 
 #include "body/mesh.h"
 #include "common/constants.h"
+#include "data/constants.h"
 
 namespace sfgs::data {
 namespace {

@@ -1,5 +1,4 @@
 #include "train/evaluate.h"
-#include "common/constants.h"
 
 #include <algorithm>
 #include <chrono>

@@ -11,6 +11,7 @@
 #include "body/rotations.h"
 #include "common/atomic_file.h"
 #include "common/constants.h"
+#include "train/constants.h"
 #include "train/run_folder.h"
 
 namespace sfgs::train {

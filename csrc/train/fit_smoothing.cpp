@@ -7,7 +7,7 @@
 #include <ATen/ATen.h>
 
 #include "body/rotations.h"
-#include "common/constants.h"
+#include "train/constants.h"
 
 namespace sfgs::train {
 namespace {

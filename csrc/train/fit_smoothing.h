@@ -11,6 +11,8 @@
 
 #include <ATen/core/Tensor.h>
 
+#include "train/constants.h"
+
 namespace sfgs::train {
 
 // `fits`: (F, 3 R + L) rows, R axis-angles then L values that move linearly (a translation); `times` (seconds) and

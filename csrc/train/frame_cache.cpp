@@ -3,6 +3,7 @@
 #include <ATen/ATen.h>
 
 #include "common/constants.h"
+#include "train/constants.h"
 
 namespace sfgs::train {
 

@@ -13,6 +13,7 @@
 #include <ATen/core/Tensor.h>
 
 #include "data/dataset.h"
+#include "train/constants.h"
 
 namespace sfgs::train {
 

@@ -15,7 +15,7 @@
 
 #include "body/rotations.h"
 #include "common/tensor_description.h"
-#include "common/constants.h"
+#include "train/constants.h"
 #include "data/keypoint_file.h"
 #include "train/avatar_keypoints.h"
 #include "train/run_folder.h"

@@ -28,7 +28,7 @@
 #include <ATen/core/Tensor.h>
 
 #include "body/wholebody_keypoints.h"
-#include "common/constants.h"
+#include "train/constants.h"
 #include "data/dataset.h"
 #include "model/avatar.h"
 #include "ops/splat/splat.h"

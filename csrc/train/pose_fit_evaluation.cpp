@@ -7,6 +7,7 @@
 #include <torch/csrc/autograd/autograd.h>
 
 #include "common/constants.h"
+#include "train/constants.h"
 #include "common/tensor_description.h"
 #include "train/pose_refinement.h"
 

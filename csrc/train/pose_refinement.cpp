@@ -12,7 +12,7 @@
 
 #include "body/rotations.h"
 #include "common/atomic_file.h"
-#include "common/constants.h"
+#include "train/constants.h"
 #include "data/json_values.h"
 #include "train/avatar_keypoints.h"
 #include "train/fit_smoothing.h"

@@ -11,7 +11,7 @@
 #include <cmath>
 #include <yaml-cpp/yaml.h>
 
-#include "common/constants.h"
+#include "train/constants.h"
 
 namespace sfgs::train {
 namespace {

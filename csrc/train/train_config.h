@@ -4,7 +4,7 @@
 #include <string>
 #include <vector>
 
-#include "common/constants.h"
+#include "train/constants.h"
 #include "model/avatar.h"
 
 namespace sfgs::train {

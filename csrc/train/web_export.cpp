@@ -16,6 +16,7 @@
 #include "body/skeleton.h"
 #include "common/atomic_file.h"
 #include "common/constants.h"
+#include "train/constants.h"
 #include "train/web_assets.h"
 
 namespace sfgs::train {

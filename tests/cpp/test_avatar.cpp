@@ -21,7 +21,6 @@
 #include "body/parts.h"
 #include "body/skeleton.h"
 #include "body/smplx.h"
-#include "common/constants.h"
 #include "model/avatar.h"
 #include "model/inference_cache.h"
 #include "test_avatar_utils.h"

@@ -9,7 +9,6 @@
 
 #include "body/mesh.h"
 #include "body/parts.h"
-#include "common/constants.h"
 #include "model/observation_prior.h"
 #include "train/run_folder.h"
 #include "test_avatar_utils.h"

@@ -7,7 +7,6 @@
 #include <gtest/gtest.h>
 #include <torch/csrc/autograd/autograd.h>
 
-#include "common/constants.h"
 #include "model/planes.h"
 #include "ops/plane_sampling/plane_sampling.h"
 #include "test_files.h"

@@ -5,7 +5,7 @@
 #include <gtest/gtest.h>
 #include <torch/csrc/autograd/grad_mode.h>
 
-#include "common/constants.h"
+#include "train/constants.h"
 #include "test_avatar_utils.h"
 #include "test_body_utils.h"
 #include "test_files.h"

@@ -23,6 +23,7 @@
 #include "test_avatar_utils.h"
 #include "test_files.h"
 #include "train/web_export.h"
+#include "train/constants.h"
 
 namespace sfgs::testing {
 namespace {

@@ -23,6 +23,7 @@
 #include "ops/skin/skin.h"
 #include "test_avatar_utils.h"
 #include "tensor_compare.h"
+#include "body/constants.h"
 
 namespace sfgs::testing {
 namespace {

@@ -7,7 +7,7 @@
 #include <ATen/TensorOperators.h>
 
 #include "body/skeleton.h"
-#include "common/constants.h"
+#include "body/constants.h"
 
 namespace sfgs::body::procedural {
 namespace {

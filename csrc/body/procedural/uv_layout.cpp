@@ -9,7 +9,7 @@
 
 #include <ATen/Functions.h>
 
-#include "common/constants.h"
+#include "body/constants.h"
 
 namespace sfgs::body::procedural {
 namespace {
