@@ -6,7 +6,9 @@
 // redispatches below autograd for the forward pass and calls the op's backward op for the gradients. Each op's public
 // function calls its op through the dispatcher, as torch.ops.sfgs.<op> does; referencing it keeps the op's file, and
 // with it the registration, in a static link.
+#include <ATen/core/Tensor.h>
 #include <ATen/core/dispatch/Dispatcher.h>
+#include <c10/util/Optional.h>
 
 namespace sfgs::ops {
 
@@ -16,6 +18,10 @@ inline constexpr bool kBuiltWithCuda = true;
 #else
 inline constexpr bool kBuiltWithCuda = false;
 #endif
+
+// A schema's `Tensor?` argument; an undefined tensor is passed as None.
+using OptionalTensor = c10::optional<at::Tensor>;
+inline OptionalTensor optional_tensor(const at::Tensor& t) { return t.defined() ? OptionalTensor(t) : c10::nullopt; }
 
 // The typed handle of the registered op `qualified_name` ("sfgs::<op>").
 template <typename Signature> c10::TypedOperatorHandle<Signature> find_op(const char* qualified_name) {

@@ -154,6 +154,14 @@ TEST(FeatureFusion, TheOpsAreDispatcherOpsWhoseMetaKernelsDescribeTheirOutputs) 
   const std::vector<at::Tensor> mix = mix_inputs(6, 5, 3);
   expect_meta_describes_cpu("sfgs::gated_mix", {mix[0], mix[1], mix[2]});
   expect_meta_describes_cpu("sfgs::gated_mix_backward", {at::randn({6, 5}, kF64), mix[0], mix[1], mix[2]});
+  try {
+    call_boxed(registered_op("sfgs::gated_mix_backward"), {at::randn({6, 4}, kF64), mix[0], mix[1], mix[2]});
+    ADD_FAILURE() << "a gradient of the wrong shape was taken";
+  } catch (const c10::Error& e) {
+    EXPECT_NE(std::string(e.what_without_backtrace()).find("gated_mix_backward: grad must share a's shape"),
+              std::string::npos)
+        << e.what_without_backtrace();
+  }
   const auto [first_points, second_points] = random_subsets(9, 4, 5);
   const feature_fusion::MergeOrder order = feature_fusion::MergeOrder::of(first_points, second_points);
   const at::Tensor first = at::randn({4, 3}, kF64), second = at::randn({5, 3}, kF64);

@@ -14,9 +14,7 @@
 namespace sfgs::testing {
 namespace {
 
-c10::OperatorHandle render_gaussians_op() {
-  return c10::Dispatcher::singleton().findSchemaOrThrow("sfgs::render_gaussians", "");
-}
+c10::OperatorHandle render_gaussians_op() { return registered_op("sfgs::render_gaussians"); }
 
 // A CUDA kernel only in a build with the CUDA backend.
 TEST(SplatOp, HasCpuMetaAndAutogradKernelsAndCudaWhereBuilt) { expect_backend_kernels("sfgs::render_gaussians", true); }

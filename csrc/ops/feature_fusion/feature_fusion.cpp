@@ -75,6 +75,13 @@ void gather_rows(const at::Tensor& first, const at::Tensor& second, int64_t firs
     gather_rows_as<float>(first, second, first_rows, source, out_first, out_second, out_first_rows);
 }
 
+void check_mix_gradient(const at::Tensor& grad, const at::Tensor& a) {
+  TORCH_CHECK(grad.defined() && grad.sizes() == a.sizes() && grad.scalar_type() == a.scalar_type() &&
+                  grad.device() == a.device(),
+              "gated_mix_backward: grad must share a's shape ", a.sizes(), ", dtype ", a.scalar_type(), " and device ",
+              a.device(), ", got ", describe(grad));
+}
+
 void check_mix(const at::Tensor& logits, const at::Tensor& a, const at::Tensor& b, bool on_meta = false) {
   TORCH_CHECK(a.defined() && is_float_or_double(a), "gated_mix: a must be a float or double tensor, got ", describe(a));
   for (const at::Tensor* t : {&logits, &b}) {
@@ -156,7 +163,7 @@ at::Tensor mix_meta(const at::Tensor& logits, const at::Tensor& a, const at::Ten
 Gradients3 mix_backward_kernel(const at::Tensor& grad, const at::Tensor& logits, const at::Tensor& a,
                                const at::Tensor& b) {
   check_mix(logits, a, b);
-  check_mix(logits, grad, b);
+  check_mix_gradient(grad, a);
   const variable_list saved = {logits.contiguous(), a.contiguous(), b.contiguous()};
   const at::Tensor g = grad.contiguous();
   const variable_list out = {at::empty_like(saved[0]), at::empty_like(saved[1]), at::empty_like(saved[2])};
@@ -170,7 +177,7 @@ Gradients3 mix_backward_kernel(const at::Tensor& grad, const at::Tensor& logits,
 Gradients3 mix_backward_meta(const at::Tensor& grad, const at::Tensor& logits, const at::Tensor& a,
                              const at::Tensor& b) {
   check_mix(logits, a, b, /*on_meta=*/true);
-  check_mix(logits, grad, b, /*on_meta=*/true);
+  check_mix_gradient(grad, a);
   const auto like = [](const at::Tensor& t) { return at::empty_like(t, at::MemoryFormat::Contiguous); };
   return {like(logits), like(a), like(b)};
 }

@@ -135,7 +135,8 @@ bool fuses_layer(at::Device device, int64_t channels, int64_t groups) {
 
 // ---- the dispatcher ops (ops/registration.h) ----
 
-using OptionalTensor = c10::optional<at::Tensor>;
+using ops::optional_tensor;
+using ops::OptionalTensor;
 using ForwardOutputs = std::tuple<at::Tensor, at::Tensor, at::Tensor>;               // out, mean, rstd
 using BackwardOutputs = std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor>;  // pre, bias, gamma, beta
 
@@ -172,7 +173,6 @@ const c10::TypedOperatorHandle<BackwardSignature>& backward_op() {
 at::Tensor bias_or_empty(const OptionalTensor& bias, const at::Tensor& like) {
   return bias.has_value() ? bias->contiguous() : at::empty({0}, like.options());
 }
-OptionalTensor optional(const at::Tensor& t) { return t.defined() ? OptionalTensor(t) : c10::nullopt; }
 
 // A backend kernel's own checks: what group_norm_relu checks, and on CUDA the shapes the kernel takes.
 void check_backend_inputs(const at::Tensor& pre, const OptionalTensor& bias, const at::Tensor& gamma,
@@ -278,8 +278,8 @@ class GroupNormReluFunction : public torch::autograd::Function<GroupNormReluFunc
   static variable_list backward(AutogradContext* ctx, variable_list grads) {
     if (!grads[0].defined()) return variable_list(6);
     const variable_list v = ctx->get_saved_variables();
-    const auto [pre, bias, gamma, beta] =
-        backward_op().call(grads[0], v[0], v[1].numel() > 0 ? optional(v[1]) : c10::nullopt, v[2], v[3], v[4], v[5]);
+    const auto [pre, bias, gamma, beta] = backward_op().call(
+        grads[0], v[0], v[1].numel() > 0 ? optional_tensor(v[1]) : c10::nullopt, v[2], v[3], v[4], v[5]);
     return {pre, bias.numel() > 0 ? bias : at::Tensor(), gamma, beta, at::Tensor(), at::Tensor()};
   }
 };
@@ -308,8 +308,9 @@ class LinearGroupNormReluFunction : public torch::autograd::Function<LinearGroup
     const variable_list v = ctx->get_saved_variables();
     const at::Tensor& x = v[0];
     const at::Tensor& weight = v[1];
-    const auto [pre, bias, gamma, beta] = backward_op().call(
-        grads[0], at::mm(x, weight.t()), v[2].numel() > 0 ? optional(v[2]) : c10::nullopt, v[3], v[4], v[5], v[6]);
+    const auto [pre, bias, gamma, beta] =
+        backward_op().call(grads[0], at::mm(x, weight.t()), v[2].numel() > 0 ? optional_tensor(v[2]) : c10::nullopt,
+                           v[3], v[4], v[5], v[6]);
     return {pre.mm(weight), pre.t().mm(x), bias.numel() > 0 ? bias : at::Tensor(), gamma, beta,
             at::Tensor(),   at::Tensor()};
   }
@@ -346,7 +347,7 @@ at::Tensor group_norm_relu(const at::Tensor& pre, const at::Tensor& bias, const 
                            const at::Tensor& beta, int64_t groups, double epsilon) {
   check_inputs(pre, bias, gamma, beta, groups, epsilon);
   if (!fuses(pre, groups)) return group_norm_relu_reference(pre, bias, gamma, beta, groups, epsilon);
-  return std::get<0>(forward_op().call(pre, optional(bias), gamma, beta, groups, epsilon));
+  return std::get<0>(forward_op().call(pre, optional_tensor(bias), gamma, beta, groups, epsilon));
 }
 
 at::Tensor linear_group_norm_relu(const at::Tensor& x, const at::Tensor& weight, const at::Tensor& bias,
@@ -355,7 +356,7 @@ at::Tensor linear_group_norm_relu(const at::Tensor& x, const at::Tensor& weight,
   check_layer(x, weight.size(0), bias, gamma, beta, groups, epsilon);
   if (!fuses_layer(x.device(), weight.size(0), groups))
     return group_norm_relu_reference(at::mm(x, weight.t()), bias, gamma, beta, groups, epsilon);
-  return std::get<0>(linear_op().call(x, weight, optional(bias), gamma, beta, groups, epsilon));
+  return std::get<0>(linear_op().call(x, weight, optional_tensor(bias), gamma, beta, groups, epsilon));
 }
 
 TORCH_LIBRARY_FRAGMENT(sfgs, m) {

@@ -15,9 +15,9 @@
 namespace sfgs::linear {
 namespace {
 
+using ops::OptionalTensor;
 using torch::autograd::AutogradContext;
 using torch::autograd::variable_list;
-using OptionalTensor = c10::optional<at::Tensor>;
 
 constexpr const char* kLinearSchema = "linear(Tensor x, Tensor weight, Tensor? bias) -> Tensor";
 constexpr const char* kColumnSumSchema = "column_sum(Tensor rows) -> Tensor";
@@ -110,7 +110,7 @@ at::Tensor linear_autograd(const at::Tensor& x, const at::Tensor& weight, const 
 }  // namespace
 
 at::Tensor linear(const at::Tensor& x, const at::Tensor& weight, const at::Tensor& bias) {
-  const OptionalTensor optional_bias = bias.defined() ? OptionalTensor(bias) : c10::nullopt;
+  const OptionalTensor optional_bias = ops::optional_tensor(bias);
   check_linear(x, weight, optional_bias);
   return linear_op().call(x, weight, optional_bias);
 }

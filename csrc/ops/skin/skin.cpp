@@ -56,7 +56,8 @@ void dispatch_backward(const BackwardTensors& t) {
     backward_as<float>(t);
 }
 
-using OptionalTensor = c10::optional<at::Tensor>;
+using ops::optional_tensor;
+using ops::OptionalTensor;
 using Outputs = std::tuple<at::Tensor, at::Tensor, at::Tensor>;
 
 constexpr const char* kForwardSchema =
@@ -194,8 +195,6 @@ const c10::TypedOperatorHandle<BackwardSignature>& backward_op() {
   return handle;
 }
 
-const auto optional = [](const at::Tensor& x) { return x.defined() ? OptionalTensor(x) : c10::nullopt; };
-
 // The op's one autograd node: canonical means, log-scales and (when given) rest points are differentiated; the
 // weights and transforms are not (a pose being fitted takes the reference composition).
 class SkinFunction : public torch::autograd::Function<SkinFunction> {
@@ -219,8 +218,8 @@ class SkinFunction : public torch::autograd::Function<SkinFunction> {
     const variable_list saved = ctx->get_saved_variables();
     const bool has_rest = ctx->saved_data["has_rest"].toBool();
     const auto [grad_canonical_means, grad_log_scales, grad_rest] =
-        backward_op().call(saved[0], saved[1], saved[2], saved[3], optional(grads[0]), optional(grads[1]),
-                           has_rest ? optional(grads[2]) : c10::nullopt);
+        backward_op().call(saved[0], saved[1], saved[2], saved[3], optional_tensor(grads[0]), optional_tensor(grads[1]),
+                           has_rest ? optional_tensor(grads[2]) : c10::nullopt);
     return {grad_canonical_means, grad_log_scales, has_rest && grad_rest.numel() > 0 ? grad_rest : at::Tensor(),
             at::Tensor(),         at::Tensor(),    at::Tensor()};
   }
@@ -301,9 +300,8 @@ SkinnedGaussians skin_gaussians(const SkinningWeights& w, const at::Tensor& tran
     return skinning_reference(w.to_dense(), transforms, canonical_means, log_scales, rest);
   const at::Tensor rows = transforms.narrow(1, 0, 3).reshape({j, kTransformValues}).contiguous();
   const auto [means, covariances, posed_rest] =
-      forward_op().call(canonical_means.contiguous(), log_scales.contiguous(),
-                        rest.defined() ? OptionalTensor(rest.contiguous()) : c10::nullopt, w.joints.contiguous(),
-                        w.weights.contiguous(), rows);
+      forward_op().call(canonical_means.contiguous(), log_scales.contiguous(), optional_tensor(rest),
+                        w.joints.contiguous(), w.weights.contiguous(), rows);
   return SkinnedGaussians{means, covariances, rest.defined() ? posed_rest : at::Tensor()};
 }
 

@@ -25,9 +25,10 @@
 namespace sfgs::splat {
 namespace {
 
+using ops::optional_tensor;
+using ops::OptionalTensor;
 using torch::autograd::AutogradContext;
 using torch::autograd::variable_list;
-using OptionalTensor = c10::optional<at::Tensor>;
 
 // Every kernel of the op has the schema's parameters, in its order.
 #define SFGS_OP_PARAMETERS                                                                                             \
@@ -265,10 +266,10 @@ TORCH_LIBRARY_IMPL(sfgs, Autograd, m) { m.impl("render_gaussians", TORCH_FN(auto
 
 RenderOutputs render_gaussians(const SplatInputs& t, const Camera& camera, double low_pass_variance, bool antialiased,
                                bool deterministic) {
-  const auto optional = [](const at::Tensor& x) { return x.defined() ? OptionalTensor(x) : c10::nullopt; };
-  return op().call(t.means, optional(t.scales), optional(t.rotations), optional(t.covariances), t.opacities, t.features,
-                   t.background, camera.world_to_camera, camera.fx, camera.fy, camera.cx, camera.cy, camera.width,
-                   camera.height, camera.near_plane, camera.far_plane, low_pass_variance, antialiased, deterministic);
+  return op().call(t.means, optional_tensor(t.scales), optional_tensor(t.rotations), optional_tensor(t.covariances),
+                   t.opacities, t.features, t.background, camera.world_to_camera, camera.fx, camera.fy, camera.cx,
+                   camera.cy, camera.width, camera.height, camera.near_plane, camera.far_plane, low_pass_variance,
+                   antialiased, deterministic);
 }
 
 }  // namespace sfgs::splat
