@@ -7,7 +7,8 @@
 // (--blend-segments, default 0,128,192,256,384,512; 0 never cuts a tile's run; csrc/ops/splat/cuda/blend_forward.cu)
 // and per cut share (--blend-cut-shares, default 0,0.5,1,1.5,2,4: runs longer than that many times the intersections
 // per resident block are cut; 0 cuts every run longer than a segment; kBlendCutShare) the median graph frame and the
-// largest difference to the uncut image.
+// largest difference to the uncut image. Per size, the tile runs of the first pose (print_tile_runs: what the blend's
+// work is made of).
 // Usage: bench_animate [--device cpu|cuda] [--shared DIR] [--run DIR] [--levels L] [--sizes 800x1200,540x960]
 //                      [--frames N] [--cull-cosines C,...] [--blend-segments L,...] [--blend-cut-shares S,...]
 //                      [--profile 1] [--time T]
@@ -44,6 +45,8 @@
 #endif
 #include "metrics/image_metrics.h"
 #include "model/observation_prior.h"
+#include "ops/splat/backend.h"
+#include "ops/splat/validation.h"
 #include "train/run_folder.h"
 #include "flags.h"
 #include "profiled_range.h"
@@ -273,6 +276,88 @@ void print_blend_segment_table(sfgs::model::Avatar& avatar, const sfgs::Camera& 
 #endif
 }
 
+// The CUDA blends' pixel block of a warp (csrc/ops/splat/cuda/blend_common.cuh): a Gaussian is evaluated by a warp
+// only when it can reach one of the warp's pixels.
+constexpr int kWarpBlockWidth = 8, kWarpBlockHeight = 4;
+
+// What the blend's work is made of, from the CPU reference's pass over one frame of the pose (the avatar's Gaussians
+// as its forward gives them): the tiles' run lengths (a run is one tile's depth-ordered list; the longest set how long
+// a blend lasts), how far into its run a tile's pixels composite before their transmittance runs out, and the warp
+// evaluations ("hits": a Gaussian of a run against one warp's pixel block that it can reach) up to that point.
+void print_tile_runs(sfgs::model::Avatar& avatar, const sfgs::Camera& camera, const SmplxPose& pose) {
+  at::NoGradGuard no_grad;
+  const sfgs::Gaussians g = sfgs::model::to_gaussians(avatar->forward(pose, std::nullopt));
+  const auto host = [](const at::Tensor& t) {
+    return t.defined() ? t.detach().to(at::kCPU, at::kFloat).contiguous() : at::Tensor();
+  };
+  const sfgs::splat::SplatInputs inputs{host(g.means),
+                                        host(g.scales),
+                                        host(g.rotations),
+                                        host(g.covariances),
+                                        host(g.opacities).reshape({-1}),
+                                        host(g.features),
+                                        at::ones({g.features.size(1)})};
+  const sfgs::splat::BackendSettings settings{{sfgs::kLowPassVariancePx2, false}, false};
+  const sfgs::splat::cpu::Forward pass =
+      sfgs::splat::cpu::forward(inputs, sfgs::splat::validated_camera(camera), settings);
+  const int width = int(camera.width), height = int(camera.height);
+  const int tiles_x = (width + sfgs::kTileSize - 1) / sfgs::kTileSize;
+  const int64_t tiles = pass.context.tile_offsets.size(0) - 1;
+  const auto* offset = pass.context.tile_offsets.data_ptr<int64_t>();
+  const auto* last = pass.context.contributors.data_ptr<int32_t>();
+  const auto* projected = pass.context.projected.data_ptr<float>();
+  const auto* order = pass.context.tile_order.data_ptr<int64_t>();
+  const auto* gaussian_of = pass.context.isect_gaussian.data_ptr<int64_t>();
+  struct Run {
+    int64_t tile, length, composited, hits;
+  };
+  std::vector<Run> runs;
+  for (int64_t t = 0; t < tiles; ++t) {
+    Run run{t, offset[t + 1] - offset[t], 0, 0};
+    if (run.length == 0) continue;
+    const int x0 = int(t % tiles_x) * sfgs::kTileSize, y0 = int(t / tiles_x) * sfgs::kTileSize;
+    const int x1 = std::min(x0 + sfgs::kTileSize, width), y1 = std::min(y0 + sfgs::kTileSize, height);
+    for (int y = y0; y < y1; ++y)
+      for (int x = x0; x < x1; ++x) run.composited = std::max<int64_t>(run.composited, last[int64_t(y) * width + x]);
+    for (int64_t k = offset[t]; k < offset[t] + run.composited; ++k) {
+      const auto gaussian =
+          sfgs::splat::load_projected(projected + gaussian_of[order[k]] * sfgs::splat::kProjectedWidth);
+      for (int by = y0; by < y1; by += kWarpBlockHeight)
+        for (int bx = x0; bx < x1; bx += kWarpBlockWidth)
+          run.hits += sfgs::splat::pixel_block_touched(gaussian, bx, by, std::min(bx + kWarpBlockWidth, x1) - 1,
+                                                       std::min(by + kWarpBlockHeight, y1) - 1);
+    }
+    runs.push_back(run);
+  }
+  if (runs.empty()) {
+    std::printf("  tile runs: none (nothing of the avatar is in view)\n");
+    return;
+  }
+  std::sort(runs.begin(), runs.end(), [](const Run& x, const Run& y) { return x.length > y.length; });
+  const int64_t intersections = offset[tiles];
+  int64_t hits = 0;
+  for (const Run& r : runs) hits += r.hits;
+  const auto percentile = [&](double p) { return runs[size_t(double(runs.size() - 1) * (1 - p))].length; };
+  std::printf(
+      "  tile runs (CPU reference pass of the first pose): %ld of %ld tiles hold one; length median %ld, 90th %ld, "
+      "99th %ld, longest %ld; %.2f warp hits an intersection\n",
+      long(runs.size()), long(tiles), long(percentile(0.5)), long(percentile(0.9)), long(percentile(0.99)),
+      long(runs.front().length), double(hits) / double(intersections));
+  for (int64_t cut : {256, 640, 2048}) {
+    int64_t count = 0, length = 0, composited = 0;
+    for (const Run& r : runs)
+      if (r.length > cut) ++count, length += r.length, composited += r.composited;
+    std::printf("    runs > %4ld: %4ld tiles, %5.1f %% of the intersections, %5.1f %% of their length composited\n",
+                long(cut), long(count), 100.0 * double(length) / double(intersections),
+                length ? 100.0 * double(composited) / double(length) : 0.0);
+  }
+  std::printf("    longest runs (tile x,y: length, composited, warp hits):");
+  for (size_t k = 0; k < std::min<size_t>(6, runs.size()); ++k)
+    std::printf(" %ld,%ld: %ld, %ld, %ld;", long(runs[k].tile % tiles_x), long(runs[k].tile / tiles_x),
+                long(runs[k].length), long(runs[k].composited), long(runs[k].hits));
+  std::printf("\n");
+}
+
 }  // namespace
 
 // A trained avatar's observation prior (model/observation_prior.h): how much of the body is well observed, the rings
@@ -370,6 +455,7 @@ int main(int argc, char** argv) {
     std::printf("%ldx%ld\n", long(width), long(height));
     std::printf("  eager frame: %.3f ms (%.0f frames/s); stages of an eager frame:\n", eager_ms, 1000 / eager_ms);
     clock.print(10, "frame (eager, synchronised per stage)");
+    print_tile_runs(avatar, camera, a);
     if (cuda) {
       sfgs::animate::Animator graphed(avatar, camera, white);
       time_frames(graphed, a, b, 3, cuda, args.time);  // captures

@@ -10,10 +10,10 @@
 // Joining is exact but for rounding. Segment k composites its run from a transmittance of 1, giving (colour_k,
 // depth_k, T_k); a pixel entering it with transmittance T takes colour + T colour_k and T T_k, which is what the
 // serial loop gives as long as T T_k stays >= kMinTransmittance: the transmittance only falls, so no Gaussian of the
-// segment would have stopped the serial loop. At the first segment where it would not stay, the join composites that
-// segment again from the pixel's true transmittance, with the serial loop's stop rule, and ignores the rest; a pixel
-// entering that segment with a transmittance of exactly 1 takes the segment's own composite, which is the serial
-// loop's.
+// segment would have stopped the serial loop. At the first segment where it would not stay, that segment's block of a
+// second kernel composites it again from the pixel's true transmittance, with the serial loop's stop rule, and the
+// rest is ignored; a pixel entering that segment with a transmittance of exactly 1 takes the segment's own composite,
+// which is the serial loop's.
 #include <cub/block/block_scan.cuh>
 #include <type_traits>
 
@@ -237,50 +237,67 @@ __global__ void __launch_bounds__(kPlanThreads)
   if (threadIdx.x == 0) *plan.count = carried[0];
 }
 
-// Joins a split tile's partial composites front to back, and composites again the segment in which each pixel's
-// serial loop would stop. The partials come from other blocks of this launch: they are read past the (non-coherent)
-// L1 cache.
+// One segment's partial composite of one pixel (PartialComposites).
+template <typename T, int kChannels> struct PartialPixel {
+  T colour[kChannels];
+  T transmittance, depth;
+  int32_t last;
+};
+
+// The partials come from other blocks of this launch: they are read past the (non-coherent) L1 cache.
 template <typename T, int kChannels>
-__device__ __noinline__ void join_segments(ForwardShared<T, kChannels>& sh, const BlendForwardParams<T>& a,
-                                           int channel_begin, int channel_count, const BlockPixel<T>& at,
-                                           const SplitTile& split) {
+__device__ inline PartialPixel<T, kChannels> load_partial(const PartialComposites<T>& partials, int64_t slot) {
+  const T* values = partials.values + slot * partial_width<kChannels>();
+  PartialPixel<T, kChannels> p;
+#pragma unroll
+  for (int c = 0; c < kChannels; ++c) p.colour[c] = __ldcg(values + c);
+  p.transmittance = __ldcg(values + kChannels);
+  p.depth = __ldcg(values + kChannels + 1);
+  p.last = __ldcg(partials.last + slot);
+  return p;
+}
+
+// Joins one pixel of a split tile: its partial composites front to back, up to the segment in which its serial loop
+// would stop. A pixel whose loop runs through every segment is written; a pixel that stops inside segment k is handed
+// to that segment's block of finish_stopping_segments_kernel: its composite before k replaces k's partial, marked by
+// a negative `last`. So the segments in which a tile's pixels stop are composited again at once, by their own
+// blocks, not one after another by the joining block (a dense tile's pixels stop in dozens of different segments).
+template <typename T, int kChannels>
+__device__ __noinline__ void join_segments(const BlendForwardParams<T>& a, int channel_begin, int channel_count,
+                                           const BlockPixel<T>& at, const SplitTile& split) {
+  if (!at.inside) return;
   PixelComposite<T, kChannels> pixel;
-  int32_t stopping = split.segments;  // the segment the serial loop stops in; none by default
-  if (at.inside) {
-    for (int32_t k = 0; k < split.segments; ++k) {
-      const int64_t slot = int64_t(split.first_partial + k) * kBlendThreads + threadIdx.x;
-      const T* values = a.partials.values + slot * partial_width<kChannels>();
-      const T segment_transmittance = __ldcg(values + kChannels);
-      if (segment_transmittance < T(0) && pixel.transmittance == T(1)) {
-        // Nothing blended before the segment: its own composite is the serial loop's, stop included.
-#pragma unroll
-        for (int c = 0; c < kChannels; ++c) pixel.colour[c] = __ldcg(values + c);
-        pixel.depth = __ldcg(values + kChannels + 1);
-        pixel.transmittance = -segment_transmittance;
-        pixel.last = __ldcg(a.partials.last + slot);
-        break;
-      }
-      if (segment_transmittance < T(0) || pixel.transmittance * segment_transmittance < T(kMinTransmittance)) {
-        stopping = k;
-        break;
-      }
-#pragma unroll
-      for (int c = 0; c < kChannels; ++c) pixel.colour[c] += pixel.transmittance * __ldcg(values + c);
-      pixel.depth += pixel.transmittance * __ldcg(values + kChannels + 1);
-      pixel.transmittance *= segment_transmittance;
-      const int32_t last = __ldcg(a.partials.last + slot);
-      if (last > 0) pixel.last = last;
-    }
-  }
-  const int64_t run_begin = a.b.tile_offsets[split.tile], run_end = a.b.tile_offsets[split.tile + 1];
+  const int64_t first_slot = int64_t(split.first_partial) * kBlendThreads + threadIdx.x;
+  // The next segment's partial is loaded while this one is added: the loop is a chain of reads from L2.
+  PartialPixel<T, kChannels> next = load_partial<T, kChannels>(a.partials, first_slot);
   for (int32_t k = 0; k < split.segments; ++k) {
-    if (!__syncthreads_or(stopping == k)) continue;
-    bool done = stopping != k;
-    const int64_t length = a.plan.cut.segment_length, lo = run_begin + k * length;
-    composite_run(sh, a, channel_begin, channel_count, at, run_begin, lo, smaller(lo + length, run_end), pixel, done);
-    // Rounding may let the product of the transmittances fall below the threshold where the serial loop's own
-    // products do not: such a pixel goes on into the next segment, as the serial loop would.
-    if (stopping == k && !done) stopping = k + 1;
+    const PartialPixel<T, kChannels> segment = next;
+    if (k + 1 < split.segments)
+      next = load_partial<T, kChannels>(a.partials, first_slot + int64_t(k + 1) * kBlendThreads);
+    if (segment.transmittance < T(0) && pixel.transmittance == T(1)) {
+      // Nothing blended before the segment: its own composite is the serial loop's, stop included.
+#pragma unroll
+      for (int c = 0; c < kChannels; ++c) pixel.colour[c] = segment.colour[c];
+      pixel.depth = segment.depth;
+      pixel.transmittance = -segment.transmittance;
+      pixel.last = segment.last;
+      break;
+    }
+    if (segment.transmittance < T(0) || pixel.transmittance * segment.transmittance < T(kMinTransmittance)) {
+      const int64_t slot = first_slot + int64_t(k) * kBlendThreads;
+      T* values = a.partials.values + slot * partial_width<kChannels>();
+#pragma unroll
+      for (int c = 0; c < kChannels; ++c) values[c] = pixel.colour[c];
+      values[kChannels] = pixel.transmittance;
+      values[kChannels + 1] = pixel.depth;
+      a.partials.last[slot] = -1 - pixel.last;
+      return;
+    }
+#pragma unroll
+    for (int c = 0; c < kChannels; ++c) pixel.colour[c] += pixel.transmittance * segment.colour[c];
+    pixel.depth += pixel.transmittance * segment.depth;
+    pixel.transmittance *= segment.transmittance;
+    if (segment.last > 0) pixel.last = segment.last;
   }
   write_pixel(a, channel_begin, channel_count, at, pixel);
 }
@@ -310,13 +327,52 @@ __global__ void __launch_bounds__(kBlendThreads, kForwardBlendBlocks<T>)
   values[kChannels] = done && at.inside ? -pixel.transmittance : pixel.transmittance;
   values[kChannels + 1] = pixel.depth;
   a.partials.last[slot] = pixel.last;
-  // The partial is visible to every block before it is counted.
-  __threadfence();
+  // The barrier orders the block's partial before thread 0's fence and count, as a grid barrier does; the fence
+  // after the count orders the joining block's reads after it.
   __syncthreads();
   const SplitTile split = a.plan.split_tiles[segment.split];
-  if (threadIdx.x == 0) joins = atomicAdd(a.plan.arrivals + segment.split, 1) == split.segments - 1;
+  if (threadIdx.x == 0) {
+    __threadfence();
+    joins = atomicAdd(a.plan.arrivals + segment.split, 1) == split.segments - 1;
+    __threadfence();
+  }
   __syncthreads();
-  if (joins) join_segments(sh, a, channel_begin, channel_count, at, split);
+  if (joins) join_segments<T, kChannels>(a, channel_begin, channel_count, at, split);
+}
+
+// After blend_forward_kernel, one block per segment of the plan: the pixels that join_segments handed to a split
+// tile's segment composite it again from their true transmittance with the serial loop's stop rule, and on into
+// the rest of the run should rounding let one pass the segment's end (the product of the segments' transmittances
+// may fall below the threshold where the serial loop's own products do not), then are written.
+template <typename T, int kChannels>
+__global__ void __launch_bounds__(kBlendThreads, kForwardBlendBlocks<T>)
+    finish_stopping_segments_kernel(const __grid_constant__ BlendForwardParams<T> a, int channel_begin,
+                                    int channel_count) {
+  __shared__ ForwardShared<T, kChannels> sh;
+  if (int32_t(blockIdx.x) >= *a.plan.count) return;
+  const BlendSegment segment = a.plan.segments[blockIdx.x];
+  if (segment.split < 0) return;
+  const BlockPixel<T> at = block_pixel<T>(segment.tile, a.grid);
+  PixelComposite<T, kChannels> pixel;
+  bool done = true;
+  if (at.inside) {
+    const int64_t slot = int64_t(segment.slot) * kBlendThreads + threadIdx.x;
+    const int32_t last = a.partials.last[slot];
+    if (last < 0) {
+      const T* values = a.partials.values + slot * partial_width<kChannels>();
+#pragma unroll
+      for (int c = 0; c < kChannels; ++c) pixel.colour[c] = values[c];
+      pixel.transmittance = values[kChannels];
+      pixel.depth = values[kChannels + 1];
+      pixel.last = -1 - last;
+      done = false;
+    }
+  }
+  const bool handed = !done;
+  if (__syncthreads_count(handed) == 0) return;
+  const int64_t run_begin = a.b.tile_offsets[segment.tile], run_end = a.b.tile_offsets[segment.tile + 1];
+  composite_run(sh, a, channel_begin, channel_count, at, run_begin, segment.begin, run_end, pixel, done);
+  if (handed) write_pixel(a, channel_begin, channel_count, at, pixel);
 }
 
 // One block per tile, in the blend's tile order: the pass when no run is cut, with neither a plan to read nor a join
@@ -389,6 +445,9 @@ void blend(const SplatScene<T>& s, const ForwardBuffers<T>& b, const BinStats& s
     blend_forward_kernel<T, decltype(width)::value>
         <<<unsigned(most_segments), kBlendThreads, 0, stream>>>(params, channel_begin, channel_count);
     check_cuda(cudaGetLastError(), "blend_forward_kernel launch");
+    finish_stopping_segments_kernel<T, decltype(width)::value>
+        <<<unsigned(most_segments), kBlendThreads, 0, stream>>>(params, channel_begin, channel_count);
+    check_cuda(cudaGetLastError(), "finish_stopping_segments_kernel launch");
   });
 }
 
