@@ -246,6 +246,24 @@ TEST(GatheredMlpFirstLayer, BadInputsAreClearErrors) {
                           "groups must be an int64 (8) tensor on cpu, got a Long tensor of shape [7]");
 }
 
+TEST(GatheredMlp, IsADispatcherOpWhoseMetaKernelDescribesItsOutput) {
+  expect_backend_kernels("sfgs::gathered_mlp", true);  // its Autograd kernel refuses a gradient
+  const int64_t n = 7, h = 4;
+  const std::vector<c10::IValue> arguments = {at::randn({n, h}), at::randn({3, h}), at::randint(3, {n}, at::kLong),
+                                              at::randn({h, h}), at::randn({h}),    at::randn({2, h}),
+                                              at::randn({2})};
+  at::NoGradGuard no_grad;
+  expect_meta_describes_cpu("sfgs::gathered_mlp", arguments);
+  const at::Tensor out = call_boxed(registered_op("sfgs::gathered_mlp"), arguments)[0].toTensor();
+  const gathered_mlp::GatheredMlpWeights w{arguments[3].toTensor(), arguments[4].toTensor(), arguments[5].toTensor(),
+                                           arguments[6].toTensor()};
+  EXPECT_TRUE(at::equal(out, gathered_mlp::gathered_mlp_reference(arguments[0].toTensor(), arguments[1].toTensor(),
+                                                                  arguments[2].toTensor(), w)));
+  std::vector<c10::IValue> outside = arguments;
+  outside[2] = arguments[2].toTensor() + 3;
+  EXPECT_THROW(call_boxed(registered_op("sfgs::gathered_mlp"), outside), c10::Error);
+}
+
 TEST(GatheredFirstLayer, IsADispatcherOpWhoseMetaKernelsDescribeItsOutputs) {
   expect_backend_kernels("sfgs::gathered_first_layer", true);
   expect_backend_kernels("sfgs::gathered_first_layer_backward", false);

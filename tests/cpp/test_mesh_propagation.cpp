@@ -8,6 +8,7 @@
 #include "common/constants.h"
 #include "ops/mesh_propagation/mesh_propagation.h"
 #include "mesh_propagation_cases.h"
+#include "op_check.h"
 #include "tensor_compare.h"
 
 namespace sfgs::testing {
@@ -98,6 +99,48 @@ TEST(MeshPropagation, RefusesWhatDoesNotFitThePlan) {
   outside.indices = outside.indices.clone();
   outside.indices[0][0] = n;
   EXPECT_THROW(mesh_propagation::plan(c.trust, outside, at::kCPU, at::kFloat), c10::Error);
+}
+
+// The op's arguments from a plan: values, then the plan's tensors and rings in the schema's order.
+std::vector<c10::IValue> op_arguments(const at::Tensor& values, const mesh_propagation::Plan& plan, int64_t passes) {
+  return {values,
+          plan.trust,
+          plan.neighbours,
+          plan.counts,
+          plan.ring_points,
+          plan.ring_sources,
+          plan.ring_source_counts,
+          plan.free_points,
+          plan.ring_offsets,
+          passes};
+}
+
+TEST(MeshPropagation, IsADispatcherOpThatRefusesIndicesOutsideTheMesh) {
+  expect_backend_kernels("sfgs::propagate_on_mesh", true);  // its Autograd kernel refuses a gradient
+  const PropagationCase c = body_with_detached_strip();
+  const int64_t n = c.trust.size(0);
+  const mesh_propagation::Plan plan = mesh_propagation::plan(c.trust, c.neighbours, at::kCPU, at::kDouble);
+  const at::Tensor values = at::randn({n, 3}, at::kDouble);
+  const std::vector<c10::IValue> arguments = op_arguments(values, plan, kObservationSmoothingPasses);
+  expect_meta_describes_cpu("sfgs::propagate_on_mesh", arguments);
+  const c10::OperatorHandle op = registered_op("sfgs::propagate_on_mesh");
+  EXPECT_TRUE(call_boxed(op, arguments)[0].toTensor().equal(
+      mesh_propagation::propagate(values, plan, kObservationSmoothingPasses)));
+  // Each index tensor with one entry moved outside the mesh, and the rings' bounds beyond the ring points.
+  for (size_t k : {2, 3, 4, 5, 6, 7}) {
+    std::vector<c10::IValue> bad = arguments;
+    at::Tensor t = bad[k].toTensor().clone();
+    t.view(-1)[0] = k == 3 || k == 6 ? int32_t(plan.neighbours.size(1) + 1) : int32_t(n);
+    bad[k] = t;
+    EXPECT_THROW(call_boxed(op, bad), c10::Error) << "argument " << k;
+  }
+  std::vector<c10::IValue> bad_rings = arguments;
+  std::vector<int64_t> offsets = plan.ring_offsets;
+  offsets.back() += 1;
+  bad_rings[8] = offsets;
+  EXPECT_THROW(call_boxed(op, bad_rings), c10::Error);
+  const at::Tensor learned = values.clone().requires_grad_(true);
+  EXPECT_THROW(call_boxed(op, op_arguments(learned, plan, 1)), c10::Error) << "no gradient";
 }
 
 }  // namespace

@@ -7,6 +7,7 @@
 
 #include "mlp_inference_cases.h"
 #include "model/mlp.h"
+#include "op_check.h"
 #include "tensor_compare.h"
 
 namespace sfgs::testing {
@@ -49,6 +50,21 @@ TEST(MlpInference, RunFallsBackToTheReferenceOffCuda) {
   EXPECT_FALSE(mlp_inference::fuses(inputs, mlp_inference::Network{})) << "a bad network is a no, not a crash";
   at::NoGradGuard no_grad;
   EXPECT_TRUE(mlp_inference::run(inputs, at::Tensor(), n).equal(mlp_inference::reference(inputs, at::Tensor(), n)));
+}
+
+TEST(MlpInference, IsADispatcherOpWhoseMetaKernelDescribesItsOutput) {
+  expect_backend_kernels("sfgs::mlp_inference", true);  // its Autograd kernel refuses a gradient
+  at::Generator g = at::detail::createCPUGenerator(7);
+  const mlp_inference::Network n = random_network(16, {6, 3}, 3, 4, g);
+  const std::vector<at::Tensor> inputs = random_inputs(21, n, g);
+  const at::Tensor base = at::randn({21, 16}, g, at::TensorOptions(at::kDouble));
+  const std::vector<c10::IValue> arguments = {
+      inputs,         base,          n.input_weights, n.first_bias,  n.hidden_weights, n.hidden_biases,
+      n.norm_weights, n.norm_biases, n.output_weight, n.output_bias, n.groups,         n.epsilon};
+  at::NoGradGuard no_grad;
+  expect_meta_describes_cpu("sfgs::mlp_inference", arguments);
+  const at::Tensor out = call_boxed(registered_op("sfgs::mlp_inference"), arguments)[0].toTensor();
+  EXPECT_TRUE(out.equal(mlp_inference::reference(inputs, base, n)));
 }
 
 TEST(MlpInference, RefusesBadNetworksAndInputsByName) {

@@ -9,6 +9,7 @@
 
 #include "model/planes.h"
 #include "ops/plane_sampling/plane_sampling.h"
+#include "op_check.h"
 #include "test_files.h"
 
 namespace sfgs::testing {
@@ -172,6 +173,43 @@ TEST(PlaneSampling, MistakesAreClearErrors) {
       "one line");
   expect_error_mentioning(
       [&] { plane_sampling::sample_fixed_planes_at_time(planes, grid.select(2, 0), at::zeros({1}), reads); }, "0-dim");
+}
+
+TEST(PlaneSampling, AreDispatcherOpsThatRefuseReadsOutsideThePlanes) {
+  expect_backend_kernels("sfgs::sample_fixed_planes", true);
+  expect_backend_kernels("sfgs::sample_fixed_planes_at_time", true);
+  expect_backend_kernels("sfgs::plane_reads_gradient", false);
+  at::manual_seed(3);
+  const at::Tensor planes = at::randn({3, 2, 4, 5}, at::kDouble), grid = test_grid(3, 20, 5, at::kDouble);
+  const PlaneReads reads = plane_sampling::plane_reads(grid, 4, 5);
+  const std::vector<c10::IValue> read_arguments = {reads.chunk_rows, reads.chunk_begins, reads.chunk_ends, reads.points,
+                                                   reads.weights};
+  std::vector<c10::IValue> sample = {planes, grid};
+  sample.insert(sample.end(), read_arguments.begin(), read_arguments.end());
+  expect_meta_describes_cpu("sfgs::sample_fixed_planes", sample);
+  const PlaneReads line = plane_sampling::plane_reads(grid, 1, 5);  // along the width alone: v plays no part
+  std::vector<c10::IValue> at_time = {planes,
+                                      grid.select(2, 0).contiguous(),
+                                      at::scalar_tensor(0.25, at::kDouble),
+                                      line.chunk_rows,
+                                      line.chunk_begins,
+                                      line.chunk_ends,
+                                      line.points,
+                                      line.weights};
+  expect_meta_describes_cpu("sfgs::sample_fixed_planes_at_time", at_time);
+  std::vector<c10::IValue> gradient = {at::randn({grid.size(1), 6}, at::kDouble)};
+  gradient.insert(gradient.end(), read_arguments.begin(), read_arguments.end());
+  for (int64_t size : {3, 2, 4, 5}) gradient.emplace_back(size);
+  expect_meta_describes_cpu("sfgs::plane_reads_gradient", gradient);
+  // Each of the reads' index tensors with one entry moved beyond what it indexes.
+  const c10::OperatorHandle op = registered_op("sfgs::plane_reads_gradient");
+  for (size_t k : {1, 2, 3, 4}) {
+    std::vector<c10::IValue> bad = gradient;
+    at::Tensor t = bad[k].toTensor().clone();
+    t[0] = int32_t(k == 1 ? 3 * 4 * 5 : k == 4 ? grid.size(1) : reads.points.size(0) + 1);
+    bad[k] = t;
+    EXPECT_THROW(call_boxed(op, bad), c10::Error) << "argument " << k;
+  }
 }
 
 }  // namespace

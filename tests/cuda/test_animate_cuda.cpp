@@ -173,6 +173,17 @@ TEST(GatheredMlpCuda, RowOfAGroupOutOfRangeIsNanAndTheOthersStay) {
   EXPECT_TRUE(after[30].isnan().all().item<bool>());
   const at::Tensor others = at::ones({40}, at::kBool).index_fill_(0, at::tensor({17, 30}, at::kLong), false);
   EXPECT_TRUE(after.index({others}).equal(before.cpu().index({others})));
+
+  // The reference, the path of a width the kernel does not take, gives such rows NaN as well, without reading the
+  // groups on the host.
+  gathered_mlp::GatheredMlpWeights narrow{at::randn({8, 8}, gpu), at::randn({8}, gpu), at::randn({2, 8}, gpu),
+                                          at::randn({2}, gpu)};
+  const at::Tensor narrow_rows = at::randn({40, 8}, gpu), narrow_groups = at::randn({5, 8}, gpu);
+  ASSERT_FALSE(gathered_mlp::fuses(narrow_rows, narrow));
+  const at::Tensor reference = gathered_mlp::gathered_mlp(narrow_rows, narrow_groups, ids, narrow).cpu();
+  EXPECT_TRUE(reference[17].isnan().all().item<bool>());
+  EXPECT_TRUE(reference[30].isnan().all().item<bool>());
+  EXPECT_TRUE(reference.index({others}).isfinite().all().item<bool>());
 }
 
 // The fused kinematic chain against its LibTorch composition: the 55-joint SMPL-X tree (batch 3) and a 16-joint

@@ -60,5 +60,25 @@ TEST(MeshPropagationCuda, ReplaysInACudaGraph) {
   }
 }
 
+// An index outside the mesh, which the CUDA op cannot check without reading the device: a source outside gives its
+// point NaN, a target outside is skipped, and nothing outside the arrays is touched (memcheck in device_check.sh).
+TEST(MeshPropagationCudaSanitizer, IndicesOutsideTheMeshGiveNanNotAStrayAccess) {
+  if (!torch::cuda::is_available()) GTEST_SKIP() << "no CUDA device";
+  const PropagationCase c = body_with_detached_strip();
+  const int64_t n = c.trust.size(0);
+  mesh_propagation::Plan plan = mesh_propagation::plan(c.trust.cuda(), c.neighbours, at::kCUDA, at::kFloat);
+  ASSERT_GT(plan.filled_count(), 1);
+  const at::Tensor values = at::randn({n, 3}).cuda();
+  const int32_t first = plan.ring_points[0].item<int32_t>(), second = plan.ring_points[1].item<int32_t>();
+  plan.ring_sources = plan.ring_sources.clone();
+  plan.ring_sources[0][0] = int32_t(n + 5);
+  plan.ring_points = plan.ring_points.clone();
+  plan.ring_points[1] = int32_t(-3);
+  const at::Tensor after = mesh_propagation::propagate(values, plan, 0).cpu();
+  EXPECT_TRUE(after[first].isnan().any().item<bool>()) << "its source lies outside the mesh";
+  EXPECT_TRUE(at::allclose(after[second], values[second].cpu(), 1e-6, 1e-6))
+      << "a target outside the mesh is skipped: point " << second << " keeps its own value";
+}
+
 }  // namespace
 }  // namespace sfgs::testing

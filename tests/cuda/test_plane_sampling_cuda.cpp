@@ -5,6 +5,7 @@
 #include <ATen/ATen.h>
 #include <gtest/gtest.h>
 #include <torch/csrc/autograd/autograd.h>
+#include <ATen/core/dispatch/Dispatcher.h>
 #include <torch/cuda.h>
 
 #include "ops/plane_sampling/plane_sampling.h"
@@ -87,6 +88,36 @@ TEST(PlaneSamplingCudaSanitizer, SmallPlanesInBothDtypes) {
   EXPECT_LT(
       (planes_gradient(planes, grid, w, true) - planes_gradient(planes, grid, w, false)).abs().max().item<double>(),
       1e-4);
+}
+
+// Reads the CUDA op cannot check without reading the device: a chunk with a point beyond the gradient's rows gives
+// its texel NaN, a chunk whose texel lies beyond the planes is skipped; nothing outside the arrays is read or written
+// (memcheck in device_check.sh).
+TEST(PlaneSamplingCudaSanitizer, ReadsOutsideTheArraysGiveNanNotAStrayAccess) {
+  SKIP_WITHOUT_CUDA();
+  at::manual_seed(9);
+  const at::Tensor grid = clustered_grid(40, 10).to(at::kCUDA, at::kFloat);
+  const plane_sampling::PlaneReads reads = plane_sampling::plane_reads(grid, 4, 4);
+  const at::Tensor grad = at::randn({grid.size(1), 3 * 2}, at::kCUDA);
+  const auto op = c10::Dispatcher::singleton().findSchemaOrThrow("sfgs::plane_reads_gradient", "");
+  const auto gradient_of = [&](const at::Tensor& chunk_rows, const at::Tensor& points) {
+    std::vector<c10::IValue> stack = {grad,          chunk_rows, reads.chunk_begins, reads.chunk_ends, points,
+                                      reads.weights, int64_t(3), int64_t(2),         int64_t(4),       int64_t(4)};
+    op.callBoxed(&stack);
+    return stack[0].toTensor().cpu();
+  };
+  const at::Tensor clean = gradient_of(reads.chunk_rows, reads.points);
+  ASSERT_TRUE(clean.isfinite().all().item<bool>());
+  at::Tensor points = reads.points.clone();
+  points[reads.chunk_begins[0].item<int32_t>()] = int32_t(grid.size(1) + 3);
+  const int32_t texel = reads.chunk_rows[0].item<int32_t>();
+  const at::Tensor bad_point = gradient_of(reads.chunk_rows, points);
+  EXPECT_TRUE(bad_point.view({3, 2, 16}).select(0, texel / 16).select(1, texel % 16).isnan().all().item<bool>());
+  at::Tensor chunk_rows = reads.chunk_rows.clone();
+  chunk_rows[0] = int32_t(3 * 16 + 5);
+  const at::Tensor bad_texel = gradient_of(chunk_rows, reads.points);
+  EXPECT_TRUE(bad_texel.isfinite().all().item<bool>()) << "the chunk beyond the planes is skipped";
+  torch::cuda::synchronize();
 }
 
 }  // namespace

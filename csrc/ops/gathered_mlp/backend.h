@@ -3,7 +3,7 @@
 // first layer as a training op; validation, conversions, autograd) and their backends: the CPU backend of the first
 // layer (csrc/ops/gathered_mlp/gathered_first_layer_cpu.cpp; the inference MLP's CPU path is its LibTorch reference)
 // and the CUDA kernels' glue (csrc/ops/gathered_mlp/gathered_mlp_cuda.cpp,
-// csrc/ops/gathered_mlp/gathered_first_layer_cuda.cpp; csrc/cuda/cuda_unavailable.cpp in builds without CUDA). Arrays
+// csrc/ops/gathered_mlp/gathered_first_layer_cuda.cpp; only in builds with CUDA). Arrays
 // of validated, contiguous tensors of one dtype on one device, outputs allocated by the ops; each first-layer backend
 // says how many partial tables of the groups' gradient its backward writes, so the op can allocate them.
 #include <cstdint>
@@ -25,7 +25,6 @@ void first_layer_backward(const FirstLayerGradientArrays<double>& arrays);
 
 // On `device`'s current stream.
 namespace cuda {
-bool available();
 // Queues the inference kernel; the arrays are validated and contiguous.
 void forward(const GatheredMlpArrays& arrays, at::Device device);
 int64_t first_layer_partial_rows(int64_t rows, at::Device device);

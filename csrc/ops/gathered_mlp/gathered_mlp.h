@@ -30,11 +30,11 @@ at::Tensor gathered_mlp_reference(const at::Tensor& row_inputs, const at::Tensor
 // H == kFusedWidth, O <= kFusedMaxOutputs, float32 weights.
 bool fuses(const at::Tensor& row_inputs, const GatheredMlpWeights& weights);
 
-// Inference (no gradient: refuses inputs or weights that require one, and grad mode). The same function as the
-// reference; fused on CUDA (fuses()), where row_inputs should already be half (anything else is converted first,
-// one extra pass), groups int32 (converted likewise), and a group outside [0, G) gives that row NaN outputs rather
-// than a device read of every index; elsewhere the reference, which checks the groups. -> (N, O) float32 on CUDA,
-// the weights' dtype elsewhere.
+// Inference (no gradient: refuses inputs or weights that require one, and grad mode), the dispatcher op
+// sfgs::gathered_mlp. The same function as the reference; fused on CUDA (fuses()), where row_inputs should already be
+// half (anything else is converted first, one extra pass) and groups int32 (converted likewise); the reference
+// elsewhere. On the CPU a group outside [0, G) is an error; on CUDA (fused or not) it gives that row NaN outputs
+// rather than a device read of every index. -> (N, O) in the weights' dtype (float32 where fused).
 at::Tensor gathered_mlp(const at::Tensor& row_inputs, const at::Tensor& group_inputs, const at::Tensor& groups,
                         const GatheredMlpWeights& weights);
 

@@ -7,8 +7,6 @@
 
 namespace sfgs::gathered_mlp::cuda {
 
-bool available() { return true; }
-
 void forward(const GatheredMlpArrays& arrays, at::Device device) {
   const c10::cuda::CUDAGuard guard(device);
   cuda_kernels::gathered_mlp_forward(arrays, at::cuda::getCurrentCUDAStream());

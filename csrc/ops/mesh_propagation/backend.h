@@ -20,7 +20,6 @@ void propagate(const PropagationArrays<double>& arrays, const std::vector<int64_
 
 // On `device`'s current stream, without a host synchronisation (a CUDA graph records it).
 namespace cuda {
-bool available();
 void propagate(const PropagationArrays<float>& arrays, const std::vector<int64_t>& ring_offsets, int64_t passes,
                at::Device device);
 void propagate(const PropagationArrays<double>& arrays, const std::vector<int64_t>& ring_offsets, int64_t passes,

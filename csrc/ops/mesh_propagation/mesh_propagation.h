@@ -36,8 +36,10 @@ struct Plan {
 // `dtype` (float32 or float64).
 Plan plan(const at::Tensor& trust, const body::VertexNeighbours& neighbours, at::Device device, at::ScalarType dtype);
 
-// values (N, C) on the plan's device in its dtype -> (N, C): propagated by the plan with `smoothing_passes` passes.
-// No gradient.
+// values (N, C) on the plan's device in its dtype -> (N, C): propagated by the plan with `smoothing_passes` passes,
+// through the dispatcher op sfgs::propagate_on_mesh (the plan's tensors and rings as its arguments). No gradient: the
+// values are detached. The op's CPU kernel refuses a plan whose indices lie outside the mesh; its CUDA kernels give
+// the points such an index reaches NaN and skip a target outside the mesh (mesh_propagation_math.h).
 at::Tensor propagate(const at::Tensor& values, const Plan& plan, int64_t smoothing_passes);
 
 }  // namespace sfgs::mesh_propagation

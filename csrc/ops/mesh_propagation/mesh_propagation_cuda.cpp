@@ -8,8 +8,6 @@
 
 namespace sfgs::mesh_propagation::cuda {
 
-bool available() { return true; }
-
 void propagate(const PropagationArrays<float>& a, const std::vector<int64_t>& offsets, int64_t passes,
                at::Device device) {
   const c10::cuda::CUDAGuard guard(device);

@@ -3,6 +3,7 @@
 // backend and the CUDA kernels: a ring point's mean over its neighbours filled before its ring, a smoothing step's
 // mean over all its neighbours, and the final blend by trust. No torch in here.
 #include <cstdint>
+#include <limits>
 
 #include "common/host_device.h"
 
@@ -34,10 +35,16 @@ template <typename T> struct PropagationArrays {
 inline constexpr int kChannelsAtOnce = 4;
 inline constexpr int kRowsAtOnce = 8;
 
-// out (C) := the mean of rows rows[0 .. count) of `from` (N, C); 0 when count is 0. Sums in the rows' order.
+// out (C) := the mean of rows rows[0 .. count) of `from` (N, C); 0 when count is 0. Sums in the rows' order. A
+// count outside [0, slots] or a row outside [0, N) (a plan plan() did not make: the CPU op refuses one, the CUDA
+// kernels cannot check it without reading the device) gives NaN, and nothing outside the arrays is read.
 template <typename T>
-SFGS_HD void mean_of_rows(const int32_t* __restrict__ rows, int count, int channels, const T* __restrict__ from,
-                          T* __restrict__ out) {
+SFGS_HD void mean_of_rows(const int32_t* __restrict__ rows, int count, const PropagationArrays<T>& a,
+                          const T* __restrict__ from, T* __restrict__ out) {
+  const int channels = a.channels;
+  const bool bad_count = count < 0 || count > a.slots;
+  if (bad_count) count = 0;
+  bool bad_row = false;
   const T scale = T(1) / T(count > 0 ? count : 1);
   for (int first = 0; first < channels; first += kChannelsAtOnce) {
     const int width = channels - first < kChannelsAtOnce ? channels - first : kChannelsAtOnce;
@@ -45,7 +52,10 @@ SFGS_HD void mean_of_rows(const int32_t* __restrict__ rows, int count, int chann
     for (int k = 0; k < count; k += kRowsAtOnce) {
       const int batch = count - k < kRowsAtOnce ? count - k : kRowsAtOnce;
       int32_t q[kRowsAtOnce];
-      for (int j = 0; j < kRowsAtOnce; ++j) q[j] = j < batch ? rows[k + j] : 0;
+      for (int j = 0; j < kRowsAtOnce; ++j) {
+        q[j] = j < batch ? rows[k + j] : 0;
+        if (q[j] < 0 || q[j] >= a.point_count) bad_row = true, q[j] = 0;
+      }
       T v[kRowsAtOnce][kChannelsAtOnce];
       for (int j = 0; j < kRowsAtOnce; ++j)
         for (int c = 0; c < kChannelsAtOnce; ++c)
@@ -53,20 +63,28 @@ SFGS_HD void mean_of_rows(const int32_t* __restrict__ rows, int count, int chann
       for (int j = 0; j < kRowsAtOnce; ++j)
         for (int c = 0; c < kChannelsAtOnce; ++c) sum[c] += v[j][c];
     }
-    for (int c = 0; c < width; ++c) out[first + c] = sum[c] * scale;
+    const bool bad = bad_count || bad_row;
+    for (int c = 0; c < width; ++c) out[first + c] = bad ? std::numeric_limits<T>::quiet_NaN() : sum[c] * scale;
   }
+}
+
+// Whether point p is a row of the arrays; a point outside them (a plan plan() did not make) is skipped, not written.
+template <typename T> SFGS_HD bool is_point(const PropagationArrays<T>& a, int32_t p) {
+  return p >= 0 && p < a.point_count;
 }
 
 // Ring point i: its row of `filled` := the mean of its neighbours filled before its ring.
 template <typename T> SFGS_HD void fill_ring_point(const PropagationArrays<T>& a, int64_t i) {
-  mean_of_rows(a.ring_sources + i * a.slots, a.ring_source_counts[i], a.channels, a.filled,
-               a.filled + int64_t(a.ring_points[i]) * a.channels);
+  const int32_t p = a.ring_points[i];
+  if (!is_point(a, p)) return;
+  mean_of_rows(a.ring_sources + i * a.slots, a.ring_source_counts[i], a, a.filled, a.filled + int64_t(p) * a.channels);
 }
 
 // Free point i: its row of `to` := the mean of all its neighbours' rows of `from`.
 template <typename T> SFGS_HD void smooth_free_point(const PropagationArrays<T>& a, int64_t i, const T* from, T* to) {
   const int32_t p = a.free_points[i];
-  mean_of_rows(a.neighbours + int64_t(p) * a.slots, a.counts[p], a.channels, from, to + int64_t(p) * a.channels);
+  if (!is_point(a, p)) return;
+  mean_of_rows(a.neighbours + int64_t(p) * a.slots, a.counts[p], a, from, to + int64_t(p) * a.channels);
 }
 
 // Element i of (N, C): trust v + (1 - trust) propagated.

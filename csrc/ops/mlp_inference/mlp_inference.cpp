@@ -1,14 +1,17 @@
-// The MLP inference op: validation at the boundary, the LibTorch reference, and the fused kernel where it applies.
+// The MLP inference op: validation at the boundary, the LibTorch reference, the fused kernel where it applies, and its
+// dispatcher registration (ops/registration.h).
 #include "ops/mlp_inference/mlp_inference.h"
 
 #include <cstdint>
 
 #include <ATen/ATen.h>
 #include <torch/csrc/autograd/grad_mode.h>
+#include <torch/library.h>
 
 #include "common/tensor_description.h"
 #include "ops/group_norm/group_norm.h"
 #include "ops/mlp_inference/backend.h"
+#include "ops/registration.h"
 
 namespace sfgs::mlp_inference {
 namespace {
@@ -72,54 +75,9 @@ constexpr uintptr_t kPairAlignment = 2 * sizeof(float);
 // The tensor as the kernel reads it: rows of unit column stride (a column slice keeps its row stride).
 at::Tensor rows_of_unit_stride(const at::Tensor& t) { return t.stride(1) == 1 ? t : t.contiguous(); }
 
-}  // namespace
-
-at::Tensor reference(const std::vector<at::Tensor>& inputs, const at::Tensor& base, const Network& n) {
-  check_network(inputs, base, n);
-  at::Tensor first = at::linear(inputs[0], n.input_weights[0]);
-  for (size_t b = 1; b < inputs.size(); ++b) first = first + at::linear(inputs[b], n.input_weights[b]);
-  if (base.defined()) first = first + base;
-  at::Tensor x = group_norm::group_norm_relu_reference(first, n.first_bias, n.norm_weights[0], n.norm_biases[0],
-                                                       n.groups, n.epsilon);
-  for (size_t k = 1; k < n.norm_weights.size(); ++k)
-    x = group_norm::group_norm_relu_reference(at::linear(x, n.hidden_weights[k - 1]), n.hidden_biases[k - 1],
-                                              n.norm_weights[k], n.norm_biases[k], n.groups, n.epsilon);
-  return at::linear(x, n.output_weight, n.output_bias);
-}
-
-bool fuses(const std::vector<at::Tensor>& inputs, const Network& n) {
-  // Only the shape questions: run() validates the network itself (and fuses() must not fail on a bad one).
-  if (!cuda::available() || n.input_weights.empty() || inputs.size() > kFusedMaxInputs) return false;
-  int64_t width = 0;
-  for (const at::Tensor& b : n.input_weights) {
-    if (!b.defined() || b.dim() != 2) return false;
-    width += b.size(1);
-  }
-  const at::Tensor& w = n.input_weights[0];
-  if (!w.is_cuda() || w.scalar_type() != at::kFloat || w.size(0) != kFusedWidth || n.groups != kFusedGroups)
-    return false;
-  if (n.norm_weights.empty() || n.norm_weights.size() > kFusedMaxHiddenLayers || !n.output_weight.defined() ||
-      n.output_weight.dim() != 2)
-    return false;
-  return width <= kFusedMaxInputWidth && n.output_weight.size(0) <= kFusedMaxOutputs &&
-         cuda::fits(int(n.norm_weights.size()), int(width), w.device());
-}
-
-at::Tensor run(const std::vector<at::Tensor>& inputs, const at::Tensor& base, const Network& n) {
-  check_network(inputs, base, n);
-  if (at::GradMode::is_enabled()) {
-    bool needs_gradient = base.defined() && base.requires_grad();
-    for (const at::Tensor& t : inputs) needs_gradient = needs_gradient || t.requires_grad();
-    for (const auto* list : {&n.input_weights, &n.hidden_weights, &n.hidden_biases, &n.norm_weights, &n.norm_biases})
-      for (const at::Tensor& t : *list) needs_gradient = needs_gradient || t.requires_grad();
-    for (const at::Tensor* t : {&n.first_bias, &n.output_weight, &n.output_bias})
-      needs_gradient = needs_gradient || t->requires_grad();
-    TORCH_CHECK(!needs_gradient,
-                "mlp_inference: inference only; use mlp_inference::reference where a gradient is "
-                "needed (or run under torch::NoGradGuard)");
-  }
-  if (!fuses(inputs, n)) return reference(inputs, base, n);
-
+// The fused kernel (fuses() holds).
+at::Tensor fused_network(const std::vector<at::Tensor>& inputs, const at::Tensor& base, const Network& n) {
+#if defined(SFGS_WITH_CUDA)
   std::vector<at::Tensor> kept;  // what the arrays point into, alive until the kernel is queued
   const auto keep = [&kept](const at::Tensor& t) -> const float* {
     kept.push_back(rows_of_unit_stride(t));
@@ -164,6 +122,141 @@ at::Tensor run(const std::vector<at::Tensor>& inputs, const at::Tensor& base, co
   a.out = out.data_ptr<float>();
   cuda::forward(a, out.device());
   return out;
+#else
+  (void)inputs, (void)base, (void)n;
+  TORCH_CHECK(false, "mlp_inference: this build has no CUDA backend");
+#endif
 }
+
+// ---- the dispatcher op (ops/registration.h): inference only, so its Autograd kernel refuses a gradient ----
+
+constexpr const char* kNetworkSchema =
+    "mlp_inference(Tensor[] inputs, Tensor? base, Tensor[] input_weights, Tensor first_bias, Tensor[] hidden_weights, "
+    "Tensor[] hidden_biases, Tensor[] norm_weights, Tensor[] norm_biases, Tensor output_weight, Tensor output_bias, "
+    "int groups, float epsilon) -> Tensor";
+using NetworkSignature = at::Tensor(at::TensorList, const ops::OptionalTensor&, at::TensorList, const at::Tensor&,
+                                    at::TensorList, at::TensorList, at::TensorList, at::TensorList, const at::Tensor&,
+                                    const at::Tensor&, int64_t, double);
+#define SFGS_MLP_INFERENCE_PARAMETERS                                                                                 \
+  at::TensorList inputs, const ops::OptionalTensor &base, at::TensorList input_weights, const at::Tensor &first_bias, \
+      at::TensorList hidden_weights, at::TensorList hidden_biases, at::TensorList norm_weights,                       \
+      at::TensorList norm_biases, const at::Tensor &output_weight, const at::Tensor &output_bias, int64_t groups,     \
+      double epsilon
+
+const c10::TypedOperatorHandle<NetworkSignature>& network_op() {
+  static const auto handle = ops::find_op<NetworkSignature>("sfgs::mlp_inference");
+  return handle;
+}
+
+Network network_of(at::TensorList input_weights, const at::Tensor& first_bias, at::TensorList hidden_weights,
+                   at::TensorList hidden_biases, at::TensorList norm_weights, at::TensorList norm_biases,
+                   const at::Tensor& output_weight, const at::Tensor& output_bias, int64_t groups, double epsilon) {
+  return Network{input_weights.vec(),
+                 first_bias,
+                 hidden_weights.vec(),
+                 hidden_biases.vec(),
+                 norm_weights.vec(),
+                 norm_biases.vec(),
+                 output_weight,
+                 output_bias,
+                 groups,
+                 epsilon};
+}
+
+#define SFGS_MLP_INFERENCE_NETWORK                                                                               \
+  network_of(input_weights, first_bias, hidden_weights, hidden_biases, norm_weights, norm_biases, output_weight, \
+             output_bias, groups, epsilon)
+
+at::Tensor network_cpu_kernel(SFGS_MLP_INFERENCE_PARAMETERS) {
+  return reference(inputs.vec(), base.value_or(at::Tensor()), SFGS_MLP_INFERENCE_NETWORK);
+}
+
+#if defined(SFGS_WITH_CUDA)
+at::Tensor network_cuda_kernel(SFGS_MLP_INFERENCE_PARAMETERS) {
+  const std::vector<at::Tensor> blocks = inputs.vec();
+  const Network n = SFGS_MLP_INFERENCE_NETWORK;
+  const at::Tensor b = base.value_or(at::Tensor());
+  check_network(blocks, b, n);
+  return fuses(blocks, n) ? fused_network(blocks, b, n) : reference(blocks, b, n);
+}
+#endif
+
+at::Tensor network_meta_kernel(SFGS_MLP_INFERENCE_PARAMETERS) {
+  const std::vector<at::Tensor> blocks = inputs.vec();
+  check_network(blocks, base.value_or(at::Tensor()), SFGS_MLP_INFERENCE_NETWORK);
+  return at::empty({blocks[0].size(0), output_weight.size(0)}, output_weight.options());
+}
+
+at::Tensor network_autograd_kernel(SFGS_MLP_INFERENCE_PARAMETERS) {
+  if (at::GradMode::is_enabled()) {
+    bool needs_gradient = base.has_value() && base->defined() && base->requires_grad();
+    for (const at::TensorList list : {inputs, input_weights, hidden_weights, hidden_biases, norm_weights, norm_biases})
+      for (const at::Tensor& t : list) needs_gradient = needs_gradient || (t.defined() && t.requires_grad());
+    for (const at::Tensor* t : {&first_bias, &output_weight, &output_bias})
+      needs_gradient = needs_gradient || (t->defined() && t->requires_grad());
+    TORCH_CHECK(!needs_gradient,
+                "mlp_inference: inference only; use mlp_inference::reference where a gradient is "
+                "needed (or run under torch::NoGradGuard)");
+  }
+  const at::AutoDispatchBelowADInplaceOrView below_autograd;
+  return network_op().call(inputs, base, input_weights, first_bias, hidden_weights, hidden_biases, norm_weights,
+                           norm_biases, output_weight, output_bias, groups, epsilon);
+}
+
+#undef SFGS_MLP_INFERENCE_NETWORK
+#undef SFGS_MLP_INFERENCE_PARAMETERS
+
+}  // namespace
+
+at::Tensor reference(const std::vector<at::Tensor>& inputs, const at::Tensor& base, const Network& n) {
+  check_network(inputs, base, n);
+  at::Tensor first = at::linear(inputs[0], n.input_weights[0]);
+  for (size_t b = 1; b < inputs.size(); ++b) first = first + at::linear(inputs[b], n.input_weights[b]);
+  if (base.defined()) first = first + base;
+  at::Tensor x = group_norm::group_norm_relu_reference(first, n.first_bias, n.norm_weights[0], n.norm_biases[0],
+                                                       n.groups, n.epsilon);
+  for (size_t k = 1; k < n.norm_weights.size(); ++k)
+    x = group_norm::group_norm_relu_reference(at::linear(x, n.hidden_weights[k - 1]), n.hidden_biases[k - 1],
+                                              n.norm_weights[k], n.norm_biases[k], n.groups, n.epsilon);
+  return at::linear(x, n.output_weight, n.output_bias);
+}
+
+bool fuses(const std::vector<at::Tensor>& inputs, const Network& n) {
+#if defined(SFGS_WITH_CUDA)
+  // Only the shape questions: the op validates the network itself (and fuses() must not fail on a bad one).
+  if (n.input_weights.empty() || inputs.size() > kFusedMaxInputs) return false;
+  int64_t width = 0;
+  for (const at::Tensor& b : n.input_weights) {
+    if (!b.defined() || b.dim() != 2) return false;
+    width += b.size(1);
+  }
+  const at::Tensor& w = n.input_weights[0];
+  if (!w.is_cuda() || w.scalar_type() != at::kFloat || w.size(0) != kFusedWidth || n.groups != kFusedGroups)
+    return false;
+  if (n.norm_weights.empty() || n.norm_weights.size() > kFusedMaxHiddenLayers || !n.output_weight.defined() ||
+      n.output_weight.dim() != 2)
+    return false;
+  return width <= kFusedMaxInputWidth && n.output_weight.size(0) <= kFusedMaxOutputs &&
+         cuda::fits(int(n.norm_weights.size()), int(width), w.device());
+#else
+  (void)inputs, (void)n;
+  return false;
+#endif
+}
+
+at::Tensor run(const std::vector<at::Tensor>& inputs, const at::Tensor& base, const Network& n) {
+  check_network(inputs, base, n);
+  return network_op().call(inputs, ops::optional_tensor(base), n.input_weights, n.first_bias, n.hidden_weights,
+                           n.hidden_biases, n.norm_weights, n.norm_biases, n.output_weight, n.output_bias, n.groups,
+                           n.epsilon);
+}
+
+TORCH_LIBRARY_FRAGMENT(sfgs, m) { m.def(kNetworkSchema); }
+TORCH_LIBRARY_IMPL(sfgs, CPU, m) { m.impl("mlp_inference", TORCH_FN(network_cpu_kernel)); }
+#if defined(SFGS_WITH_CUDA)
+TORCH_LIBRARY_IMPL(sfgs, CUDA, m) { m.impl("mlp_inference", TORCH_FN(network_cuda_kernel)); }
+#endif
+TORCH_LIBRARY_IMPL(sfgs, Meta, m) { m.impl("mlp_inference", TORCH_FN(network_meta_kernel)); }
+TORCH_LIBRARY_IMPL(sfgs, Autograd, m) { m.impl("mlp_inference", TORCH_FN(network_autograd_kernel)); }
 
 }  // namespace sfgs::mlp_inference

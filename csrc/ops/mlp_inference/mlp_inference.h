@@ -43,8 +43,9 @@ at::Tensor reference(const std::vector<at::Tensor>& inputs, const at::Tensor& ba
 // gives 99 KiB, an H100 or H200 227 KiB).
 bool fuses(const std::vector<at::Tensor>& inputs, const Network& network);
 
-// Inference (no gradient: refuses inputs or weights that require one in grad mode): the reference's function, fused
-// where fuses(), the reference elsewhere. Input blocks and weights may be column slices (row strides are kept).
+// Inference (no gradient: refuses inputs or weights that require one in grad mode), the dispatcher op
+// sfgs::mlp_inference: the reference's function, fused where fuses(), the reference elsewhere. Input blocks and
+// weights may be column slices (row strides are kept).
 at::Tensor run(const std::vector<at::Tensor>& inputs, const at::Tensor& base, const Network& network);
 
 }  // namespace sfgs::mlp_inference

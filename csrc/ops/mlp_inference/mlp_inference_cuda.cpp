@@ -8,8 +8,6 @@
 
 namespace sfgs::mlp_inference::cuda {
 
-bool available() { return true; }
-
 bool fits(int hidden_layers, int input_width, at::Device device) {
   return cuda_kernels::fits(hidden_layers, input_width, device.index());
 }

@@ -14,7 +14,7 @@ constexpr int kWarpsPerBlock = 8;
 
 template <typename T> __global__ void gradient_kernel(PlaneGradientArrays<T> a) {
   const int64_t k = int64_t(blockIdx.x) * kWarpsPerBlock + threadIdx.x / kWarp;
-  if (k >= a.chunks) return;
+  if (k >= a.chunks || !chunk_texel_valid(a, k)) return;
   for (int64_t c = threadIdx.x % kWarp; c < a.channels; c += kWarp)
     atomicAdd(a.grad_planes + gradient_index(a, k, c), chunk_gradient(a, k, c));
 }

@@ -32,13 +32,17 @@ struct PlaneReads {
 PlaneReads plane_reads(const at::Tensor& grid, int64_t height, int64_t width);
 
 // planes (P, C, H, W) read at grid (P, N, 2) -> (N, P C), plane-major: grid_sample's values, with the backward
-// above (the planes only: the grid must not require a gradient). `reads` must be plane_reads(grid, H, W).
+// above (the planes only: the grid must not require a gradient). `reads` must be plane_reads(grid, H, W). The
+// dispatcher op sfgs::sample_fixed_planes (the reads' tensors as its arguments); its backward is the op
+// sfgs::plane_reads_gradient, whose CPU kernel refuses reads outside the planes or points and whose CUDA kernel gives
+// such a chunk NaN or skips it (plane_sampling_math.h).
 at::Tensor sample_fixed_planes(const at::Tensor& planes, const at::Tensor& grid, const PlaneReads& reads);
 
 // Time planes (P, C, T, W) read at fixed positions along W (P, N) and at one time shared by every point (a 0-dim
 // tensor of the planes' dtype and device, in [-1, 1] along T: a recorded step reads it on the device) -> (N, P C),
 // grid_sample's values. The backward gathers along W with `reads` (plane_reads of the positions with height 1) and
-// splits the result between the two time rows around the time, by their bilinear weights.
+// splits the result between the two time rows around the time, by their bilinear weights. The dispatcher op
+// sfgs::sample_fixed_planes_at_time.
 at::Tensor sample_fixed_planes_at_time(const at::Tensor& planes, const at::Tensor& positions, const at::Tensor& time,
                                        const PlaneReads& reads);
 

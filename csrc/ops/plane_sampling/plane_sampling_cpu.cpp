@@ -6,7 +6,8 @@ namespace {
 
 template <typename T> void gradient_impl(const PlaneGradientArrays<T>& a) {
   for (int64_t k = 0; k < a.chunks; ++k)
-    for (int64_t c = 0; c < a.channels; ++c) a.grad_planes[gradient_index(a, k, c)] += chunk_gradient(a, k, c);
+    if (chunk_texel_valid(a, k))
+      for (int64_t c = 0; c < a.channels; ++c) a.grad_planes[gradient_index(a, k, c)] += chunk_gradient(a, k, c);
 }
 
 }  // namespace
