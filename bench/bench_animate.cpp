@@ -40,7 +40,7 @@
 #include "body/skeleton.h"
 #include "common/host_memory.h"
 #ifdef SFGS_BENCH_CUDA_KERNELS
-#include "common/constants.h"
+#include "ops/splat/constants.h"
 #include "ops/splat/cuda/diagnostics.h"
 #endif
 #include "metrics/image_metrics.h"

@@ -30,6 +30,7 @@
 #include "ops/splat/cuda/diagnostics.h"
 #include "ops/splat/backend.h"
 #include "ops/splat/splat.h"
+#include "ops/splat/constants.h"
 
 namespace {
 

@@ -15,6 +15,7 @@
 #include "ops/splat/splat.h"
 #include "train/run_folder.h"
 #include "python_values.h"
+#include "ops/splat/constants.h"
 
 namespace py = pybind11;
 using namespace sfgs::python;

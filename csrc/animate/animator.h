@@ -25,7 +25,8 @@
 #include <ATen/core/Tensor.h>
 
 #include "body/smplx_pose.h"
-#include "common/constants.h"
+#include "animate/constants.h"
+#include "ops/splat/constants.h"
 #include "model/avatar.h"
 #include "ops/splat/camera_frame.h"
 #include "ops/splat/growing_budget.h"

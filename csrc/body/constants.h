@@ -24,5 +24,9 @@ inline constexpr double kMinHandPoseBasisNorm = 1e-6;
 // Procedural cheek-puff direction: horizontal distances from the head's centre are floored here before they divide,
 // so a vertex on the vertical line through the centre gets a zero direction instead of NaN.
 inline constexpr double kMinCheekPuffRadialLength = 1e-9;
+// Summed face normals shorter than this (a vertex on degenerate faces only) give a zero vertex normal.
+inline constexpr double kMinNormalLength = 1e-12;
+// A landmark embedding's barycentric coordinates must sum to 1 within this (files store them in float32).
+inline constexpr double kBarycentricSumTolerance = 1e-3;
 
 }  // namespace sfgs

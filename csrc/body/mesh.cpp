@@ -9,7 +9,7 @@
 
 #include "body/body_backend.h"
 #include "body/tensor_checks.h"
-#include "common/constants.h"
+#include "body/constants.h"
 
 namespace sfgs::body {
 

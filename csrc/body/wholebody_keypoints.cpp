@@ -10,7 +10,7 @@
 #include "body/keypoint_geometry.h"
 #include "body/skeleton.h"
 #include "body/tensor_checks.h"
-#include "common/constants.h"
+#include "body/constants.h"
 #include "io/npz.h"
 
 namespace sfgs::body {

@@ -3,7 +3,7 @@
 #include <cstdio>
 #include <stdexcept>
 
-#include "common/constants.h"
+#include "ops/splat/constants.h"
 
 namespace sfgs::cli {
 

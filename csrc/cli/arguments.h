@@ -8,6 +8,7 @@
 #include <set>
 #include <string>
 #include <vector>
+#include "ops/splat/constants.h"
 
 namespace sfgs::cli {
 

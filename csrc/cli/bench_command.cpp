@@ -13,6 +13,7 @@
 #include "cli/commands.h"
 #include "data/image_io.h"
 #include "scene/builtin_scene.h"
+#include "ops/splat/constants.h"
 
 namespace sfgs::cli {
 namespace {

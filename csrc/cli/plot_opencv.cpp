@@ -9,6 +9,7 @@
 #include "cli/plot.h"
 #include "common/constants.h"
 #include "data/image_io.h"
+#include "data/constants.h"
 
 namespace sfgs::cli {
 namespace {

@@ -5,6 +5,7 @@
 #include "cli/commands.h"
 #include "data/motions.h"
 #include "data/synthetic.h"
+#include "ops/splat/constants.h"
 
 namespace sfgs::cli {
 

@@ -13,7 +13,7 @@
 
 #include "common/atomic_file.h"
 #include "common/checksum.h"
-#include "common/constants.h"
+#include "data/constants.h"
 #include "data/json_values.h"
 #include "data/neuman.h"
 #include "data/xhumans.h"

@@ -9,7 +9,7 @@
 #include <ATen/Parallel.h>
 
 #include "body/mesh.h"
-#include "common/constants.h"
+#include "ops/splat/constants.h"
 #include "data/constants.h"
 
 namespace sfgs::data {

@@ -9,7 +9,7 @@
 
 #include "body/rotations.h"
 #include "body/skeleton.h"
-#include "common/constants.h"
+#include "data/constants.h"
 
 namespace sfgs::data {
 namespace {

@@ -1,6 +1,7 @@
 #include "data/synthetic.h"
 #include "common/math_constants.h"
-#include "common/constants.h"
+#include "data/constants.h"
+#include "ops/splat/constants.h"
 
 #include <algorithm>
 #include <array>

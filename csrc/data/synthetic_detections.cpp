@@ -6,7 +6,8 @@
 #include <cmath>
 
 #include "body/wholebody_keypoints.h"
-#include "common/constants.h"
+#include "data/constants.h"
+#include "ops/splat/constants.h"
 
 namespace sfgs::data {
 namespace {

@@ -10,7 +10,7 @@
 #include <string>
 #include <vector>
 
-#include "common/constants.h"
+#include "fit/constants.h"
 
 namespace sfgs::fit {
 

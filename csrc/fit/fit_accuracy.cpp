@@ -7,7 +7,7 @@
 #include <vector>
 
 #include "body/skeleton.h"
-#include "common/constants.h"
+#include "fit/constants.h"
 #include "data/dataset.h"
 #include "data/json_values.h"
 #include "data/neuman.h"

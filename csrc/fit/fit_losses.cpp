@@ -6,7 +6,8 @@
 
 #include "body/skeleton.h"
 #include "body/wholebody_keypoints.h"
-#include "common/constants.h"
+#include "fit/constants.h"
+#include "ops/splat/constants.h"
 
 namespace sfgs::fit {
 namespace {

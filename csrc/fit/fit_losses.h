@@ -5,6 +5,7 @@
 #include <ATen/core/Tensor.h>
 
 #include "body/wholebody_keypoints.h"
+#include "fit/constants.h"
 
 #include <cstdint>
 #include <map>

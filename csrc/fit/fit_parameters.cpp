@@ -7,7 +7,7 @@
 
 #include "body/rotations.h"
 #include "body/skeleton.h"
-#include "common/constants.h"
+#include "fit/constants.h"
 
 namespace sfgs::fit {
 namespace {

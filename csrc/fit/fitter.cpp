@@ -14,6 +14,7 @@
 #include "fit/fit_parameters.h"
 #include "fit/keypoint_body.h"
 #include "fit/silhouette.h"
+#include "fit/constants.h"
 
 namespace sfgs::fit {
 namespace {

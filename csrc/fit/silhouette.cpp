@@ -9,7 +9,8 @@
 
 #include "body/parts.h"
 #include "body/skeleton.h"
-#include "common/constants.h"
+#include "fit/constants.h"
+#include "ops/splat/constants.h"
 #include "data/image_io.h"
 #include "fit/fit_losses.h"
 

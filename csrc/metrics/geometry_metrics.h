@@ -8,7 +8,7 @@
 #include <ATen/core/Tensor.h>
 
 #include "body/parts.h"
-#include "common/constants.h"
+#include "metrics/constants.h"
 
 namespace sfgs::metrics {
 

@@ -11,6 +11,8 @@
 #include "common/constants.h"
 #include "metrics/image_layout.h"
 #include "ops/ssim/ssim_math.h"
+#include "metrics/constants.h"
+#include "ops/ssim/constants.h"
 
 namespace sfgs::metrics {
 namespace {

@@ -10,7 +10,7 @@
 
 #include <ATen/ATen.h>
 
-#include "common/constants.h"
+#include "metrics/constants.h"
 #include "metrics/image_layout.h"
 #include "metrics/safetensors.h"
 

@@ -13,7 +13,7 @@
 #include "body/rotations.h"
 #include "body/skeleton.h"
 #include "body/tensor_checks.h"
-#include "common/constants.h"
+#include "model/constants.h"
 #include "common/matmul_precision.h"
 #include "common/stage_timer.h"
 #include "model/inference_cache.h"

@@ -31,6 +31,7 @@
 #include "model/structure_offset.h"
 #include "ops/skin/skin.h"
 #include "ops/splat/splat.h"
+#include "model/constants.h"
 
 namespace sfgs::mesh_propagation {
 struct Plan;

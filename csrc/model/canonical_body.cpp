@@ -10,7 +10,7 @@
 #include "body/parts.h"
 #include "body/rotations.h"
 #include "body/tensor_checks.h"
-#include "common/constants.h"
+#include "model/constants.h"
 
 namespace sfgs::model {
 namespace {

@@ -15,6 +15,7 @@
 #include "body/skinned_mesh.h"
 #include "body/smplx.h"
 #include "ops/skin/skin.h"
+#include "model/constants.h"
 
 namespace sfgs::model {
 

@@ -9,7 +9,7 @@
 #include <torch/csrc/autograd/grad_mode.h>
 
 #include "body/tensor_checks.h"
-#include "common/constants.h"
+#include "model/constants.h"
 #include "ops/group_norm/group_norm.h"
 #include "ops/linear/linear.h"
 

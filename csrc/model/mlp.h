@@ -11,6 +11,7 @@
 
 #include "ops/gathered_mlp/gathered_mlp.h"
 #include "ops/mlp_inference/mlp_inference.h"
+#include "model/constants.h"
 
 namespace sfgs::model {
 

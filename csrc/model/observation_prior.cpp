@@ -4,7 +4,8 @@
 #include <torch/csrc/autograd/grad_mode.h>
 
 #include "body/tensor_checks.h"
-#include "common/constants.h"
+#include "body/constants.h"
+#include "model/constants.h"
 #include "ops/splat/camera_frame.h"
 
 namespace sfgs::model {

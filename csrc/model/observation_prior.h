@@ -8,6 +8,7 @@
 #include "body/mesh.h"
 #include "ops/mesh_propagation/mesh_propagation.h"
 #include "ops/splat/splat.h"
+#include "model/constants.h"
 
 namespace sfgs::model {
 

@@ -5,7 +5,7 @@
 #include <ATen/core/grad_mode.h>
 
 #include "body/tensor_checks.h"
-#include "common/constants.h"
+#include "model/constants.h"
 
 namespace sfgs::model {
 namespace {

@@ -5,7 +5,7 @@
 
 #include <ATen/ATen.h>
 
-#include "common/constants.h"
+#include "ops/splat/constants.h"
 #include "common/tensor_description.h"
 #include "ops/splat/camera_frame.h"
 

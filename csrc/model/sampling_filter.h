@@ -10,6 +10,7 @@
 #include <ATen/core/Tensor.h>
 
 #include "ops/splat/splat.h"
+#include "ops/splat/constants.h"
 
 namespace sfgs::model {
 

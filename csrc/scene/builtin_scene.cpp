@@ -1,6 +1,7 @@
 #include "scene/builtin_scene.h"
 #include "common/math_constants.h"
 #include "common/constants.h"
+#include "ops/splat/constants.h"
 
 #include <cmath>
 

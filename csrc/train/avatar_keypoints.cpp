@@ -4,7 +4,7 @@
 
 #include "body/procedural_body.h"
 #include "body/skeleton.h"
-#include "common/constants.h"
+#include "fit/constants.h"
 #include "common/tensor_description.h"
 
 namespace sfgs::train {

@@ -13,6 +13,7 @@
 #include "fit/fit_losses.h"
 #include "model/avatar.h"
 #include "ops/splat/splat.h"
+#include "fit/constants.h"
 
 namespace sfgs::train {
 

@@ -87,5 +87,12 @@ inline constexpr long kWebViewerInfluences = 4;
 // The web export's data scripts hold at most about this many bytes each (before base64; a file holds at least one
 // frame): a script of about 45 MB of base64 text, which browsers parse as one string literal without trouble.
 inline constexpr long kWebDataFileBytes = 32L << 20;
+// Recorded training steps the host queues before it reads the splatting counts of the oldest (train/step_graphs.h):
+// two, so it reads a step while the GPU runs the next and never waits for the step it has just queued.
+inline constexpr long kGraphUncheckedSteps = 2;
+// Per-region evaluation (docs/metrics.md): a region counts in a frame from this many pixels on; a region rendered
+// exactly scores PSNR 10 log10(1 / this MSE) instead of infinity.
+inline constexpr long kMinRegionPixels = 16;
+inline constexpr double kMinRegionMse = 1e-10;
 
 }  // namespace sfgs

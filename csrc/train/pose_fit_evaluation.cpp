@@ -6,7 +6,7 @@
 #include <ATen/ATen.h>
 #include <torch/csrc/autograd/autograd.h>
 
-#include "common/constants.h"
+#include "ops/splat/constants.h"
 #include "train/constants.h"
 #include "common/tensor_description.h"
 #include "train/pose_refinement.h"

@@ -10,6 +10,8 @@
 #include "common/constants.h"
 #include "data/mesh_renderer.h"
 #include "io/npz.h"
+#include "model/constants.h"
+#include "train/constants.h"
 
 namespace sfgs::train {
 namespace fs = std::filesystem;

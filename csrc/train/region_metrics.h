@@ -14,6 +14,8 @@
 
 #include "data/dataset.h"
 #include "metrics/image_metrics.h"
+#include "model/constants.h"
+#include "train/constants.h"
 
 namespace sfgs::train {
 

@@ -4,7 +4,7 @@
 
 #include <ATen/ATen.h>
 
-#include "common/constants.h"
+#include "train/constants.h"
 #include "ops/splat/splat.h"
 
 namespace sfgs::train {

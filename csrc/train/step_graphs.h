@@ -27,7 +27,7 @@
 
 #include <ATen/core/Tensor.h>
 
-#include "common/constants.h"
+#include "ops/splat/constants.h"
 #include "common/device_graph.h"
 #include "model/avatar.h"
 #include "ops/splat/growing_budget.h"

@@ -15,7 +15,8 @@
 
 #include "body/skeleton.h"
 #include "common/atomic_file.h"
-#include "common/constants.h"
+#include "body/constants.h"
+#include "ops/splat/constants.h"
 #include "train/constants.h"
 #include "train/web_assets.h"
 
@@ -254,7 +255,7 @@ nlohmann::json camera_json(const WebCamera& c) {
           {"target", c.target}};
 }
 
-// The thresholds of sfgs::render the viewer's shaders repeat (common/constants.h).
+// The thresholds of sfgs::render the viewer's shaders repeat (ops/splat/constants.h).
 nlohmann::json splatting_json() {
   return {{"low_pass_variance", kLowPassVariancePx2},
           {"min_alpha", kMinAlpha},

@@ -6,7 +6,7 @@
 
 #include <ATen/ATen.h>
 
-#include "common/constants.h"
+#include "model/constants.h"
 #include "ops/mlp_inference/mlp_inference.h"
 
 namespace sfgs::testing {

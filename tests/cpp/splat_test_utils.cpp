@@ -1,4 +1,5 @@
 #include "splat_test_utils.h"
+#include "ops/splat/constants.h"
 
 #include <algorithm>
 #include <cmath>

@@ -7,6 +7,7 @@
 #include <ATen/ATen.h>
 
 #include "ops/splat/splat.h"
+#include "ops/splat/constants.h"
 
 namespace sfgs::testing {
 

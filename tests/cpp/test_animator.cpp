@@ -18,6 +18,7 @@
 #include "ops/splat/camera_frame.h"
 #include "metrics/image_metrics.h"
 #include "test_avatar_utils.h"
+#include "animate/constants.h"
 
 namespace sfgs::testing {
 namespace {

@@ -25,6 +25,7 @@
 #include "fit/keypoint_body.h"
 #include "test_body_utils.h"
 #include "test_files.h"
+#include "fit/constants.h"
 
 namespace sfgs::fit {
 namespace {

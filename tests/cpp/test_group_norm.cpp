@@ -10,7 +10,7 @@
 #include <gtest/gtest.h>
 #include <torch/csrc/autograd/autograd.h>
 
-#include "common/constants.h"
+#include "model/constants.h"
 #include "ops/group_norm/group_norm.h"
 #include "model/mlp.h"
 #include "test_files.h"

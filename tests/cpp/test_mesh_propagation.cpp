@@ -5,7 +5,7 @@
 #include <ATen/ATen.h>
 #include <gtest/gtest.h>
 
-#include "common/constants.h"
+#include "model/constants.h"
 #include "ops/mesh_propagation/mesh_propagation.h"
 #include "mesh_propagation_cases.h"
 #include "op_check.h"

@@ -5,7 +5,7 @@
 
 #include <gtest/gtest.h>
 
-#include "common/constants.h"
+#include "train/constants.h"
 #include "io/npz.h"
 #include "metrics/image_metrics.h"
 #include "test_files.h"

@@ -6,6 +6,7 @@
 #include <gtest/gtest.h>
 
 #include "ops/splat/pair_math.h"
+#include "ops/splat/constants.h"
 
 namespace sfgs::splat {
 namespace {

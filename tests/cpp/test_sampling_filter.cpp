@@ -10,7 +10,7 @@
 #include <torch/csrc/autograd/grad_mode.h>
 
 #include "animate/animator.h"
-#include "common/constants.h"
+#include "ops/splat/constants.h"
 #include "model/sampling_filter.h"
 #include "test_avatar_utils.h"
 #include "test_body_utils.h"

@@ -6,6 +6,7 @@
 #include <torch/csrc/autograd/autograd.h>
 
 #include "splat_test_utils.h"
+#include "ops/splat/constants.h"
 
 namespace sfgs::testing {
 namespace {

@@ -10,6 +10,7 @@
 
 #include "op_check.h"
 #include "splat_test_utils.h"
+#include "ops/splat/constants.h"
 
 namespace sfgs::testing {
 namespace {

@@ -9,7 +9,7 @@
 #include <torch/csrc/autograd/autograd.h>
 #include <torch/cuda.h>
 
-#include "common/constants.h"
+#include "model/constants.h"
 #include "ops/group_norm/group_norm.h"
 #include "tensor_compare.h"
 

@@ -8,7 +8,7 @@
 #include <gtest/gtest.h>
 #include <torch/cuda.h>
 
-#include "common/constants.h"
+#include "model/constants.h"
 #include "ops/mesh_propagation/mesh_propagation.h"
 #include "mesh_propagation_cases.h"
 #include "tensor_compare.h"

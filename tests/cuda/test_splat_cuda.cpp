@@ -12,6 +12,7 @@
 
 #include "ops/splat/cuda/diagnostics.h"
 #include "splat_test_utils.h"
+#include "ops/splat/constants.h"
 
 namespace sfgs::testing {
 namespace {

@@ -9,7 +9,7 @@
 #include <string>
 #include <type_traits>
 
-#include "common/constants.h"
+#include "ops/group_norm/constants.h"
 #include "ops/group_norm/group_norm_kernels.h"
 #include "cuda/launch_geometry.cuh"
 #include "cuda/warp_utils.cuh"

@@ -9,6 +9,7 @@
 #include <cstdint>
 
 #include <ATen/core/Tensor.h>
+#include "ops/group_norm/constants.h"
 
 namespace sfgs::group_norm {
 

@@ -7,6 +7,7 @@
 #include <cuda_runtime_api.h>
 
 #include "ops/group_norm/group_norm_math.h"
+#include "ops/group_norm/constants.h"
 
 namespace sfgs::group_norm::cuda_kernels {
 

@@ -6,7 +6,7 @@
 #include <torch/csrc/autograd/custom_function.h>
 #include <torch/library.h>
 
-#include "common/constants.h"
+#include "ops/pixel_loss/constants.h"
 #include "common/tensor_description.h"
 #include "ops/registration.h"
 #include "ops/pixel_loss/backend.h"

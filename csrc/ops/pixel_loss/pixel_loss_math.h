@@ -10,7 +10,7 @@
 #include <cmath>
 #include <cstdint>
 
-#include "common/constants.h"
+#include "ops/pixel_loss/constants.h"
 #include "common/host_device.h"
 
 namespace sfgs::pixel_loss {

@@ -10,7 +10,7 @@
 #include <torch/csrc/autograd/custom_function.h>
 #include <torch/library.h>
 
-#include "common/constants.h"
+#include "ops/plane_sampling/constants.h"
 #include "common/tensor_description.h"
 #include "ops/plane_sampling/backend.h"
 #include "ops/registration.h"

@@ -5,6 +5,7 @@
 #include <string>
 
 #include "ops/plane_sampling/plane_sampling_kernels.h"
+#include "ops/plane_sampling/constants.h"
 
 namespace sfgs::plane_sampling::cuda_kernels {
 namespace {

@@ -8,6 +8,7 @@
 #include <cstdint>
 
 #include <ATen/core/Tensor.h>
+#include "ops/plane_sampling/constants.h"
 
 namespace sfgs::plane_sampling {
 

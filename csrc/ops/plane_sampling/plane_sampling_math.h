@@ -7,6 +7,7 @@
 #include <limits>
 
 #include "common/host_device.h"
+#include "ops/plane_sampling/constants.h"
 
 namespace sfgs::plane_sampling {
 

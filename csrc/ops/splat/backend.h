@@ -8,6 +8,7 @@
 
 #include "ops/splat/splat.h"
 #include "ops/splat/stages.h"
+#include "ops/splat/constants.h"
 
 namespace sfgs::splat {
 

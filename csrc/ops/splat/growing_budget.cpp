@@ -5,7 +5,7 @@
 
 #include <ATen/ATen.h>
 
-#include "common/constants.h"
+#include "ops/splat/constants.h"
 
 namespace sfgs {
 

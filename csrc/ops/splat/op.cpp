@@ -21,6 +21,7 @@
 
 #include "ops/registration.h"
 #include "ops/splat/validation.h"
+#include "ops/splat/constants.h"
 
 namespace sfgs::splat {
 namespace {

@@ -9,6 +9,7 @@
 
 #include "common/constants.h"
 #include "common/host_device.h"
+#include "ops/splat/constants.h"
 
 namespace sfgs::splat {
 

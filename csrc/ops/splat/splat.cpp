@@ -14,6 +14,7 @@
 #include "ops/splat/op.h"
 #include "ops/splat/validation.h"
 #include "ops/registration.h"
+#include "ops/splat/constants.h"
 
 namespace sfgs {
 

@@ -7,7 +7,7 @@
 
 #include <ATen/core/Tensor.h>
 
-#include "common/constants.h"
+#include "ops/splat/constants.h"
 
 namespace sfgs {
 

@@ -6,6 +6,7 @@
 #include <cstdint>
 
 #include "ops/splat/pair_math.h"
+#include "ops/splat/constants.h"
 
 namespace sfgs::splat {
 

@@ -11,6 +11,7 @@
 #include "common/tensor_description.h"
 #include "ops/registration.h"
 #include "ops/ssim/backend.h"
+#include "ops/ssim/constants.h"
 
 namespace sfgs::ssim {
 namespace {

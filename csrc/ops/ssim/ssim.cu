@@ -7,7 +7,7 @@
 #include <stdexcept>
 #include <string>
 
-#include "common/constants.h"
+#include "ops/ssim/constants.h"
 #include "cuda/launch_geometry.cuh"
 #include "ops/ssim/ssim_kernels.h"
 #include "cuda/warp_utils.cuh"

@@ -8,6 +8,7 @@
 #include <ATen/Parallel.h>
 
 #include "ops/ssim/backend.h"
+#include "ops/ssim/constants.h"
 
 namespace sfgs::ssim::cpu {
 namespace {

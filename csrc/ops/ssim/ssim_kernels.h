@@ -7,6 +7,7 @@
 #include <cuda_runtime_api.h>
 
 #include "ops/ssim/ssim_math.h"
+#include "ops/ssim/constants.h"
 
 namespace sfgs::ssim::cuda_kernels {
 

@@ -17,6 +17,7 @@
 
 #include "common/constants.h"
 #include "common/host_device.h"
+#include "ops/ssim/constants.h"
 
 namespace sfgs::ssim {
 

@@ -6,6 +6,7 @@
 #include <ATen/Parallel.h>
 
 #include "ops/splat/cpu/stages_cpu.h"
+#include "ops/splat/constants.h"
 
 namespace sfgs::splat::cpu {
 namespace {

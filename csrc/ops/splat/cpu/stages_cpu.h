@@ -14,6 +14,7 @@
 #include <ATen/core/Tensor.h>
 
 #include "ops/splat/backend.h"
+#include "ops/splat/constants.h"
 
 namespace sfgs::splat::cpu {
 

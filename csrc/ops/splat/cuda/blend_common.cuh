@@ -4,6 +4,7 @@
 #include <type_traits>
 
 #include "ops/splat/cuda/kernel_common.cuh"
+#include "ops/splat/constants.h"
 
 namespace sfgs::splat::cuda_kernels {
 

@@ -18,6 +18,7 @@
 #include <type_traits>
 
 #include "ops/splat/cuda/blend_common.cuh"
+#include "ops/splat/constants.h"
 
 namespace sfgs::splat::cuda_kernels {
 namespace {

@@ -2,6 +2,7 @@
 #include <cuda_profiler_api.h>
 
 #include "ops/splat/cuda/kernel_common.cuh"
+#include "ops/splat/constants.h"
 
 namespace sfgs::splat::cuda_kernels {
 namespace {

@@ -5,6 +5,7 @@
 #include <cstdint>
 
 #include <cuda_runtime_api.h>
+#include "ops/splat/constants.h"
 
 namespace sfgs {
 

@@ -10,6 +10,7 @@
 #include "ops/splat/cuda/diagnostics.h"
 #include "ops/splat/cuda/rasterize_kernels.h"
 #include "cuda/warp_utils.cuh"
+#include "ops/splat/constants.h"
 
 namespace sfgs::splat::cuda_kernels {
 

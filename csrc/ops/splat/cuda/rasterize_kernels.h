@@ -43,6 +43,7 @@
 #include <cuda_runtime_api.h>
 
 #include "ops/splat/stages.h"
+#include "ops/splat/constants.h"
 
 namespace sfgs::splat::cuda_kernels {
 

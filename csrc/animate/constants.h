@@ -1,0 +1,14 @@
+#pragma once
+// The Animator's numbers, named once.
+
+namespace sfgs {
+
+// The Animator can cull Gaussians whose posed normal faces away from the camera by more than a cosine (between the
+// normal and the view ray; animate/visibility.h). Off by default (1): on a trained avatar it is lossy (0.3: the
+// frame 9 % faster, but 38-42 dB against the exact render; docs/performance.md), because small Gaussians' opacity
+// is scaled down by the antialiasing compensation and the near side does not hide the far side completely.
+inline constexpr double kAnimatorBackFacingCosine = 1.0;
+// A cosine that culls clearly back-facing Gaussians only, for callers who trade that accuracy for speed.
+inline constexpr double kAnimatorFastBackFacingCosine = 0.3;
+
+}  // namespace sfgs
