@@ -13,4 +13,8 @@ std::string describe(const at::Tensor& t) {
 
 bool is_float_or_double(const at::Tensor& t) { return t.scalar_type() == at::kFloat || t.scalar_type() == at::kDouble; }
 
+bool values_within(const at::Tensor& t, int64_t low, int64_t high) {
+  return t.numel() == 0 || (t.min().item<int64_t>() >= low && t.max().item<int64_t>() < high);
+}
+
 }  // namespace sfgs

@@ -12,4 +12,8 @@ std::string describe(const at::Tensor& t);
 // float or double: the dtypes the fused ops' CPU backends and CUDA kernels are written for.
 bool is_float_or_double(const at::Tensor& t);
 
+// Whether every value of an integer tensor lies in [low, high) (true when it is empty). Reads the tensor on the host:
+// for checks at a boundary, not inside a recorded pass.
+bool values_within(const at::Tensor& t, int64_t low, int64_t high);
+
 }  // namespace sfgs

@@ -139,9 +139,7 @@ at::Tensor gathered_mlp_reference(const at::Tensor& row_inputs, const at::Tensor
   at::Tensor index = groups.to(at::kLong);
   at::Tensor outside;  // rows whose group is out of range, off the CPU (checking would read the device)
   if (index.is_cpu()) {
-    if (index.numel() > 0)
-      TORCH_CHECK(index.min().item<int64_t>() >= 0 && index.max().item<int64_t>() < group_count,
-                  "gathered_mlp: groups must lie in [0, ", group_count, ")");
+    TORCH_CHECK(values_within(index, 0, group_count), "gathered_mlp: groups must lie in [0, ", group_count, ")");
   } else {
     outside = (index < 0) | (index >= group_count);
     index = index.clamp(0, group_count - 1);

@@ -70,18 +70,15 @@ void check_arguments(const at::Tensor& values, const PlanTensors& p, at::IntArra
 // give such rows NaN instead: mesh_propagation_math.h).
 void check_indices_on_host(const PlanTensors& p, int64_t n) {
   const int64_t k = p.neighbours.size(1);
-  const auto in_range = [](const at::Tensor& t, int64_t low, int64_t high) {
-    return t.numel() == 0 || (t.min().item<int64_t>() >= low && t.max().item<int64_t>() < high);
-  };
-  TORCH_CHECK(in_range(p.counts, 0, k + 1), "propagate_on_mesh: counts must lie in [0, ", k, "]");
-  TORCH_CHECK(in_range(p.ring_source_counts, 0, k + 1), "propagate_on_mesh: ring_source_counts must lie in [0, ", k,
-              "]");
+  TORCH_CHECK(values_within(p.counts, 0, k + 1), "propagate_on_mesh: counts must lie in [0, ", k, "]");
+  TORCH_CHECK(values_within(p.ring_source_counts, 0, k + 1), "propagate_on_mesh: ring_source_counts must lie in [0, ",
+              k, "]");
   const at::Tensor slot = at::arange(k, p.neighbours.options()).unsqueeze(0);
-  TORCH_CHECK(in_range(p.neighbours.masked_select(slot < p.counts.unsqueeze(1)), 0, n),
+  TORCH_CHECK(values_within(p.neighbours.masked_select(slot < p.counts.unsqueeze(1)), 0, n),
               "propagate_on_mesh: a neighbour lies outside [0, ", n, ")");
-  TORCH_CHECK(in_range(p.ring_sources.masked_select(slot < p.ring_source_counts.unsqueeze(1)), 0, n),
+  TORCH_CHECK(values_within(p.ring_sources.masked_select(slot < p.ring_source_counts.unsqueeze(1)), 0, n),
               "propagate_on_mesh: a ring source lies outside [0, ", n, ")");
-  TORCH_CHECK(in_range(p.ring_points, 0, n) && in_range(p.free_points, 0, n),
+  TORCH_CHECK(values_within(p.ring_points, 0, n) && values_within(p.free_points, 0, n),
               "propagate_on_mesh: a ring or free point lies outside [0, ", n, ")");
 }
 

@@ -66,13 +66,10 @@ void check_reads(const ReadTensors& r, at::ScalarType dtype, at::Device device, 
 // The CPU op reads the reads' indices where they lie and refuses ones plane_reads could not have made (the CUDA
 // kernel gives such chunks NaN or skips them instead: plane_sampling_math.h).
 void check_read_indices_on_host(const ReadTensors& r, int64_t texels, int64_t points) {
-  const auto in_range = [](const at::Tensor& t, int64_t low, int64_t high) {
-    return t.numel() == 0 || (t.min().item<int64_t>() >= low && t.max().item<int64_t>() < high);
-  };
-  TORCH_CHECK(in_range(r.chunk_rows, 0, texels), "plane_reads_gradient: chunk_rows must lie in [0, ", texels, ")");
-  TORCH_CHECK(in_range(r.points, 0, points), "plane_reads_gradient: points must lie in [0, ", points, ")");
+  TORCH_CHECK(values_within(r.chunk_rows, 0, texels), "plane_reads_gradient: chunk_rows must lie in [0, ", texels, ")");
+  TORCH_CHECK(values_within(r.points, 0, points), "plane_reads_gradient: points must lie in [0, ", points, ")");
   const int64_t reads = r.points.size(0);
-  TORCH_CHECK(in_range(r.chunk_begins, 0, reads + 1) && in_range(r.chunk_ends, 0, reads + 1) &&
+  TORCH_CHECK(values_within(r.chunk_begins, 0, reads + 1) && values_within(r.chunk_ends, 0, reads + 1) &&
                   (r.chunk_begins <= r.chunk_ends).all().item<bool>(),
               "plane_reads_gradient: every chunk must run over reads within [0, ", reads, "], begin before end");
 }
