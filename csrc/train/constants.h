@@ -11,15 +11,6 @@ inline constexpr long kFrameCacheBytes = 2L << 30;
 // of 1e30, a loss weight whose product overflows float32, planes of a million texels a side), not unusual choices:
 // the defaults sit orders of magnitude inside them (learning rates 1e-3, Laplacian weights 1e5, planes 128-256).
 inline constexpr double kMaxLearningRate = 1.0;
-// Adam of the pose corrections (train/pose_refinement.h): the usual moments' decays and a denominator floor far
-// below the corrections' gradients.
-inline constexpr double kPoseAdamBeta1 = 0.9;
-inline constexpr double kPoseAdamBeta2 = 0.999;
-inline constexpr double kPoseAdamEpsilon = 1e-8;
-// The per-step correction rates (rotation rad, translation m a step) of runs whose stored config predates the keys;
-// today's default is 0, no per-step corrections (train/train_config.h).
-inline constexpr double kLegacyPoseRefinementRotationRate = 1e-2;
-inline constexpr double kLegacyPoseRefinementTranslationRate = 5e-3;
 // Loss evaluations (a render and its gradient) per frame of test-time fitting (`sfgs eval --fit-iterations`): with
 // L-BFGS, exact-fit Anny avatar on medium-level test fits at 540 x 960, 300 reach 33.7 dB of the 34.9 exact test fits
 // give (docs/archive/results-history.md, "L-BFGS"); 600 gave 33.0 at the earlier stage shares against 32.1-32.7 at 300,

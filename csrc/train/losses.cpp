@@ -90,8 +90,7 @@ void Regularisers::add_terms(const model::AvatarOutput& out, LossTerms& terms) c
 
 at::Tensor total_loss(LossTerms& terms) {
   at::Tensor total;
-  for (const char* key : {"image", "lab", "gradient", "mean_offset", "scale", "laplacian_mean", "laplacian_scale",
-                          "pose_prior", "pose_smoothness", "pose_keypoints"}) {
+  for (const char* key : {"image", "lab", "gradient", "mean_offset", "scale", "laplacian_mean", "laplacian_scale"}) {
     const auto it = terms.find(key);
     if (it == terms.end()) continue;
     total = total.defined() ? total + it->second : it->second;

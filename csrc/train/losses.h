@@ -45,7 +45,7 @@ class Regularisers {
   at::Tensor neighbours_, neighbour_counts_;
 };
 
-// Sum of the terms' values (the image terms, the regularisers and the pose refinement's) into "total".
+// Sum of the terms' values (the image terms and the regularisers) into "total".
 at::Tensor total_loss(LossTerms& terms);
 
 }  // namespace sfgs::train

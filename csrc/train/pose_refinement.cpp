@@ -56,34 +56,8 @@ at::Tensor fit_row(const body::SmplxPose& pose) {
   return row;
 }
 
-// The learning rate of each column of a correction.
-at::Tensor column_rates(double rotation, double translation, at::Device device) {
-  at::Tensor rates = at::full({kCorrectionWidth}, rotation, at::kFloat);
-  rates.narrow(0, kTranslationColumn, 3).fill_(translation);
-  return rates.to(device);
-}
-
 // The first iteration at or after `share` of a run of `iterations`.
 int64_t iteration_at(double share, int64_t iterations) { return int64_t(std::ceil(share * double(iterations))); }
-
-// A refined fit as a motion: the rotation matrices of its corrected joints (kCorrectedJoints, 3, 3) and its
-// translation (3). Its acceleration is taken on these, not on the axis-angles: a camera-frame root (NeuMan's, with
-// the camera's y axis down) turns about pi, where an estimator's axis-angle flips sign between frames that turn alike
-// (3.1 and -3.1 rad about x), and the axis-angles' acceleration would pull such frames through a half turn.
-struct RefinedMotion {
-  at::Tensor rotations, translation;
-};
-RefinedMotion refined_motion(const at::Tensor& refined) {
-  return {body::axis_angle_to_matrix(refined.narrow(0, 0, kTranslationColumn).view({kCorrectedJoints, 3})),
-          refined.narrow(0, kTranslationColumn, 3)};
-}
-// Half the squared Frobenius norm of the rotations' second difference (the squared angle of small turns: the
-// axis-angles' term for joints near rest, while a root near pi, which an axis-angle step across its axis turns only
-// 0.64 times as far, weighs such jitter about 0.4 times as much) plus the translation's squared second difference.
-at::Tensor squared_acceleration(const RefinedMotion& a, const RefinedMotion& b, const RefinedMotion& c) {
-  return 0.5 * (a.rotations - 2 * b.rotations + c.rotations).pow(2).sum() +
-         (a.translation - 2 * b.translation + c.translation).pow(2).sum();
-}
 
 }  // namespace
 
@@ -106,10 +80,7 @@ body::SmplxPose corrected_pose(const body::SmplxPose& base, const at::Tensor& co
 
 PoseRefinement::PoseRefinement(const data::Dataset& dataset, const PoseRefinementConfig& config, int64_t iterations,
                                at::Device device, const body::WholeBodyKeypointMap* keypoint_map)
-    : dataset_(dataset),
-      config_(config),
-      start_iteration_(iteration_at(config.start, iterations)),
-      row_(size_t(dataset.size()), -1) {
+    : dataset_(dataset), config_(config), row_(size_t(dataset.size()), -1) {
   frames_ = dataset.split(data::Split::kTrain);
   TORCH_CHECK(!frames_.empty(), "pose refinement: dataset '", dataset.source, "' has no training frames");
   std::stable_sort(frames_.begin(), frames_.end(), [&](int64_t a, int64_t b) {
@@ -118,25 +89,12 @@ PoseRefinement::PoseRefinement(const data::Dataset& dataset, const PoseRefinemen
   });
   const int64_t rows = int64_t(frames_.size());
   std::vector<at::Tensor> fits;
-  previous_.assign(size_t(rows), -1);
-  next_.assign(size_t(rows), -1);
   for (int64_t r = 0; r < rows; ++r) {
     row_[size_t(frames_[size_t(r)])] = r;
     fits.push_back(fit_row(dataset.frames[size_t(frames_[size_t(r)])].pose));
-    const bool continues = r > 0 && dataset.frames[size_t(frames_[size_t(r - 1)])].sequence ==
-                                        dataset.frames[size_t(frames_[size_t(r)])].sequence;
-    if (continues) {
-      previous_[size_t(r)] = r - 1;
-      next_[size_t(r - 1)] = r;
-    }
   }
-  const auto options = at::TensorOptions().dtype(at::kFloat).device(device);
   base_ = at::stack(fits).to(device);
-  corrections_ = at::zeros({rows, kCorrectionWidth}, options).requires_grad_(true);
-  exp_avg_ = at::zeros({rows, kCorrectionWidth}, options);
-  exp_avg_sq_ = at::zeros({rows, kCorrectionWidth}, options);
-  rates_ = column_rates(config.learning_rate, config.translation_learning_rate, device);
-  steps_.assign(size_t(rows), 0);
+  corrections_ = at::zeros({rows, kCorrectionWidth}, at::TensorOptions().dtype(at::kFloat).device(device));
   smooth_refined_fits();
   keep_fits_on_host();
   for (const double share : config.align_at) align_iterations_.push_back(iteration_at(share, iterations));
@@ -152,67 +110,10 @@ PoseRefinement::PoseRefinement(const data::Dataset& dataset, const PoseRefinemen
   if (any) keypoint_map_ = keypoint_map->to(device, at::kFloat);
 }
 
-void PoseRefinement::add_keypoint_term(int64_t frame, int64_t iteration, const model::Avatar& avatar,
-                                       const model::AvatarOutput& out, LossTerms& terms) const {
-  if (!keypoint_map_ || !config_.per_step()) return;
-  const FrameKeypoints& keypoints = keypoints_[size_t(row_of(frame))];
-  if (iteration < start_iteration_ || !keypoints.defined()) {
-    terms["pose_keypoints"] = at::zeros({}, base_.options());  // the same terms every step (the loss watch)
-    return;
-  }
-  terms["pose_keypoints"] =
-      config_.keypoint_weight * keypoint_reprojection_loss(*keypoint_map_, avatar, out, keypoints);
-}
-
 int64_t PoseRefinement::row_of(int64_t frame) const {
   TORCH_CHECK(frame >= 0 && frame < int64_t(row_.size()) && row_[size_t(frame)] >= 0, "pose refinement: frame ", frame,
               " is not a training frame");
   return row_[size_t(frame)];
-}
-
-body::SmplxPose PoseRefinement::pose(int64_t frame, int64_t iteration, LossTerms& terms) {
-  // The fit as the last alignment pass left it, with no gradient: the body takes its fused kernels.
-  if (!config_.per_step()) return fit(frame);
-  const data::FrameRecord& record = dataset_.frames[size_t(frame)];
-  if (iteration < start_iteration_) {
-    // The same terms every step (the loss watch compares steps), zero while the corrections wait.
-    terms["pose_prior"] = terms["pose_smoothness"] = at::zeros({}, base_.options());
-    return record.pose;
-  }
-  const int64_t r = row_of(frame);
-  const at::Tensor correction = corrections_[r];
-  terms["pose_prior"] = config_.prior * correction.pow(2).sum();
-  // The acceleration of the refined fits at every triple of consecutive training frames that holds this one: the
-  // rows two before to two after it (-1 past a sequence's end), each row's motion made once.
-  const int64_t p = previous_[size_t(r)], n = next_[size_t(r)];
-  const std::array<int64_t, 5> rows{p >= 0 ? previous_[size_t(p)] : -1, p, r, n, n >= 0 ? next_[size_t(n)] : -1};
-  std::array<RefinedMotion, 5> motions;
-  for (size_t k = 0; k < rows.size(); ++k)
-    if (rows[k] >= 0) motions[k] = refined_motion(base_[rows[k]] + corrections_[rows[k]]);
-  at::Tensor smoothness = at::zeros({}, correction.options());
-  for (size_t k = 0; k + 2 < rows.size(); ++k)
-    if (rows[k] >= 0 && rows[k + 1] >= 0 && rows[k + 2] >= 0)
-      smoothness = smoothness + squared_acceleration(motions[k], motions[k + 1], motions[k + 2]);
-  terms["pose_smoothness"] = config_.smoothness * smoothness;
-  return corrected_pose(record.pose, correction);
-}
-
-void PoseRefinement::step(int64_t frame, int64_t iteration, double rate_factor) {
-  if (!config_.per_step() || iteration < start_iteration_) return;
-  const int64_t r = row_of(frame);
-  at::NoGradGuard no_grad;
-  at::Tensor& gradient = corrections_.mutable_grad();
-  if (!gradient.defined()) return;
-  const at::Tensor g = gradient[r];
-  const double beta1 = kPoseAdamBeta1, beta2 = kPoseAdamBeta2;
-  const int64_t t = ++steps_[size_t(r)];
-  at::Tensor m = exp_avg_[r], v = exp_avg_sq_[r];
-  m.mul_(beta1).add_(g, 1 - beta1);
-  v.mul_(beta2).addcmul_(g, g, 1 - beta2);
-  const double correction1 = 1 - std::pow(beta1, double(t)), correction2 = 1 - std::pow(beta2, double(t));
-  const at::Tensor denominator = (v / correction2).sqrt_().add_(kPoseAdamEpsilon);
-  corrections_[r].sub_(rates_ * (rate_factor / correction1) * m / denominator);
-  gradient.reset();
 }
 
 nlohmann::json PoseRefinement::align(int64_t iteration, model::Avatar& avatar, const LossWeights& loss, bool recorded) {
@@ -244,12 +145,8 @@ nlohmann::json PoseRefinement::align(int64_t iteration, model::Avatar& avatar, c
     PoseFitTarget target = pose_fit_target(dataset_, f, device, false);
     if (keypoint_map_) target.keypoints = keypoints_[r];
     const PoseFitResult fit =
-        fitter.fit(avatar, dataset_.frames[size_t(f)].pose, target, corrections_[int64_t(r)].detach().clone());
-    at::NoGradGuard no_grad;
+        fitter.fit(avatar, dataset_.frames[size_t(f)].pose, target, corrections_[int64_t(r)].clone());
     corrections_[int64_t(r)].copy_(fit.correction);
-    exp_avg_[int64_t(r)].zero_();
-    exp_avg_sq_[int64_t(r)].zero_();
-    steps_[r] = 0;
     before += fit.start_loss;
     after += fit.loss;
     evaluations += fit.evaluations;
@@ -286,8 +183,7 @@ void PoseRefinement::smooth_refined_fits() {
     times.push_back(dataset_.frames[size_t(f)].time);
     sequences.push_back(dataset_.frames[size_t(f)].sequence);
   }
-  at::NoGradGuard no_grad;
-  const at::Tensor refined = base_ + corrections_.detach();
+  const at::Tensor refined = base_ + corrections_;
   corrections_.copy_(smooth_fits(refined, kCorrectedJoints, times, sequences, config_.smoothing_seconds) - base_);
 }
 
@@ -298,7 +194,7 @@ nlohmann::json PoseRefinement::error_against_truth() const {
   };
   PoseError input, refined;
   int64_t count = 0;
-  const at::Tensor corrections = corrections_.detach().cpu();
+  const at::Tensor corrections = corrections_.cpu();
   for (size_t r = 0; r < frames_.size(); ++r) {
     const data::FrameRecord& record = dataset_.frames[size_t(frames_[r])];
     if (!record.true_pose) continue;
@@ -322,41 +218,32 @@ nlohmann::json PoseRefinement::error_against_truth() const {
   return {{"input", as_json(input)}, {"refined", as_json(refined)}};
 }
 
-at::Tensor PoseRefinement::state() const {
-  const at::Tensor steps = at::tensor(steps_, at::kLong).to(at::kDouble).unsqueeze(1);
-  return at::cat({corrections_.detach().cpu().to(at::kDouble), exp_avg_.cpu().to(at::kDouble),
-                  exp_avg_sq_.cpu().to(at::kDouble), steps},
-                 1);
-}
+at::Tensor PoseRefinement::state() const { return corrections_.cpu().to(at::kDouble); }
 
 void PoseRefinement::restore(const at::Tensor& state) {
   const int64_t rows = int64_t(frames_.size());
-  TORCH_CHECK(state.dim() == 2 && state.size(0) == rows && state.size(1) == 3 * kCorrectionWidth + 1,
-              "pose refinement: the checkpoint's state has shape ", state.sizes(), ", expected (", rows, ", ",
-              3 * kCorrectionWidth + 1, ") for this dataset's training frames");
-  at::NoGradGuard no_grad;
-  const auto options = exp_avg_.options();
-  corrections_.copy_(state.narrow(1, 0, kCorrectionWidth).to(options));
-  exp_avg_.copy_(state.narrow(1, kCorrectionWidth, kCorrectionWidth).to(options));
-  exp_avg_sq_.copy_(state.narrow(1, 2 * kCorrectionWidth, kCorrectionWidth).to(options));
-  const at::Tensor steps = state.select(1, 3 * kCorrectionWidth).round().to(at::kLong).contiguous();
-  for (int64_t r = 0; r < rows; ++r) steps_[size_t(r)] = steps[r].item<int64_t>();
+  // A version with per-step corrections kept their Adam moments and step counts after them.
+  const int64_t with_adam = 3 * kCorrectionWidth + 1;
+  TORCH_CHECK(
+      state.dim() == 2 && state.size(0) == rows && (state.size(1) == kCorrectionWidth || state.size(1) == with_adam),
+      "pose refinement: the checkpoint's state has shape ", state.sizes(), ", expected (", rows, ", ", kCorrectionWidth,
+      ") for this dataset's training frames");
+  corrections_.copy_(state.narrow(1, 0, kCorrectionWidth).to(corrections_.options()));
   keep_fits_on_host();
 }
 
 void PoseRefinement::keep_fits_on_host() {
   // A new tensor, not a copy into the old one: a fit handed out before (a field the input fit lacks is a view of its
   // row) keeps its values when the next pass moves the corrections.
-  if (!config_.per_step()) host_corrections_ = corrections_.detach().to(at::kCPU).clone();
+  host_corrections_ = corrections_.to(at::kCPU).clone();
 }
 
 body::SmplxPose PoseRefinement::fit(int64_t frame) const {
-  TORCH_CHECK(!config_.per_step(), "pose refinement: fit() is for runs without per-step corrections; use pose()");
   return corrected_pose(dataset_.frames[size_t(frame)].pose, host_corrections_[row_of(frame)]);
 }
 
 void PoseRefinement::write_fits(const std::string& path) const {
-  const at::Tensor refined = (base_ + corrections_.detach()).cpu().to(at::kDouble).contiguous();
+  const at::Tensor refined = (base_ + corrections_).cpu().to(at::kDouble).contiguous();
   nlohmann::json frames = nlohmann::json::object();
   for (size_t r = 0; r < frames_.size(); ++r) {
     const data::FrameRecord& record = dataset_.frames[size_t(frames_[r])];

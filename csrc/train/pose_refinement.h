@@ -54,27 +54,12 @@ class PoseRefinement {
   PoseRefinement(const data::Dataset& dataset, const PoseRefinementConfig& config, int64_t iterations,
                  at::Device device, const body::WholeBodyKeypointMap* keypoint_map);
 
-  // The pose training frame `frame` is trained with at `iteration`. Without per-step corrections: fit(frame), the
-  // fit as the last alignment pass left it (the input fit before the first), without a gradient, adding no terms.
-  // With them: its corrected fit (with a gradient to its correction) from config.start on, adding the weighted
-  // "pose_prior" and "pose_smoothness" to `terms`; the input fit (and zero terms) before.
-  body::SmplxPose pose(int64_t frame, int64_t iteration, LossTerms& terms);
-  // Without per-step corrections: training frame `frame`'s fit as the last alignment pass left it, on the CPU (the
-  // step uploads it with the frame, and a recorded step can take it). Refused with per-step corrections.
+  // Training frame `frame`'s fit as the last alignment pass left it (the input fit before the first), on the CPU:
+  // the step uploads it with the frame, so a recorded step can take it.
   body::SmplxPose fit(int64_t frame) const;
-  bool per_step() const { return config_.per_step(); }
-  // With per-step corrections and keypoints (keypoint_map given, config.keypoint_weight > 0, some training frame
-  // with detections): adds the weighted "pose_keypoints", the reprojection error of `out` (the avatar posed at
-  // pose(frame, ...)) against the frame's detections, from config.start on (zero before, and for a frame without
-  // detections); nothing otherwise.
-  void add_keypoint_term(int64_t frame, int64_t iteration, const model::Avatar& avatar, const model::AvatarOutput& out,
-                         LossTerms& terms) const;
-  // After the backward pass, with per-step corrections: one Adam step of the frame's correction at the schedule's
-  // learning-rate factor.
-  void step(int64_t frame, int64_t iteration, double rate_factor);
   // At an iteration of config.align_at (before its step): every training frame's correction fitted to its image with
   // `avatar` as it is (train/pose_fit.h, the run's image loss `loss`; the joints from config.align_joints_from on,
-  // the global orientation from config.align_orientation_from on, the translation always), its Adam state restarted.
+  // the global orientation from config.align_orientation_from on, the translation always).
   // `recorded`: on CUDA, the fits' evaluations as replays of recorded CUDA graphs (PoseFitOptions::recorded).
   // Returns the log entry (event "pose_alignment": the mean fitting loss before and after, the loss evaluations,
   // whether every fit's were recorded, the pass's seconds, and where the dataset has exact fits the error against them
@@ -84,8 +69,9 @@ class PoseRefinement {
   // train/pose_fit.h PoseError) as {"input": ..., "refined": ...}; an empty object when the dataset has none.
   nlohmann::json error_against_truth() const;
 
-  // Corrections, Adam moments and step counts as one (F, 3 kCorrectionWidth + 1) float64 tensor on the CPU, for the
-  // checkpoint; restore() takes it back (its shape is checked).
+  // The corrections as one (F, kCorrectionWidth) float64 tensor on the CPU, for the checkpoint; restore() takes it
+  // back (its shape is checked; a checkpoint of a version with per-step corrections also held their Adam moments and
+  // step counts, (F, 3 kCorrectionWidth + 1), of which the corrections are read).
   at::Tensor state() const;
   void restore(const at::Tensor& state);
   // Every training frame's refined fit, written atomically as the refined-fits JSON that apply_refined_fits reads.
@@ -100,19 +86,14 @@ class PoseRefinement {
 
   const data::Dataset& dataset_;
   PoseRefinementConfig config_;
-  int64_t start_iteration_;
   std::vector<int64_t> align_iterations_;  // the iterations of config.align_at
   int64_t align_joints_from_;              // alignment passes from this iteration on fit every joint
   int64_t align_orientation_from_;         // and from this one the global orientation
   std::vector<int64_t> frames_;            // training frames, by sequence and time; row r corrects frames_[r]
   std::vector<int64_t> row_;               // dataset frame -> row, -1 for frames that are not trained on
-  std::vector<int64_t> previous_, next_;   // row -> neighbouring row in its sequence, -1 at an end
   at::Tensor base_;                        // (F, kCorrectionWidth) the input fits' corrected fields, on the device
-  at::Tensor corrections_;                 // (F, kCorrectionWidth) leaf with a gradient
-  at::Tensor host_corrections_;            // their copy on the CPU without per-step corrections (fit())
-  at::Tensor exp_avg_, exp_avg_sq_;        // Adam moments, (F, kCorrectionWidth)
-  at::Tensor rates_;                       // (kCorrectionWidth) learning rate per column (rotations, translation)
-  std::vector<int64_t> steps_;             // Adam steps taken per row
+  at::Tensor corrections_;                 // (F, kCorrectionWidth) on the device
+  at::Tensor host_corrections_;            // their copy on the CPU (fit())
   std::optional<body::WholeBodyKeypointMap> keypoint_map_;  // on the device, float32; none: no keypoint term
   std::vector<FrameKeypoints> keypoints_;                   // per row; undefined for a frame without any
 };

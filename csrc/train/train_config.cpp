@@ -58,6 +58,20 @@ const std::set<std::string>& retired_keys() {
   static const std::set<std::string> keys = {"loss.face", "loss.joint_drift"};
   return keys;
 }
+// Per-step pose corrections were removed: Adam moved every number of a drawn frame by about its rate whatever the
+// gradient, and the avatar, trained on poses that jitter by a degree, never sharpened (6-7 dB of the GPU benchmark's
+// training PSNR on exact fits; docs/archive/results-history.md, "Per-step corrections"). Their keys still load: a
+// positive rate is refused in a config to train with, and in a run's stored config (a run of a version that had them)
+// it is ignored with a warning.
+const std::set<std::string>& per_step_keys() {
+  static const std::set<std::string> keys = {"pose_refinement.learning_rate",
+                                             "pose_refinement.translation_learning_rate", "pose_refinement.prior",
+                                             "pose_refinement.smoothness"};
+  return keys;
+}
+bool is_per_step_rate(const std::string& key) {
+  return key == "pose_refinement.learning_rate" || key == "pose_refinement.translation_learning_rate";
+}
 
 std::vector<std::pair<std::string, Section>> sections(TrainConfig& c) {
   model::AvatarConfig& a = c.avatar;
@@ -125,11 +139,7 @@ std::vector<std::pair<std::string, Section>> sections(TrainConfig& c) {
         {"cuda_graphs", field(s.cuda_graphs)}}},
       {"pose_refinement",
        {{"enabled", field(p.enabled)},
-        {"learning_rate", field(p.learning_rate)},
-        {"translation_learning_rate", field(p.translation_learning_rate)},
         {"start", field(p.start)},
-        {"prior", field(p.prior)},
-        {"smoothness", field(p.smoothness)},
         {"align_at", field(p.align_at)},
         {"align_iterations", field(p.align_iterations)},
         {"align_joints_from", field(p.align_joints_from)},
@@ -143,8 +153,8 @@ std::vector<std::pair<std::string, Section>> sections(TrainConfig& c) {
 }  // namespace
 
 namespace {
-// Reads `text` over `c` (keys it lacks keep c's values) and validates the result.
-TrainConfig read_yaml_over(TrainConfig c, const std::string& text, const std::string& source) {
+// Reads `text` over `c` (keys it lacks keep c's values) and validates the result; `stored`: a run's own config.
+TrainConfig read_yaml_over(TrainConfig c, const std::string& text, const std::string& source, bool stored) {
   YAML::Node root;
   try {
     root = YAML::Load(text);
@@ -176,6 +186,16 @@ TrainConfig read_yaml_over(TrainConfig c, const std::string& text, const std::st
         TORCH_WARN("config '", source, "': '", full, "' is retired (no loss used it) and is ignored; remove it");
         continue;
       }
+      if (per_step_keys().count(full)) {
+        const bool moved = is_per_step_rate(full) && entry.second.IsScalar() && entry.second.as<double>(0.0) > 0;
+        TORCH_CHECK(!moved || stored, "config '", source, "': '", full,
+                    "' is positive, but per-step pose corrections were removed (they kept the avatar blurred); the "
+                    "alignment passes (pose_refinement.align_at) refine the fits: remove the key");
+        TORCH_WARN("config '", source, "': '", full, "' belongs to the per-step pose corrections, which were removed",
+                   moved ? "; this run trained with them, and goes on with its alignment passes alone" : "",
+                   "; it is ignored");
+        continue;
+      }
       if (const auto renamed = renamed_keys().find(full); renamed != renamed_keys().end()) {
         TORCH_WARN("config '", source, "': '", full, "' is deprecated; write '", section, ".", renamed->second, "'");
         key = renamed->second;
@@ -191,6 +211,12 @@ TrainConfig read_yaml_over(TrainConfig c, const std::string& text, const std::st
       }
     }
   }
+  // A run of a version with per-step corrections may have moved its fits with them alone; a config to train with
+  // must give the passes that move them now.
+  TORCH_CHECK(
+      stored || !c.pose_refinement.enabled || !c.pose_refinement.align_at.empty(), "config '", source,
+      "': pose_refinement is enabled but nothing would move the fits: give pose_refinement.align_at (the shares "
+      "of the run at which the alignment passes run)");
   try {
     c.validate();
   } catch (const c10::Error& e) {
@@ -212,19 +238,16 @@ std::string config_text(const std::string& path) {
 }  // namespace
 
 TrainConfig TrainConfig::from_yaml_text(const std::string& text, const std::string& source) {
-  return read_yaml_over(TrainConfig{}, text, source);
+  return read_yaml_over(TrainConfig{}, text, source, false);
 }
 
 TrainConfig TrainConfig::from_stored_yaml_text(const std::string& text, const std::string& source) {
   TrainConfig before_the_keys;
-  // Pose refinement came with per-step corrections, on (stored configs name the rates; one trimmed by hand keeps them).
-  before_the_keys.pose_refinement.learning_rate = kLegacyPoseRefinementRotationRate;
-  before_the_keys.pose_refinement.translation_learning_rate = kLegacyPoseRefinementTranslationRate;
   before_the_keys.pose_refinement.align_at = {};
   before_the_keys.pose_refinement.align_joints_from = 1.0;
   before_the_keys.pose_refinement.align_orientation_from = 0.0;
   before_the_keys.pose_refinement.keypoint_weight = 0.0;
-  return read_yaml_over(before_the_keys, text, source);
+  return read_yaml_over(before_the_keys, text, source, true);
 }
 
 TrainConfig TrainConfig::from_yaml_file(const std::string& path) { return from_yaml_text(config_text(path), path); }
@@ -317,12 +340,7 @@ void TrainConfig::validate() const {
   check_count(avatar.num_betas, 0, kMaxHiddenWidth, "avatar.num_betas");
   check_count(avatar.num_expression_coeffs, 0, kMaxHiddenWidth, "avatar.num_expression_coeffs");
   check_range(avatar.time_dropout, 0, 1, "avatar.time_dropout");
-  check_range(pose_refinement.learning_rate, 0, kMaxLearningRate, "pose_refinement.learning_rate");
-  check_range(pose_refinement.translation_learning_rate, 0, kMaxLearningRate,
-              "pose_refinement.translation_learning_rate");
   check_range(pose_refinement.start, 0, 1, "pose_refinement.start");
-  check_range(pose_refinement.prior, 0, kMaxLossWeight, "pose_refinement.prior");
-  check_range(pose_refinement.smoothness, 0, kMaxLossWeight, "pose_refinement.smoothness");
   check_range(pose_refinement.keypoint_weight, 0, kMaxLossWeight, "pose_refinement.keypoint_weight");
   check_range(pose_refinement.smoothing_seconds, 0, kMaxFitSmoothingSeconds, "pose_refinement.smoothing_seconds");
   const std::vector<double>& align_at = pose_refinement.align_at;
@@ -343,10 +361,6 @@ void TrainConfig::validate() const {
               "config: pose_refinement.align_orientation_from (", pose_refinement.align_orientation_from,
               ") must not exceed pose_refinement.align_joints_from (", pose_refinement.align_joints_from,
               "): joints fitted under a held root would take up its error");
-  TORCH_CHECK(!pose_refinement.enabled || !align_at.empty() || pose_refinement.per_step(),
-              "config: pose_refinement is enabled but nothing would move the fits: give pose_refinement.align_at "
-              "(alignment passes) or a positive pose_refinement.learning_rate or translation_learning_rate "
-              "(per-step corrections)");
 }
 
 std::vector<ConfigChange> config_changes(const TrainConfig& before, const TrainConfig& after) {

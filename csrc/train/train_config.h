@@ -58,26 +58,13 @@ struct Schedule {
 // correction of the SMPL-X fit (axis-angles of the global orientation, body, jaw and fingers; translation).
 struct PoseRefinementConfig {
   bool enabled = false;
-  // Per-step corrections (Adam through each step's image loss), rotations in radians and translation in metres a
-  // step, times the schedule's factor; 0 leaves the fits to the alignment passes. Off by default: Adam moves every
-  // number of a drawn frame by about the rate whatever its gradient, so the joints an image barely constrains walk
-  // at random, and the avatar, trained on poses that jitter by a degree, never sharpens: on exact fits they cost
-  // the GPU benchmark's training steps 6-7 dB of PSNR (docs/archive/results-history.md, "Per-step corrections"). Either
-  // rate positive turns them on, the pose's gradient path (the body's slower LibTorch compositions) with them.
-  double learning_rate = 0;
-  double translation_learning_rate = 0;
-  // Share of the run before the corrections move (the avatar is a blur before): the first per-step correction and
-  // the earliest alignment pass.
+  // Share of the run before the fits move (the avatar is a blur before): the earliest alignment pass.
   double start = 0.05;
-  // With per-step corrections: weights of the squared correction (radians, metres) of the drawn frame and of the
-  // squared acceleration of the refined fits around it.
-  double prior = 0.01;
-  double smoothness = 0.05;
   // Shares of the run at which every training frame's refined fit is aligned to its image with the avatar as it is
-  // then (train/pose_fit.h, align_iterations each). From `start` on, rising. Without per-step corrections the passes
-  // carry the whole refinement: each fits against a sharper avatar, and four (the placement at 10 %, every joint at
-  // 30, 50 and 70 %) brought a CPU run's training frames within 1.4 dB of the exact-fit avatar's where two left 3.3
-  // (docs/archive/results-history.md, "Per-step corrections"), at about 40 % more training time.
+  // then (train/pose_fit.h, align_iterations each). From `start` on, rising. The passes carry the whole refinement:
+  // each fits against a sharper avatar, and four (the placement at 10 %, every joint at 30, 50 and 70 %) brought a CPU
+  // run's training frames within 1.4 dB of the exact-fit avatar's where two left 3.3 (docs/archive/results-history.md,
+  // "Per-step corrections"), at about 40 % more training time.
   std::vector<double> align_at{0.1, 0.3, 0.5, 0.7};
   int64_t align_iterations = 60;
   // The alignment passes at or after this share of the run fit every joint as well (the avatar is sharp enough by
@@ -107,7 +94,6 @@ struct PoseRefinementConfig {
   int64_t rounds = 1;
 
   // Whether training steps move the drawn frame's correction: either per-step rate positive.
-  bool per_step() const { return learning_rate > 0 || translation_learning_rate > 0; }
 };
 
 // Which body model drives the avatar: empty smplx means the built-in procedural body (with its MANO-layout hands).

@@ -73,11 +73,9 @@ TrainingSession::TrainingSession(const data::Dataset& dataset, const TrainConfig
     refinement_ = std::make_unique<PoseRefinement>(dataset, config.pose_refinement, config.schedule.iterations, device_,
                                                    map ? &*map : nullptr);
   }
-  // A benchmark's stage recorder times stages by synchronising, which a graph cannot hold; pose refinement's
-  // per-step corrections are host-driven (its alignment passes run between recorded steps, and without per-step
-  // corrections a step trains on the fits the last pass left, uploaded like any frame's fit).
-  if (device_.is_cuda() && config.schedule.cuda_graphs && device_graphs_available() &&
-      (!refinement_ || !refinement_->per_step()) && !stage_recorder_installed())
+  // A benchmark's stage recorder times stages by synchronising, which a graph cannot hold. Pose refinement's alignment
+  // passes run between recorded steps, and a step trains on the fits the last pass left, uploaded like any frame's.
+  if (device_.is_cuda() && config.schedule.cuda_graphs && device_graphs_available() && !stage_recorder_installed())
     graphs_ = std::make_unique<StepGraphs>(avatar_, device_);
   records_ = std::make_unique<TrainingRecords>(avatar_->gaussian_count(), device_);
   summary_.validation_psnr = std::nan("");
@@ -134,9 +132,8 @@ void TrainingSession::step(int64_t it) {
   }
   StepData data;
   data.background = {colour(rng_), colour(rng_), colour(rng_)};
-  // With pose refinement but no per-step corrections the frame trains on its fit as the last alignment pass left it.
-  const bool refined_fit = refinement_ && !refinement_->per_step();
-  data.pose = refined_fit ? refinement_->fit(f) : record.pose;
+  // With pose refinement the frame trains on its fit as the last alignment pass left it.
+  data.pose = refinement_ ? refinement_->fit(f) : record.pose;
   data.camera = render_camera(record);
   // The time branch is a residual that new motions go without: some steps train without it (docs/avatar.md).
   data.time = replay_clock_.time_of(record);
@@ -151,7 +148,7 @@ void TrainingSession::step(int64_t it) {
   StepOutputs outputs;
   if (graphs_) {
     try {
-      outputs = graphs_->run(data, [&](const StepInputs& in) { return step_->run(in, in.pose, data.lpips); });
+      outputs = graphs_->run(data, [&](const StepInputs& in) { return step_->run(in, data.lpips); });
     } catch (const StepRecordingError& e) {
       // A step the graphs cannot hold is still a step: the run goes on eagerly, and the log says why.
       log_->write({{"event", "graphs_off"}, {"iteration", it}, {"message", e.what()}});
@@ -159,24 +156,13 @@ void TrainingSession::step(int64_t it) {
     }
   }
   if (!graphs_) {
-    LossTerms terms;
     StepInputs inputs(data, device_);
     inputs.upload(data);
-    // With per-step corrections the pose is the refined fit with its gradient (a non-finite correction shows as a
-    // non-finite loss).
-    const bool corrected = refinement_ && refinement_->per_step();
-    const body::SmplxPose pose = corrected ? refinement_->pose(f, it, terms) : inputs.pose;
-    TrainingStep::OutputTerms keypoint_term;
-    if (corrected)
-      keypoint_term = [&](const model::AvatarOutput& out, LossTerms& t) {
-        refinement_->add_keypoint_term(f, it, avatar_, out, t);
-      };
-    outputs = step_->run(inputs, pose, data.lpips, std::move(terms), keypoint_term);
+    outputs = step_->run(inputs, data.lpips);
   }
   {
     const StageScope stage("train: optimizer");
     adam_->step(outputs.skip_update);
-    if (refinement_) refinement_->step(f, it, factor);
   }
   records_->add(outputs);
   LossTerms& terms = outputs.terms;

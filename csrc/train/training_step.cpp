@@ -91,8 +91,8 @@ at::Tensor StepInputs::covariances_to_camera(const at::Tensor& covariances) cons
 TrainingStep::TrainingStep(model::Avatar avatar, const ImageLoss& image_loss, const Regularisers& regularisers)
     : avatar_(std::move(avatar)), image_loss_(image_loss), regularisers_(regularisers) {}
 
-StepOutputs TrainingStep::run(const StepInputs& in, const body::SmplxPose& pose, bool lpips, LossTerms terms,
-                              const OutputTerms& output_terms) {
+StepOutputs TrainingStep::run(const StepInputs& in, bool lpips) {
+  LossTerms terms;
   at::Tensor target;
   {
     const StageScope stage("train: target");
@@ -104,7 +104,7 @@ StepOutputs TrainingStep::run(const StepInputs& in, const body::SmplxPose& pose,
   // then has none and Adam leaves it alone, in a resumed run (whose parameters start without gradients) exactly as
   // in an uninterrupted one; LibTorch versions differ in what zero_grad() does.
   for (at::Tensor& p : avatar_->parameters()) p.mutable_grad().reset();
-  const model::AvatarOutput out = avatar_->forward_trusted_pose(pose, in.time);
+  const model::AvatarOutput out = avatar_->forward_trusted_pose(in.pose, in.time);
   // Into the camera's frame on the device: the recorded launches then hold no camera pose.
   Gaussians gaussians = model::to_gaussians(out);
   gaussians.means = in.points_to_camera(gaussians.means);
@@ -129,7 +129,6 @@ StepOutputs TrainingStep::run(const StepInputs& in, const body::SmplxPose& pose,
   {
     const StageScope stage("train: regularisers");
     regularisers_.add_terms(out, terms);
-    if (output_terms) output_terms(out, terms);
     loss = total_loss(terms);
   }
   {

@@ -4,7 +4,6 @@
 // (StepInputs), and it reads nothing back to the host, so a CUDA step can be recorded once as a graph and replayed
 // (train/step_graphs.h); the same code runs eagerly on the CPU, with pose refinement, or with graphs switched off.
 #include <array>
-#include <functional>
 #include <optional>
 #include <string>
 
@@ -76,13 +75,9 @@ struct StepOutputs {
 class TrainingStep {
  public:
   TrainingStep(model::Avatar avatar, const ImageLoss& image_loss, const Regularisers& regularisers);
-  // Forward, losses and backward of one step on `inputs`, posed at `pose` (inputs.pose, or pose refinement's fit
-  // with its gradient) and adding to `terms` (pose refinement's). The parameters' gradients are set, not
-  // accumulated: those the step does not reach (the time planes in a step without a time) are left undefined.
-  // `output_terms`, when given, adds terms of the posed avatar (pose refinement's keypoint term) before the backward.
-  using OutputTerms = std::function<void(const model::AvatarOutput&, LossTerms&)>;
-  StepOutputs run(const StepInputs& inputs, const body::SmplxPose& pose, bool lpips, LossTerms terms = {},
-                  const OutputTerms& output_terms = {});
+  // Forward, losses and backward of one step on `inputs` (posed at inputs.pose). The parameters' gradients are set,
+  // not accumulated: those the step does not reach (the time planes in a step without a time) are left undefined.
+  StepOutputs run(const StepInputs& inputs, bool lpips);
 
  private:
   model::Avatar avatar_;

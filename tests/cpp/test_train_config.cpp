@@ -94,8 +94,9 @@ TEST(TrainConfig, ChangesAreListedAndOnlyScheduleAndLoggingMayChangeOnResume) {
 }
 
 // A run's stored config lists every key of its time: a key it lacks came later, and takes the value that reproduces
-// what the run did (per-step corrections, no alignment passes, placement-only passes that turn the body, no keypoint
-// term), so resuming an older run does not change its objective; a config a user writes takes today's defaults.
+// what the run did (no alignment passes, placement-only passes that turn the body, no keypoint term), so resuming an
+// older run does not change its objective; a config a user writes takes today's defaults. A run of a version with
+// per-step pose corrections (removed since) still loads: its rates are ignored with a warning.
 TEST(TrainConfig, KeysAStoredConfigLacksKeepTheBehaviourOfItsTime) {
   const std::string before_joint_passes =
       "pose_refinement: {enabled: true, align_at: [0.1, 0.6], keypoint_weight: 1}\n";
@@ -104,16 +105,18 @@ TEST(TrainConfig, KeysAStoredConfigLacksKeepTheBehaviourOfItsTime) {
   EXPECT_EQ(stored.pose_refinement.align_joints_from, 1.0) << "its pass at 0.6 stays placement-only";
   EXPECT_EQ(stored.pose_refinement.align_orientation_from, 0.0) << "and still turns the body";
   EXPECT_EQ(stored.pose_refinement.keypoint_weight, 1.0);
-  const TrainConfig oldest = TrainConfig::from_stored_yaml_text("pose_refinement: {enabled: true}\n", "stored");
-  EXPECT_TRUE(oldest.pose_refinement.align_at.empty());
-  EXPECT_GT(oldest.pose_refinement.learning_rate, 0.0) << "its fits moved with per-step corrections";
+  const TrainConfig oldest = TrainConfig::from_stored_yaml_text(
+      "pose_refinement: {enabled: true, learning_rate: 0.01, translation_learning_rate: 0.005}\n", "stored");
+  EXPECT_TRUE(oldest.pose_refinement.enabled);
+  EXPECT_TRUE(oldest.pose_refinement.align_at.empty()) << "its fits moved with per-step corrections alone";
   EXPECT_EQ(oldest.pose_refinement.keypoint_weight, 0.0);
+  EXPECT_THROW(TrainConfig::from_yaml_text("pose_refinement: {enabled: true, learning_rate: 0.01}\n"), c10::Error)
+      << "a config to train with may not ask for them";
   const TrainConfig written = TrainConfig::from_yaml_text("pose_refinement: {enabled: true}\n");
   EXPECT_EQ(written.pose_refinement.align_at, TrainConfig{}.pose_refinement.align_at);
   EXPECT_EQ(written.pose_refinement.align_joints_from, TrainConfig{}.pose_refinement.align_joints_from);
   EXPECT_EQ(written.pose_refinement.align_orientation_from, TrainConfig{}.pose_refinement.align_orientation_from);
   EXPECT_EQ(written.pose_refinement.keypoint_weight, TrainConfig{}.pose_refinement.keypoint_weight);
-  EXPECT_EQ(written.pose_refinement.learning_rate, 0.0);
   // A stored config written today round-trips to itself.
   const TrainConfig today = TrainConfig::from_stored_yaml_text(TrainConfig{}.to_yaml(), "stored");
   EXPECT_TRUE(config_changes(TrainConfig{}, today).empty());

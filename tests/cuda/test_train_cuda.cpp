@@ -149,7 +149,7 @@ struct GpuStep {
   train::StepOutputs eager(const train::StepData& data) {
     train::StepInputs in(data, at::kCUDA);
     in.upload(data);
-    return step->run(in, in.pose, data.lpips);
+    return step->run(in, data.lpips);
   }
   model::Avatar avatar;
   std::unique_ptr<train::ImageLoss> image_loss;
@@ -199,7 +199,7 @@ void expect_same_step(const train::StepOutputs& recorded, const model::Avatar& r
 train::StepOutputs recorded_equals_eager(train::StepGraphs& graphs, GpuStep& recorded, GpuStep& eager,
                                          const train::StepData& data, int64_t k) {
   const train::StepOutputs r =
-      graphs.run(data, [&](const train::StepInputs& in) { return recorded.step->run(in, in.pose, data.lpips); });
+      graphs.run(data, [&](const train::StepInputs& in) { return recorded.step->run(in, data.lpips); });
   expect_same_step(r, recorded.avatar, eager.eager(data), eager.avatar, k);
   return r;
 }
@@ -302,12 +302,12 @@ TEST(StepGraphsCuda, AStepBeyondTheBudgetIsLeftOutAndTheBudgetGrows) {
   }
   const train::StepData far = data_of(3);
   const train::StepOutputs overflowing =
-      graphs.run(far, [&](const train::StepInputs& in) { return recorded.step->run(in, in.pose, far.lpips); });
+      graphs.run(far, [&](const train::StepInputs& in) { return recorded.step->run(in, far.lpips); });
   ASSERT_TRUE(overflowing.skip_update.defined());
   EXPECT_EQ(overflowing.skip_update.item<float>(), 1.0f) << "an incomplete image must be left out";
   const train::StepData next = data_of(4);  // queued before the host has read the overflow
   const train::StepOutputs overflowing_too =
-      graphs.run(next, [&](const train::StepInputs& in) { return recorded.step->run(in, in.pose, next.lpips); });
+      graphs.run(next, [&](const train::StepInputs& in) { return recorded.step->run(in, next.lpips); });
   EXPECT_EQ(overflowing_too.skip_update.item<float>(), 1.0f) << "the step queued after it overflowed as well";
   const int64_t captures_before = graphs.stats().captures;
   for (size_t k = 5; k < closer.size(); ++k) {
