@@ -295,7 +295,7 @@ if wants train-step; then
   scene=/tmp/sfgs-anny-step
   anny_scene step-synth "$scene" "${SFGS_DEVICE_STEP_SIZE:-800x1200}" 40
   run train-step 300 "$build/bench/bench_train_step" --data "$scene/data" --config "$scene/config.yaml" \
-    --warmup 20 --steps "${SFGS_DEVICE_STEP_COUNT:-60}"
+    --warmup 20 --steps "${SFGS_DEVICE_STEP_COUNT:-400}"
   cat "$out/train-step.log"
 fi
 
