@@ -44,7 +44,8 @@ at::Device pick_device(const std::string& name, const train::RunFolder& run) {
   if (name.empty()) {
     std::string trained_on = "cpu";
     try {
-      if (fs::exists(run.config_file())) trained_on = train::TrainConfig::from_yaml_file(run.config_file()).device;
+      if (fs::exists(run.config_file()))
+        trained_on = train::TrainConfig::from_stored_yaml_file(run.config_file()).device;
     } catch (const c10::Error&) {
       // An unreadable config.yaml only loses the hint; the checkpoint holds the config that counts.
     }

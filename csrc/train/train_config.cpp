@@ -211,12 +211,16 @@ TrainConfig read_yaml_over(TrainConfig c, const std::string& text, const std::st
       }
     }
   }
-  // A run of a version with per-step corrections may have moved its fits with them alone; a config to train with
-  // must give the passes that move them now.
+  // A run of a version with per-step corrections may have moved its fits with them alone (its stored config may even
+  // predate their keys); a config to train with must give the passes that move them now.
+  const bool nothing_moves = c.pose_refinement.enabled && c.pose_refinement.align_at.empty();
   TORCH_CHECK(
-      stored || !c.pose_refinement.enabled || !c.pose_refinement.align_at.empty(), "config '", source,
+      stored || !nothing_moves, "config '", source,
       "': pose_refinement is enabled but nothing would move the fits: give pose_refinement.align_at (the shares "
       "of the run at which the alignment passes run)");
+  if (stored && nothing_moves)
+    TORCH_WARN("config '", source, "': this run refined its fits with per-step pose corrections, which were removed; ",
+               "it keeps the fits it refined and has no alignment pass to move them");
   try {
     c.validate();
   } catch (const c10::Error& e) {

@@ -2,7 +2,7 @@
 // One training step's device work apart from the optimiser: the drawn frame's target, the avatar posed at its fit,
 // the render, the losses and the backward. Its inputs live in buffers that keep their addresses from step to step
 // (StepInputs), and it reads nothing back to the host, so a CUDA step can be recorded once as a graph and replayed
-// (train/step_graphs.h); the same code runs eagerly on the CPU, with pose refinement, or with graphs switched off.
+// (train/step_graphs.h); the same code runs eagerly on the CPU or with graphs switched off.
 #include <array>
 #include <optional>
 #include <string>
