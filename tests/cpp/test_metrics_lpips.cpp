@@ -123,7 +123,10 @@ TEST(MetricsLpips, BadImagesAreClearErrors) {
   const at::Tensor small = random_image(30, 40, 1, at::kFloat);
   expect_error([&] { alex(small, small); }, {"lpips (alex): images must be at least 31 x 31 pixels", "[30, 40, 3]"});
   const at::Tensor gray = at::rand({40, 40, 1});
-  expect_error([&] { alex(gray, gray); }, {"lpips: images must have 3 channels (last dimension)", "[40, 40, 1]"});
+  expect_error([&] { alex(gray, gray); }, {"lpips: images must have 3 channels (last dimension", "[40, 40, 1]"});
+  const at::Tensor channels_first = at::rand({2, 3, 40, 40});
+  expect_error([&] { alex(channels_first, channels_first); },
+               {"channels-last (H, W, C) or (B, H, W, C)", "[2, 3, 40, 40]", ".permute(0, 2, 3, 1)"});
   expect_error([&] { alex(random_image(40, 40, 1, at::kFloat), random_image(40, 41, 1, at::kFloat)); },
                {"lpips: prediction and target must have the same shape"});
 }
