@@ -9,6 +9,10 @@ namespace sfgs {
 // "a Float tensor of shape [2, 3] on cpu", or "an undefined tensor".
 std::string describe(const at::Tensor& t);
 
+// Checks `t` is defined with exactly this shape, dtype and device; `what` names it ("Smplx: betas").
+void check_tensor(const at::Tensor& t, const std::string& what, at::IntArrayRef shape, at::ScalarType dtype,
+                  c10::Device device);
+
 // float or double: the dtypes the fused ops' CPU backends and CUDA kernels are written for.
 bool is_float_or_double(const at::Tensor& t);
 

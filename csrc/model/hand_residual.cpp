@@ -149,8 +149,8 @@ at::Tensor HandResidualImpl::both_hands(const at::Tensor& left_pose, const at::T
   for (const auto& [hand, pose] : {std::pair{&hands_[0], &left_pose}, {&hands_[1], &right_pose}}) {
     if (!pose->defined()) continue;
     const at::Tensor& ids = hand->vertex_ids;
-    body::check_tensor(*pose, "HandResidual: hand pose", {body::kHandJointCount, 3}, hand->mano_betas.scalar_type(),
-                       ids.device());
+    check_tensor(*pose, "HandResidual: hand pose", {body::kHandJointCount, 3}, hand->mano_betas.scalar_type(),
+                 ids.device());
     const at::Tensor r = refined(*hand, *pose, residual(*hand, *pose));
     if (!out.defined()) out = at::zeros({coarse_vertex_count_, 3}, r.options());
     out = out.index_copy(0, ids, r);
@@ -161,8 +161,8 @@ at::Tensor HandResidualImpl::both_hands(const at::Tensor& left_pose, const at::T
 at::Tensor HandResidualImpl::forward(const at::Tensor& left_pose, const at::Tensor& right_pose,
                                      const at::Tensor& joint_rotations) const {
   if (joint_rotations.defined())
-    body::check_tensor(joint_rotations, "HandResidual: joint rotations", {body::kSmplxJointCount, 3, 3},
-                       hands_[0].mano_betas.scalar_type(), hands_[0].vertex_ids.device());
+    check_tensor(joint_rotations, "HandResidual: joint rotations", {body::kSmplxJointCount, 3, 3},
+                 hands_[0].mano_betas.scalar_type(), hands_[0].vertex_ids.device());
   return both_hands(left_pose, right_pose, [&](const Hand& hand, const at::Tensor& pose) {
     return linear_residual(hand, pose, joint_rotations);
   });

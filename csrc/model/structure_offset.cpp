@@ -42,8 +42,8 @@ at::Tensor StructureOffsetImpl::project_features(const at::Tensor& features) con
 
 at::Tensor StructureOffsetImpl::joint_features(const at::Tensor& joint_rotations_6d) const {
   const int64_t joints = canonical_joints_.size(0);
-  body::check_tensor(joint_rotations_6d, "StructureOffset: joint_rotations_6d", {joints, kRotation6dSize},
-                     canonical_joints_.scalar_type(), canonical_joints_.device());
+  check_tensor(joint_rotations_6d, "StructureOffset: joint_rotations_6d", {joints, kRotation6dSize},
+               canonical_joints_.scalar_type(), canonical_joints_.device());
   return at::cat({joint_rotations_6d, canonical_joints_, embedding_}, 1);
 }
 

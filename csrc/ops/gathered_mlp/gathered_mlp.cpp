@@ -26,9 +26,7 @@ std::pair<int64_t, int64_t> check_inputs(const at::Tensor& row_inputs, const at:
   const at::ScalarType dtype = w.hidden_weight.scalar_type();
   const at::Device device = row_inputs.device();
   const auto check = [&](const at::Tensor& t, const char* name, at::IntArrayRef shape) {
-    TORCH_CHECK(t.defined() && t.sizes() == shape && t.scalar_type() == dtype && t.device() == device,
-                "gathered_mlp: ", name, " must be a ", dtype, " tensor of shape ", shape, " on ", device, ", got ",
-                describe(t));
+    check_tensor(t, std::string("gathered_mlp: ") + name, shape, dtype, device);
   };
   TORCH_CHECK(w.output_weight.defined() && w.output_weight.dim() == 2 && w.output_weight.size(0) > 0,
               "gathered_mlp: output_weight must be an (O, ", h, ") tensor with O >= 1, got ",

@@ -40,9 +40,7 @@ void check_arguments(const at::Tensor& values, const PlanTensors& p, at::IntArra
               "propagate_on_mesh: trust must be a ", values.scalar_type(), " (", n, ") tensor on ", values.device(),
               ", got ", describe(p.trust));
   const auto check_index = [&](const at::Tensor& t, const char* name, at::IntArrayRef shape) {
-    TORCH_CHECK(t.defined() && t.sizes() == shape && t.scalar_type() == at::kInt && t.device() == values.device(),
-                "propagate_on_mesh: ", name, " must be an int32 tensor of shape ", shape, " on ", values.device(),
-                ", got ", describe(t));
+    check_tensor(t, std::string("propagate_on_mesh: ") + name, shape, at::kInt, values.device());
   };
   TORCH_CHECK(p.neighbours.defined() && p.neighbours.dim() == 2, "propagate_on_mesh: neighbours must be (N, K), got ",
               describe(p.neighbours));

@@ -28,9 +28,7 @@ int64_t check_network(const std::vector<at::Tensor>& inputs, const at::Tensor& b
   const at::ScalarType dtype = n.input_weights[0].scalar_type();
   const at::Device device = n.input_weights[0].device();
   const auto check = [&](const at::Tensor& t, const std::string& name, at::IntArrayRef shape) {
-    TORCH_CHECK(t.defined() && t.sizes() == shape && t.scalar_type() == dtype && t.device() == device,
-                "mlp_inference: ", name, " must be a ", dtype, " tensor of shape ", shape, " on ", device, ", got ",
-                describe(t));
+    check_tensor(t, "mlp_inference: " + name, shape, dtype, device);
   };
   TORCH_CHECK(inputs[0].defined() && inputs[0].dim() == 2, "mlp_inference: input 0 must be an (N, I) tensor, got ",
               describe(inputs[0]));

@@ -52,9 +52,7 @@ void check_reads(const ReadTensors& r, at::ScalarType dtype, at::Device device, 
   TORCH_CHECK(r.points.defined() && r.points.dim() == 1, op, ": points must be (E), got ", describe(r.points));
   const int64_t chunks = r.chunk_rows.size(0), reads = r.points.size(0);
   const auto check = [&](const at::Tensor& t, const char* name, int64_t length, at::ScalarType type) {
-    TORCH_CHECK(
-        t.defined() && t.sizes() == at::IntArrayRef({length}) && t.scalar_type() == type && t.device() == device, op,
-        ": ", name, " must be a ", type, " (", length, ") tensor on ", device, ", got ", describe(t));
+    check_tensor(t, std::string(op) + ": " + name, {length}, type, device);
   };
   check(r.chunk_rows, "chunk_rows", chunks, at::kInt);
   check(r.chunk_begins, "chunk_begins", chunks, at::kInt);
