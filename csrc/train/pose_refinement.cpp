@@ -4,13 +4,10 @@
 #include <array>
 #include <chrono>
 #include <cmath>
-#include <cstdio>
 
 #include <ATen/ATen.h>
-#include <torch/csrc/autograd/autograd.h>
 #include <nlohmann/json.hpp>
 
-#include "body/rotations.h"
 #include "common/atomic_file.h"
 #include "train/constants.h"
 #include "data/json_values.h"

@@ -8,15 +8,11 @@
 //
 // PoseRefinement keeps one correction per training frame. Alignment passes at set shares of the run fit every
 // frame's correction to its image and keypoints with the avatar as it is then (train/pose_fit.h, as test poses are
-// fitted); between them the avatar trains on the fits as the last pass left them. Optionally (positive per-step
-// rates; off by default) the corrections also train with the avatar through each step's image loss, held to the
-// input fit by an L2 prior and to a smooth motion by an acceleration penalty over each sequence's consecutive
-// training frames (on the joints' rotation matrices, not their axis-angles, and the translation), and, where the
-// frames have whole-body keypoint detections, to them (train/avatar_keypoints.h): the image alone lets the refined
-// fits drift together out of the camera's frame. A frame's correction then moves only in the steps that draw the
-// frame (row-sparse Adam): Adam's normalisation would otherwise move every row at the full rate each step on the
-// regularisers' gradients alone. With config.smoothing_seconds (off by default), the input fits and the fits each
-// pass leaves are smoothed over time within each sequence (train/fit_smoothing.h).
+// fitted); between them the avatar trains on the fits as the last pass left them, without a gradient through the
+// pose. Where the frames have whole-body keypoint detections the passes fit to them too (train/avatar_keypoints.h):
+// the image alone lets the refined fits drift together out of the camera's frame. With config.smoothing_seconds (off
+// by default), the input fits and the fits each pass leaves are smoothed over time within each sequence
+// (train/fit_smoothing.h).
 #include <cstdint>
 #include <optional>
 #include <string>
@@ -30,7 +26,6 @@
 #include "data/dataset.h"
 #include "model/avatar.h"
 #include "train/avatar_keypoints.h"
-#include "train/losses.h"
 #include "train/train_config.h"
 
 namespace sfgs::train {
