@@ -13,6 +13,7 @@
 #include "animate/animator.h"
 #include "io/npz.h"
 #include "data/image_io.h"
+#include "train/constants.h"
 #include "train/run_folder.h"
 
 namespace sfgs::train {
@@ -43,44 +44,53 @@ AvatarEvaluation evaluate_avatar(const data::Dataset& dataset, data::Split split
   double person_pixels = 0, uncovered_pixels = 0;
   // Every frame through the Animator: on CUDA one graph replay per frame, whatever the frame's camera.
   animate::Animator animator(avatar, render_camera(dataset.frames[size_t(frames.front())]), at::ones({3}));
-  for (int64_t f : frames) {
-    const data::FrameRecord& record = dataset.frames[size_t(f)];
-    if (record.sequence != previous_sequence || f != previous_frame + 1) evaluator.begin_sequence();
-    previous_sequence = record.sequence;
-    previous_frame = f;
-    const data::Frame frame = dataset.load(f);
-    const Camera camera = render_camera(record);
-    animator.set_camera(camera);
-    const auto start = std::chrono::steady_clock::now();
-    // The Animator returns once the frame is done (it reads the splatting's counts); the copy to the host belongs
-    // to the metrics, which run on the CPU.
-    const at::Tensor rendered = animator.render(record.pose, dataset.replay_time(f));
-    render_ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count());
-    const at::Tensor image = rendered.to(at::kCPU);
-    {
-      const at::Tensor person = frame.eval_mask >= 0.5;
-      person_pixels += person.sum().item<double>();
-      uncovered_pixels += (person & (animator.latest().alpha.to(at::kCPU) < kCoveredAlpha)).sum().item<double>();
+  for (size_t first = 0; first < frames.size(); first += kFramesRenderedAhead) {
+    const size_t end = std::min(frames.size(), first + kFramesRenderedAhead);
+    // A chunk's frames are rendered back to back and kept on the device, then compared on the CPU: a render that
+    // waited for the previous frame's metrics would start on an idle GPU.
+    std::vector<std::pair<at::Tensor, at::Tensor>> rendered;  // image, alpha
+    for (size_t i = first; i < end; ++i) {
+      const data::FrameRecord& record = dataset.frames[size_t(frames[i])];
+      animator.set_camera(render_camera(record));
+      const auto start = std::chrono::steady_clock::now();
+      // The Animator returns once the frame is done (it reads the splatting's counts).
+      const at::Tensor image = animator.render(record.pose, dataset.replay_time(frames[i]));
+      render_ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count());
+      rendered.emplace_back(image.clone(), animator.latest().alpha.clone());
     }
-    frames_of_sequence[record.sequence].push_back(result.frames.size());
-    result.frames.push_back(evaluator.add_frame(image, frame.image, frame.eval_mask));
-    result.frame_names.push_back(record.name);
-    if (truth && !record.mesh_path.empty()) {
-      const auto [compared_prediction, compared_target] =
-          evaluator.compared_images(image, frame.image, frame.eval_mask);
-      const std::vector<std::pair<std::string, at::Tensor>> masks =
-          region_masks(*truth, io::read_npy(record.mesh_path), camera, frame.eval_mask);
-      regions.add(compared_prediction, compared_target, masks);
-      unseen_of_sequence[record.sequence].add(labelled_person(masks), region_mask(masks, "unseen"));
-    }
-    if (!save_folder.empty()) {
-      // Names are unique within a sequence (Dataset::validate); one that several sequences use carries its
-      // sequence's.
-      std::string name = repeated_names.count(record.name)
-                             ? dataset.sequences[size_t(record.sequence)] + "_" + record.name
-                             : record.name;
-      std::replace(name.begin(), name.end(), '/', '_');
-      data::write_png((fs::path(save_folder) / (name + ".png")).string(), image, overwrite);
+    for (size_t i = first; i < end; ++i) {
+      const int64_t f = frames[i];
+      const data::FrameRecord& record = dataset.frames[size_t(f)];
+      if (record.sequence != previous_sequence || f != previous_frame + 1) evaluator.begin_sequence();
+      previous_sequence = record.sequence;
+      previous_frame = f;
+      const data::Frame frame = dataset.load(f);
+      const at::Tensor image = rendered[i - first].first.to(at::kCPU);
+      {
+        const at::Tensor person = frame.eval_mask >= 0.5;
+        person_pixels += person.sum().item<double>();
+        uncovered_pixels += (person & (rendered[i - first].second.to(at::kCPU) < kCoveredAlpha)).sum().item<double>();
+      }
+      frames_of_sequence[record.sequence].push_back(result.frames.size());
+      result.frames.push_back(evaluator.add_frame(image, frame.image, frame.eval_mask));
+      result.frame_names.push_back(record.name);
+      if (truth && !record.mesh_path.empty()) {
+        const auto [compared_prediction, compared_target] =
+            evaluator.compared_images(image, frame.image, frame.eval_mask);
+        const std::vector<std::pair<std::string, at::Tensor>> masks =
+            region_masks(*truth, io::read_npy(record.mesh_path), render_camera(record), frame.eval_mask);
+        regions.add(compared_prediction, compared_target, masks);
+        unseen_of_sequence[record.sequence].add(labelled_person(masks), region_mask(masks, "unseen"));
+      }
+      if (!save_folder.empty()) {
+        // Names are unique within a sequence (Dataset::validate); one that several sequences use carries its
+        // sequence's.
+        std::string name = repeated_names.count(record.name)
+                               ? dataset.sequences[size_t(record.sequence)] + "_" + record.name
+                               : record.name;
+        std::replace(name.begin(), name.end(), '/', '_');
+        data::write_png((fs::path(save_folder) / (name + ".png")).string(), image, overwrite);
+      }
     }
   }
   result.summary = evaluator.summary();

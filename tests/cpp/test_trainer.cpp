@@ -7,6 +7,7 @@
 #include <functional>
 #include <map>
 #include <numeric>
+#include <set>
 #include <sstream>
 #include <string>
 
@@ -18,6 +19,8 @@
 #include "test_avatar_utils.h"
 #include "test_files.h"
 #include "test_trainer_utils.h"
+#include "animate/animator.h"
+#include "train/constants.h"
 #include "train/evaluate.h"
 #include "train/run_folder.h"
 #include "train/rounds.h"
@@ -214,6 +217,37 @@ TEST(Trainer, NeverOverwritesARunUnasked) {
   bad.stop_at = 1;
   config.schedule.iterations = 3;
   expect_error_mentioning([&] { train::train_avatar(dataset, config, run, bad); }, "it is already at iteration 1");
+}
+
+// `sfgs eval` renders frames ahead of their metrics in chunks: every frame must still be scored against its own
+// image, across the chunks' boundaries, as a render of that frame alone would be.
+TEST(TrainEvaluation, EveryFrameScoresAsItsRenderAlone) {
+  TempFolder folder;
+  data::Dataset video = tiny_video(folder, 28, 32);
+  model::Avatar avatar = render_frames_with_avatar(video, {0, 1});
+  const std::vector<int64_t>& frames = video.split(data::Split::kTrain);
+  ASSERT_GT(frames.size(), size_t(kFramesRenderedAhead)) << "the split must span more than one chunk";
+  metrics::EvaluationOptions options;
+  options.lpips_weights_dir.clear();
+  const train::AvatarEvaluation evaluation =
+      train::evaluate_avatar(video, data::Split::kTrain, avatar, options, "", false);
+  ASSERT_EQ(evaluation.frames.size(), frames.size());
+  at::NoGradGuard no_grad;
+  metrics::ImageEvaluator alone(options);
+  animate::Animator animator(avatar, train::render_camera(video.frames[size_t(frames.front())]), at::ones({3}));
+  std::set<double> scores;
+  for (size_t i = 0; i < frames.size(); ++i) {
+    const data::FrameRecord& record = video.frames[size_t(frames[i])];
+    animator.set_camera(train::render_camera(record));
+    const at::Tensor image = animator.render(record.pose, video.replay_time(frames[i])).clone();
+    const data::Frame frame = video.load(frames[i]);
+    const metrics::FrameMetrics expected = alone.add_frame(image, frame.image, frame.eval_mask);
+    EXPECT_EQ(evaluation.frame_names[i], record.name);
+    EXPECT_EQ(evaluation.frames[i].psnr, expected.psnr) << "frame " << record.name;
+    EXPECT_EQ(evaluation.frames[i].ssim, expected.ssim) << "frame " << record.name;
+    scores.insert(expected.psnr);
+  }
+  EXPECT_GT(scores.size(), frames.size() / 2) << "frames that score alike could not tell a mix-up";
 }
 
 }  // namespace
