@@ -9,7 +9,8 @@
 // Usage: bench_pose_fit --run DIR [--split test|val|train] [--frames N] [--evaluations N] [--fit-evaluations N]
 //                       [--device cuda|cpu] [--profile 1]
 //   --profile 1: for Nsight Compute (`ncu --profile-from-start off --nvtx`): one eager fine evaluation of the first
-//   frame's crop after a warm-up, its forward stages as NVTX ranges (profiled_range.h); no timing.
+//   frame's crop with the skeleton's gradient (as the alignment passes take it) after a warm-up, its forward stages
+//   as NVTX ranges (profiled_range.h); no timing.
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
@@ -149,11 +150,11 @@ int main(int argc, char** argv) {
     const train::PoseFitTarget target = train::pose_fit_target(dataset, f, device, false);
     const train::FitFrame crop = train::fit_frame(avatar, dataset.frames[size_t(f)].pose, target, true);
     const at::Tensor correction = 0.01 * at::randn({train::kCorrectionWidth});
-    for (int k = 0; k < 3; ++k) eager_evaluation(avatar, loss, crop, correction, true);
+    for (int k = 0; k < 3; ++k) eager_evaluation(avatar, skeleton_loss, crop, correction, true);
     bench::NvtxStages stages;
     const ScopedStageRecorder recording(&stages);
     const bench::ProfiledRange range("pose fit evaluation");
-    eager_evaluation(avatar, loss, crop, correction, true);
+    eager_evaluation(avatar, skeleton_loss, crop, correction, true);
     std::printf("profiled one eager fine evaluation of %s\n", dataset.frames[size_t(f)].name.c_str());
     return 0;
   }

@@ -34,9 +34,9 @@
 # trained avatar of render-path or animate-trained when one of them ran; replayed frames at SFGS_DEVICE_PROFILE_TIME
 # when set): every kernel's GPU time and DRAM bytes, summed per stage (scripts/kernel_profile_summary.py).
 # step-profile: the same over one training step (bench_train_step --profile 1, the train-step scene).
-# fit-profile: the same over one eager pose-fit evaluation (bench_pose_fit --profile 1: the fine stage on the person's
-# crop of the first training frame) of an avatar refine-cost trained (the refined one, else the plain one), else
-# render-path's.
+# fit-profile: the same over one eager pose-fit evaluation (bench_pose_fit --profile 1: an alignment pass's fine
+# stage on the person's crop of the first training frame) of an avatar refine-cost trained (the refined one, else the
+# plain one), else render-path's.
 # train: synthesise the Anny scene (SFGS_DEVICE_TRAIN_SIZE, default 800x1200; SFGS_DEVICE_TRAIN_FRAMES, default
 # 80) and train, evaluate (with LPIPS) and render it on CUDA with configs/device_anny.yaml
 # (SFGS_DEVICE_TRAIN_ITERATIONS overrides its iterations).

@@ -1,7 +1,8 @@
 // The fused skinning op (csrc/ops/skin/skin.h) against its LibTorch reference composition: forward in float64 and
-// float32, gradients against the reference's autograd and against central finite differences in float64, the
-// reference fallback when the transforms need a gradient, the sparse weight rows, and the checks of its inputs.
+// float32, gradients (the transforms' too) against the reference's autograd and against central finite differences
+// in float64, the sparse weight rows, and the checks of its inputs.
 #include <ATen/ATen.h>
+#include <ATen/Parallel.h>
 #include <gtest/gtest.h>
 #include <torch/csrc/autograd/autograd.h>
 
@@ -95,15 +96,64 @@ TEST(SkinOp, GradientsMatchTheReferenceAndFiniteDifferences) {
   }
 }
 
-TEST(SkinOp, TransformsThatNeedAGradientGetOneThroughTheReference) {
-  const Scene s = random_scene(30, 5, at::kDouble, 3);
-  const at::Tensor transforms = s.transforms.clone().requires_grad_(true);
-  const skin::SkinnedGaussians out =
-      skin::skin_gaussians(skin::SkinningWeights::from_dense(s.dense), transforms, s.means, s.log_scales, s.rest);
-  const at::Tensor grad = torch::autograd::grad({out.means.sum() + out.posed_rest.sum()}, {transforms})[0];
-  EXPECT_GT(grad.abs().sum().item<double>(), 0);
-  // Rows 0-2 of every used joint receive a gradient; the unread last row none.
-  EXPECT_EQ(grad.select(1, 3).abs().sum().item<double>(), 0);
+// A pose being fitted differentiates the transforms through the fused node: against the reference's autograd, and
+// against central differences of the fused forward; the unread last row gets none.
+TEST(SkinOp, TransformGradientsMatchTheReferenceAndFiniteDifferences) {
+  const Scene s = random_scene(50, 5, at::kDouble, 3);
+  const skin::SkinningWeights weights = skin::SkinningWeights::from_dense(s.dense);
+  const at::Tensor grad_means = at::randn({50, 3}, s.means.options());
+  const at::Tensor grad_covariances = at::randn({50, 6}, s.means.options());
+  const at::Tensor grad_posed_rest = at::randn({50, 3}, s.means.options());
+  const auto loss_of = [&](const skin::SkinnedGaussians& out) {
+    at::Tensor loss = (out.means * grad_means).sum() + (out.covariances * grad_covariances).sum();
+    return out.posed_rest.defined() ? loss + (out.posed_rest * grad_posed_rest).sum() : loss;
+  };
+  for (const bool with_rest : {true, false}) {
+    const at::Tensor rest = with_rest ? s.rest : at::Tensor();
+    const auto gradients = [&](bool fused) {
+      const at::Tensor transforms = s.transforms.clone().requires_grad_(true);
+      const at::Tensor means = s.means.clone().requires_grad_(true);
+      const skin::SkinnedGaussians out = fused
+                                             ? skin::skin_gaussians(weights, transforms, means, s.log_scales, rest)
+                                             : skin::skinning_reference(s.dense, transforms, means, s.log_scales, rest);
+      return torch::autograd::grad({loss_of(out)}, {transforms, means});
+    };
+    const auto fused = gradients(true), reference = gradients(false);
+    EXPECT_LT(max_difference(fused[0], reference[0]), 1e-11) << "with rest " << with_rest;
+    EXPECT_LT(max_difference(fused[1], reference[1]), 1e-12) << "with rest " << with_rest;
+    EXPECT_EQ(fused[0].select(1, 3).abs().sum().item<double>(), 0);
+    const double h = 1e-6;
+    const auto loss_at = [&](const at::Tensor& transforms) {
+      return loss_of(skin::skin_gaussians(weights, transforms, s.means, s.log_scales, rest)).item<double>();
+    };
+    for (int64_t joint : {0, 2, 4})
+      for (int64_t row : {0, 2})
+        for (int64_t column : {0, 1, 3}) {
+          at::Tensor plus = s.transforms.clone(), minus = s.transforms.clone();
+          plus[joint][row][column] += h;
+          minus[joint][row][column] -= h;
+          const double numeric = (loss_at(plus) - loss_at(minus)) / (2 * h);
+          EXPECT_NEAR(fused[0][joint][row][column].item<double>(), numeric, 1e-6 * (1 + std::abs(numeric)))
+              << joint << "," << row << "," << column << " with rest " << with_rest;
+        }
+  }
+}
+
+// The CPU sums the transforms' gradient in fixed chunks: the same bits on one thread as on several.
+TEST(SkinOp, TheTransformGradientIsTheSameForAnyThreadCount) {
+  const Scene s = random_scene(9000, 7, at::kFloat, 8);
+  const skin::SkinningWeights weights = skin::SkinningWeights::from_dense(s.dense);
+  const auto gradient = [&](int threads) {
+    const int before = at::get_num_threads();
+    at::set_num_threads(threads);
+    const at::Tensor transforms = s.transforms.clone().requires_grad_(true);
+    const skin::SkinnedGaussians out = skin::skin_gaussians(weights, transforms, s.means, s.log_scales, s.rest);
+    const at::Tensor grad =
+        torch::autograd::grad({out.means.sum() + out.covariances.sum() + out.posed_rest.sum()}, {transforms})[0];
+    at::set_num_threads(before);
+    return grad;
+  };
+  EXPECT_TRUE(at::equal(gradient(1), gradient(2)));
 }
 
 TEST(SkinningWeights, KeepEveryNonZeroWeightOfEachRow) {
@@ -158,9 +208,14 @@ TEST(SkinOp, IsADispatcherOpWhoseMetaKernelsDescribeItsOutputs) {
     expect_meta_describes_cpu("sfgs::skin_gaussians", op_arguments(s, with_rest));
     const std::vector<c10::IValue> forward = op_arguments(s, with_rest);
     const at::Tensor covariances = call_boxed(registered_op("sfgs::skin_gaussians"), forward)[1].toTensor();
+    const c10::IValue none;
+    const c10::IValue grad_rest = with_rest ? c10::IValue(at::randn({40, 3})) : none;
+    expect_meta_describes_cpu("sfgs::skin_gaussians_backward", {forward[3], forward[4], forward[5], covariances,
+                                                                at::randn({40, 3}), none, grad_rest, none, none, none});
+    // With the forward's inputs: the transform rows' gradient too.
     expect_meta_describes_cpu("sfgs::skin_gaussians_backward",
-                              {forward[3], forward[4], forward[5], covariances, at::randn({40, 3}), c10::IValue(),
-                               with_rest ? c10::IValue(at::randn({40, 3})) : c10::IValue()});
+                              {forward[3], forward[4], forward[5], covariances, at::randn({40, 3}), at::randn({40, 6}),
+                               grad_rest, forward[0], forward[1], forward[2]});
   }
 }
 

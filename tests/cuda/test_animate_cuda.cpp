@@ -45,17 +45,21 @@ void expect_skinning_parity(at::ScalarType dtype, int64_t n, double bound) {
   const at::Tensor grad_means = at::randn({n, 3}, cpu), grad_covariances = at::randn({n, 6}, cpu);
   const skin::SkinningWeights weights = skin::SkinningWeights::from_dense(dense);
 
+  const at::Tensor grad_posed_rest = at::randn({n, 3}, cpu);
+  // The transforms' gradient (a pose being fitted): a sum over every Gaussian, in another order on each device.
   const auto run = [&](at::Device device) {
     const at::Tensor m = means.to(device).requires_grad_(true), s = log_scales.to(device).requires_grad_(true);
-    const skin::SkinnedGaussians out =
-        skin::skin_gaussians(weights.to(device, dtype), transforms.to(device), m, s, rest.to(device));
-    const at::Tensor loss =
-        (out.means * grad_means.to(device)).sum() + (out.covariances * grad_covariances.to(device)).sum();
-    const auto g = torch::autograd::grad({loss}, {m, s});
-    return std::vector<at::Tensor>{out.means, out.covariances, out.posed_rest, g[0], g[1]};
+    const at::Tensor t = transforms.to(device).requires_grad_(true);
+    const skin::SkinnedGaussians out = skin::skin_gaussians(weights.to(device, dtype), t, m, s, rest.to(device));
+    const at::Tensor loss = (out.means * grad_means.to(device)).sum() +
+                            (out.covariances * grad_covariances.to(device)).sum() +
+                            (out.posed_rest * grad_posed_rest.to(device)).sum();
+    const auto g = torch::autograd::grad({loss}, {m, s, t});
+    return std::vector<at::Tensor>{out.means, out.covariances, out.posed_rest, g[0], g[1], g[2]};
   };
   const std::vector<at::Tensor> on_cpu = run(at::kCPU), on_gpu = run(at::kCUDA);
-  const char* names[] = {"means", "covariances", "posed rest", "mean gradient", "log-scale gradient"};
+  const char* names[] = {"means",         "covariances",        "posed rest",
+                         "mean gradient", "log-scale gradient", "transform gradient"};
   for (size_t k = 0; k < on_cpu.size(); ++k)
     EXPECT_LT(max_difference(on_cpu[k], on_gpu[k]) / (1 + on_cpu[k].abs().max().item<double>()), bound)
         << names[k] << " " << dtype;

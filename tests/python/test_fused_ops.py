@@ -25,7 +25,7 @@ def skin_arguments(device, with_rest=True, n=20, joints=5, influences=3):
     arguments = [rand(n, 3) - 0.5, -2 + 0.2 * rand(n), rand(n, 3) - 0.5 if with_rest else None,
                  torch.randint(0, joints, (n, influences), generator=gen, dtype=torch.int32), weights, rows]
     arguments = [a.to(device) if a is not None else None for a in arguments]
-    for k in (0, 1, 2):
+    for k in (0, 1, 2, 5):
         if arguments[k] is not None:
             arguments[k].requires_grad_(True)
     return arguments
@@ -37,12 +37,17 @@ def test_skin_gaussians_passes_opcheck(device, with_rest):
     opcheck()(torch.ops.sfgs.skin_gaussians.default, skin_arguments(device, with_rest))
 
 
+# The transform rows too: a pose being fitted differentiates them through the fused node.
 @pytest.mark.parametrize("device", DEVICES)
-def test_skin_gaussians_gradients_match_finite_differences(device):
-    arguments = skin_arguments(device)
-    differentiable = [a for a in arguments[:3]]
-    fixed = arguments[3:]
-    assert torch.autograd.gradcheck(lambda m, s, r: torch.ops.sfgs.skin_gaussians(m, s, r, *fixed), differentiable)
+@pytest.mark.parametrize("with_rest", [True, False])
+def test_skin_gaussians_gradients_match_finite_differences(device, with_rest):
+    means, log_scales, rest, joints, weights, rows = skin_arguments(device, with_rest)
+    if with_rest:
+        assert torch.autograd.gradcheck(
+            lambda m, s, r, t: torch.ops.sfgs.skin_gaussians(m, s, r, joints, weights, t), [means, log_scales, rest, rows])
+    else:
+        assert torch.autograd.gradcheck(
+            lambda m, s, t: torch.ops.sfgs.skin_gaussians(m, s, None, joints, weights, t), [means, log_scales, rows])
 
 
 def group_norm_arguments(device, with_bias=True, rows=12, channels=8):

@@ -19,6 +19,9 @@ struct BackwardTensors {
   at::Tensor grad_means, grad_covariances, grad_posed_rest;  // any may be undefined
   at::Tensor grad_canonical_means, grad_log_scales;          // outputs
   at::Tensor grad_rest;                                      // output, defined with grad_posed_rest
+  // The transforms' gradient: the forward's inputs (rest may be undefined) and the (J, 12) output, all defined
+  // exactly when it is wanted.
+  at::Tensor canonical_means, log_scales, rest, grad_transforms;
 };
 
 // The tensors as the raw arrays of skin_math.h in their dtype T, built once here for both backends.
@@ -47,9 +50,15 @@ template <typename T> SkinGradientArrays<T> arrays_of(const BackwardTensors& t) 
                                data_or_null<T>(t.grad_posed_rest),
                                t.grad_canonical_means.data_ptr<T>(),
                                t.grad_log_scales.data_ptr<T>(),
-                               mutable_data_or_null<T>(t.grad_rest)};
+                               mutable_data_or_null<T>(t.grad_rest),
+                               data_or_null<T>(t.canonical_means),
+                               data_or_null<T>(t.log_scales),
+                               data_or_null<T>(t.rest),
+                               mutable_data_or_null<T>(t.grad_transforms)};
 }
 
+// The transforms' gradient is summed in fixed chunks of Gaussians, then chunk by chunk: the same bits for any number
+// of threads.
 namespace cpu {
 void forward(const SkinArrays<float>& arrays);
 void forward(const SkinArrays<double>& arrays);
@@ -57,7 +66,8 @@ void backward(const SkinGradientArrays<float>& arrays);
 void backward(const SkinGradientArrays<double>& arrays);
 }  // namespace cpu
 
-// On `device`'s current stream.
+// On `device`'s current stream. The transforms' gradient takes a scratch buffer of per-block sums from the caching
+// allocator.
 namespace cuda {
 void forward(const SkinArrays<float>& arrays, at::Device device);
 void forward(const SkinArrays<double>& arrays, at::Device device);

@@ -59,18 +59,23 @@ void dispatch_backward(const BackwardTensors& t) {
 using ops::optional_tensor;
 using ops::OptionalTensor;
 using Outputs = std::tuple<at::Tensor, at::Tensor, at::Tensor>;
+using GradientOutputs = std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor>;
 
 constexpr const char* kForwardSchema =
     "skin_gaussians(Tensor canonical_means, Tensor log_scales, Tensor? rest, Tensor joints, Tensor weights, "
     "Tensor transform_rows) -> (Tensor means, Tensor covariances, Tensor posed_rest)";
+// With canonical_means and log_scales (and rest, where the forward had it) the backward also returns the transform
+// rows' gradient (J, 12); without them an empty (0, 12).
 constexpr const char* kBackwardSchema =
     "skin_gaussians_backward(Tensor joints, Tensor weights, Tensor transform_rows, Tensor covariances, "
-    "Tensor? grad_means, Tensor? grad_covariances, Tensor? grad_posed_rest) "
-    "-> (Tensor grad_canonical_means, Tensor grad_log_scales, Tensor grad_rest)";
+    "Tensor? grad_means, Tensor? grad_covariances, Tensor? grad_posed_rest, Tensor? canonical_means, "
+    "Tensor? log_scales, Tensor? rest) "
+    "-> (Tensor grad_canonical_means, Tensor grad_log_scales, Tensor grad_rest, Tensor grad_transform_rows)";
 using ForwardSignature = Outputs(const at::Tensor&, const at::Tensor&, const OptionalTensor&, const at::Tensor&,
                                  const at::Tensor&, const at::Tensor&);
-using BackwardSignature = Outputs(const at::Tensor&, const at::Tensor&, const at::Tensor&, const at::Tensor&,
-                                  const OptionalTensor&, const OptionalTensor&, const OptionalTensor&);
+using BackwardSignature = GradientOutputs(const at::Tensor&, const at::Tensor&, const at::Tensor&, const at::Tensor&,
+                                          const OptionalTensor&, const OptionalTensor&, const OptionalTensor&,
+                                          const OptionalTensor&, const OptionalTensor&, const OptionalTensor&);
 
 // The kernels' own checks (torch.ops.sfgs reaches them without skin_gaussians'): shapes, dtypes and one device.
 // A joint index out of range is not read (it makes its Gaussian NaN: skin_math.h), so no host read is needed.
@@ -136,20 +141,41 @@ Outputs forward_meta(const at::Tensor& canonical_means, const at::Tensor& log_sc
   return {t.means, t.covariances, or_empty_points(t.posed_rest, t.means)};
 }
 
+// The backward's arguments; `inputs` (canonical_means, log_scales, rest) are given for the transforms' gradient.
+struct TransformGradientInputs {
+  const OptionalTensor& canonical_means;
+  const OptionalTensor& log_scales;
+  const OptionalTensor& rest;
+};
+
 void check_backward_arguments(const at::Tensor& joints, const at::Tensor& weights, const at::Tensor& transform_rows,
                               const at::Tensor& covariances, const OptionalTensor& grad_means,
-                              const OptionalTensor& grad_covariances, const OptionalTensor& grad_posed_rest) {
+                              const OptionalTensor& grad_covariances, const OptionalTensor& grad_posed_rest,
+                              const TransformGradientInputs& inputs) {
   check_weights_and_transforms(joints, weights, transform_rows);
   const int64_t n = weights.size(0);
   check_matrix(covariances, "covariances", n, 6, weights);
   if (grad_means.has_value()) check_matrix(*grad_means, "grad_means", n, 3, weights);
   if (grad_covariances.has_value()) check_matrix(*grad_covariances, "grad_covariances", n, 6, weights);
   if (grad_posed_rest.has_value()) check_matrix(*grad_posed_rest, "grad_posed_rest", n, 3, weights);
+  TORCH_CHECK(inputs.canonical_means.has_value() == inputs.log_scales.has_value(),
+              "sfgs::skin_gaussians_backward: the transforms' gradient takes both canonical_means and log_scales");
+  if (inputs.rest.has_value())
+    TORCH_CHECK(inputs.canonical_means.has_value(),
+                "sfgs::skin_gaussians_backward: rest is read only for the transforms' gradient, with canonical_means");
+  if (!inputs.canonical_means.has_value()) return;
+  check_matrix(*inputs.canonical_means, "canonical_means", n, 3, weights);
+  check_matrix(inputs.log_scales->unsqueeze(1), "log_scales", n, 1, weights);
+  if (inputs.rest.has_value()) check_matrix(*inputs.rest, "rest", n, 3, weights);
+  TORCH_CHECK(transform_rows.size(0) <= kMaxJointsWithTransformGradient,
+              "sfgs::skin_gaussians_backward: the transforms' gradient takes at most ", kMaxJointsWithTransformGradient,
+              " joints, got ", transform_rows.size(0));
 }
 
 BackwardTensors backward_tensors(const at::Tensor& joints, const at::Tensor& weights, const at::Tensor& transform_rows,
                                  const at::Tensor& covariances, const OptionalTensor& grad_means,
-                                 const OptionalTensor& grad_covariances, const OptionalTensor& grad_posed_rest) {
+                                 const OptionalTensor& grad_covariances, const OptionalTensor& grad_posed_rest,
+                                 const TransformGradientInputs& inputs) {
   BackwardTensors t;
   t.joints = joints.contiguous();
   t.weights = weights.contiguous();
@@ -164,26 +190,44 @@ BackwardTensors backward_tensors(const at::Tensor& joints, const at::Tensor& wei
   }
   t.grad_canonical_means = at::empty({n, 3}, covariances.options());
   t.grad_log_scales = at::empty({n}, covariances.options());
+  if (inputs.canonical_means.has_value()) {
+    t.canonical_means = inputs.canonical_means->contiguous();
+    t.log_scales = inputs.log_scales->contiguous();
+    if (inputs.rest.has_value()) t.rest = inputs.rest->contiguous();
+    t.grad_transforms = at::empty({transform_rows.size(0), kTransformValues}, covariances.options());
+  }
   return t;
 }
 
-Outputs backward_kernel(const at::Tensor& joints, const at::Tensor& weights, const at::Tensor& transform_rows,
-                        const at::Tensor& covariances, const OptionalTensor& grad_means,
-                        const OptionalTensor& grad_covariances, const OptionalTensor& grad_posed_rest) {
-  check_backward_arguments(joints, weights, transform_rows, covariances, grad_means, grad_covariances, grad_posed_rest);
-  const BackwardTensors t =
-      backward_tensors(joints, weights, transform_rows, covariances, grad_means, grad_covariances, grad_posed_rest);
-  dispatch_backward(t);
-  return {t.grad_canonical_means, t.grad_log_scales, or_empty_points(t.grad_rest, t.covariances)};
+GradientOutputs gradient_outputs(const BackwardTensors& t) {
+  return {t.grad_canonical_means, t.grad_log_scales, or_empty_points(t.grad_rest, t.covariances),
+          t.grad_transforms.defined() ? t.grad_transforms : at::empty({0, kTransformValues}, t.covariances.options())};
 }
 
-Outputs backward_meta(const at::Tensor& joints, const at::Tensor& weights, const at::Tensor& transform_rows,
-                      const at::Tensor& covariances, const OptionalTensor& grad_means,
-                      const OptionalTensor& grad_covariances, const OptionalTensor& grad_posed_rest) {
-  check_backward_arguments(joints, weights, transform_rows, covariances, grad_means, grad_covariances, grad_posed_rest);
-  const BackwardTensors t =
-      backward_tensors(joints, weights, transform_rows, covariances, grad_means, grad_covariances, grad_posed_rest);
-  return {t.grad_canonical_means, t.grad_log_scales, or_empty_points(t.grad_rest, t.covariances)};
+GradientOutputs backward_kernel(const at::Tensor& joints, const at::Tensor& weights, const at::Tensor& transform_rows,
+                                const at::Tensor& covariances, const OptionalTensor& grad_means,
+                                const OptionalTensor& grad_covariances, const OptionalTensor& grad_posed_rest,
+                                const OptionalTensor& canonical_means, const OptionalTensor& log_scales,
+                                const OptionalTensor& rest) {
+  const TransformGradientInputs inputs{canonical_means, log_scales, rest};
+  check_backward_arguments(joints, weights, transform_rows, covariances, grad_means, grad_covariances, grad_posed_rest,
+                           inputs);
+  const BackwardTensors t = backward_tensors(joints, weights, transform_rows, covariances, grad_means, grad_covariances,
+                                             grad_posed_rest, inputs);
+  dispatch_backward(t);
+  return gradient_outputs(t);
+}
+
+GradientOutputs backward_meta(const at::Tensor& joints, const at::Tensor& weights, const at::Tensor& transform_rows,
+                              const at::Tensor& covariances, const OptionalTensor& grad_means,
+                              const OptionalTensor& grad_covariances, const OptionalTensor& grad_posed_rest,
+                              const OptionalTensor& canonical_means, const OptionalTensor& log_scales,
+                              const OptionalTensor& rest) {
+  const TransformGradientInputs inputs{canonical_means, log_scales, rest};
+  check_backward_arguments(joints, weights, transform_rows, covariances, grad_means, grad_covariances, grad_posed_rest,
+                           inputs);
+  return gradient_outputs(backward_tensors(joints, weights, transform_rows, covariances, grad_means, grad_covariances,
+                                           grad_posed_rest, inputs));
 }
 
 const c10::TypedOperatorHandle<ForwardSignature>& forward_op() {
@@ -195,8 +239,8 @@ const c10::TypedOperatorHandle<BackwardSignature>& backward_op() {
   return handle;
 }
 
-// The op's one autograd node: canonical means, log-scales and (when given) rest points are differentiated; the
-// weights and transforms are not (a pose being fitted takes the reference composition).
+// The op's one autograd node: canonical means, log-scales, rest points (when given) and the transform rows (a pose
+// being fitted) are differentiated; the weights are not.
 class SkinFunction : public torch::autograd::Function<SkinFunction> {
  public:
   static variable_list forward(AutogradContext* ctx, const at::Tensor& canonical_means, const at::Tensor& log_scales,
@@ -208,7 +252,13 @@ class SkinFunction : public torch::autograd::Function<SkinFunction> {
       out = forward_op().call(canonical_means, log_scales, rest, joints, weights, transform_rows);
     }
     const auto& [means, covariances, posed_rest] = out;
-    ctx->save_for_backward({joints, weights, transform_rows, covariances});
+    // The transforms' gradient reads the forward's inputs; otherwise they are not kept.
+    const bool transforms_differentiated = transform_rows.requires_grad();
+    const at::Tensor undefined;
+    ctx->save_for_backward({joints, weights, transform_rows, covariances,
+                            transforms_differentiated ? canonical_means : undefined,
+                            transforms_differentiated ? log_scales : undefined,
+                            transforms_differentiated && rest.has_value() ? *rest : undefined});
     ctx->saved_data["has_rest"] = rest.has_value();
     ctx->set_materialize_grads(false);
     return {means, covariances, posed_rest};
@@ -217,11 +267,15 @@ class SkinFunction : public torch::autograd::Function<SkinFunction> {
   static variable_list backward(AutogradContext* ctx, variable_list grads) {
     const variable_list saved = ctx->get_saved_variables();
     const bool has_rest = ctx->saved_data["has_rest"].toBool();
-    const auto [grad_canonical_means, grad_log_scales, grad_rest] =
+    const bool transforms_wanted = saved[4].defined();  // the transform rows required a gradient
+    const auto [grad_canonical_means, grad_log_scales, grad_rest, grad_transform_rows] =
         backward_op().call(saved[0], saved[1], saved[2], saved[3], optional_tensor(grads[0]), optional_tensor(grads[1]),
-                           has_rest ? optional_tensor(grads[2]) : c10::nullopt);
+                           has_rest ? optional_tensor(grads[2]) : c10::nullopt,
+                           transforms_wanted ? optional_tensor(saved[4]) : c10::nullopt,
+                           transforms_wanted ? optional_tensor(saved[5]) : c10::nullopt,
+                           transforms_wanted ? optional_tensor(saved[6]) : c10::nullopt);
     return {grad_canonical_means, grad_log_scales, has_rest && grad_rest.numel() > 0 ? grad_rest : at::Tensor(),
-            at::Tensor(),         at::Tensor(),    at::Tensor()};
+            at::Tensor(),         at::Tensor(),    transforms_wanted ? grad_transform_rows : at::Tensor()};
   }
 };
 
@@ -296,8 +350,10 @@ SkinnedGaussians skin_gaussians(const SkinningWeights& w, const at::Tensor& tran
   check_matrix(canonical_means, "canonical_means", n, 3, w.weights);
   check_matrix(log_scales.unsqueeze(1), "log_scales", n, 1, w.weights);
   if (rest.defined()) check_matrix(rest, "rest", n, 3, w.weights);
-  if (transforms.requires_grad())
-    return skinning_reference(w.to_dense(), transforms, canonical_means, log_scales, rest);
+  TORCH_CHECK(!transforms.requires_grad() || j <= kMaxJointsWithTransformGradient,
+              "skin_gaussians: the transforms' gradient takes at most ", kMaxJointsWithTransformGradient,
+              " joints, got ", j);
+  // A pose being fitted differentiates the transforms: the rows' gradient flows back through this view.
   const at::Tensor rows = transforms.narrow(1, 0, 3).reshape({j, kTransformValues}).contiguous();
   const auto [means, covariances, posed_rest] =
       forward_op().call(canonical_means.contiguous(), log_scales.contiguous(), optional_tensor(rest),

@@ -30,8 +30,8 @@ struct SkinnedGaussians {
 
 // transforms (J, 4, 4): rest -> posed per joint (the last row is not read); canonical_means (N, 3); log_scales (N);
 // rest (N, 3) or undefined. All of one floating dtype and on the weights' device. The fused node differentiates
-// canonical_means, log_scales and rest; when the transforms require a gradient (a pose being fitted) the call takes
-// the reference composition, which differentiates them too.
+// canonical_means, log_scales, rest and, when they require a gradient (a pose being fitted; at most
+// kMaxJointsWithTransformGradient joints, ops/skin/skin_math.h), the transforms.
 SkinnedGaussians skin_gaussians(const SkinningWeights& weights, const at::Tensor& transforms,
                                 const at::Tensor& canonical_means, const at::Tensor& log_scales,
                                 const at::Tensor& rest = {});

@@ -1,4 +1,7 @@
 // CPU reference backend of the skinning op: skin_math.h's per-Gaussian steps in a parallel loop.
+#include <algorithm>
+#include <vector>
+
 #include <ATen/Parallel.h>
 
 #include "ops/skin/backend.h"
@@ -6,19 +9,44 @@
 namespace sfgs::skin::cpu {
 namespace {
 
-constexpr int64_t kGrain = 2048;  // Gaussians per parallel task
+constexpr int64_t kGrain = 2048;  // Gaussians per parallel task, and per chunk of the transforms' gradient
 
-template <typename Arrays, typename Step> void for_each_gaussian(const Arrays& arrays, Step step) {
-  at::parallel_for(0, arrays.count, kGrain, [&](int64_t begin, int64_t end) {
-    for (int64_t i = begin; i < end; ++i) step(arrays, i);
+template <typename T> void forward_of(const SkinArrays<T>& a) {
+  at::parallel_for(0, a.count, kGrain, [&](int64_t begin, int64_t end) {
+    for (int64_t i = begin; i < end; ++i) skin_one(a, i);
   });
+}
+
+template <typename T> void backward_of(const SkinGradientArrays<T>& g) {
+  if (g.grad_transforms == nullptr) {
+    at::parallel_for(0, g.count, kGrain, [&](int64_t begin, int64_t end) {
+      for (int64_t i = begin; i < end; ++i) skin_one_backward(g, i, [](int64_t, T) {});
+    });
+    return;
+  }
+  const int64_t values = g.joint_count * kTransformValues;
+  const int64_t chunks = (g.count + kGrain - 1) / kGrain;
+  std::vector<T> chunk_sums(size_t(chunks * values), T(0));
+  at::parallel_for(0, chunks, 1, [&](int64_t first, int64_t last) {
+    for (int64_t chunk = first; chunk < last; ++chunk) {
+      T* sums = chunk_sums.data() + chunk * values;
+      const int64_t end = std::min(g.count, (chunk + 1) * kGrain);
+      for (int64_t i = chunk * kGrain; i < end; ++i)
+        skin_one_backward(g, i, [&](int64_t value, T share) { sums[value] += share; });
+    }
+  });
+  for (int64_t v = 0; v < values; ++v) {
+    T sum = T(0);
+    for (int64_t chunk = 0; chunk < chunks; ++chunk) sum += chunk_sums[size_t(chunk * values + v)];
+    g.grad_transforms[v] = sum;
+  }
 }
 
 }  // namespace
 
-void forward(const SkinArrays<float>& a) { for_each_gaussian(a, skin_one<float>); }
-void forward(const SkinArrays<double>& a) { for_each_gaussian(a, skin_one<double>); }
-void backward(const SkinGradientArrays<float>& a) { for_each_gaussian(a, skin_one_backward<float>); }
-void backward(const SkinGradientArrays<double>& a) { for_each_gaussian(a, skin_one_backward<double>); }
+void forward(const SkinArrays<float>& a) { forward_of(a); }
+void forward(const SkinArrays<double>& a) { forward_of(a); }
+void backward(const SkinGradientArrays<float>& a) { backward_of(a); }
+void backward(const SkinGradientArrays<double>& a) { backward_of(a); }
 
 }  // namespace sfgs::skin::cpu
