@@ -345,7 +345,10 @@ TEST(CudaBlendSegments, CutRunsMatchTheSerialBlend) {
   translucent.max_opacity = 0.05;
   const std::pair<std::string, TestScene> scenes[] = {
       {"12k on 96x80", parity_scene(ParityCase{"", 12000, 96, 80, 3, false, 1.0, false, true}, 35)},
-      {"8k translucent on 64x48, C=5", random_scene(translucent, 37)}};
+      {"8k translucent on 64x48, C=5", random_scene(translucent, 37)},
+      // Opaque, so that pixels stop inside segments and hand off to the finishing kernel, with two channel chunks
+      // and tiles cut by the image's edges.
+      {"10k opaque on 70x45, C=5", parity_scene(ParityCase{"", 10000, 70, 45, 5, false, 1.0, false, true}, 39)}};
   for (const auto& [name, scene] : scenes) {
     const Rendered uncut = [&] {
       const BlendCutGuard never(0);
