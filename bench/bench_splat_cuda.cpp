@@ -233,7 +233,7 @@ Result measure(const Workload& w) {
                                    int(c.width),      int(c.height), c.near_plane, c.far_plane};
   const backend::BackendSettings settings{backend::ProjectionSettings{sfgs::kLowPassVariancePx2, false}, false};
   const backend::OutputGradients grads{s.grad_image, s.grad_alpha, at::Tensor()};
-  const auto backend_forward = [&] { return backend::cuda::forward(inputs, camera, settings); };
+  const auto backend_forward = [&] { return backend::cuda::forward(inputs, camera, settings, nullptr); };
   const auto backend_train = [&] {
     const backend::cuda::Forward f = backend_forward();
     backend::cuda::backward(inputs, camera, settings, f.outputs.image, f.context, grads);

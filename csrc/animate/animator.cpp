@@ -94,7 +94,7 @@ void Animator::stage_frame(model::FrameTime time) {
   frame_values_.copy_(at::tensor(values, at::kFloat));  // one upload per frame
 }
 
-void Animator::splat(const model::AvatarOutput& out) {
+void Animator::splat(const model::AvatarOutput& out, const BinningBudget* budget) {
   const StageScope stage("render");
   Gaussians gaussians = model::to_gaussians(out);
   gaussians.opacities =
@@ -104,7 +104,9 @@ void Animator::splat(const model::AvatarOutput& out) {
   if (sampling_record_.defined())
     gaussians.covariances =
         model::sampling_filtered(gaussians.covariances, gaussians.means, origin_camera_, sampling_record_);
-  result_ = sfgs::render(gaussians, background_, origin_camera_, options_.render);
+  RenderOptions render_options = options_.render;
+  render_options.budget = budget;
+  result_ = sfgs::render(gaussians, background_, origin_camera_, render_options);
 }
 
 at::Tensor Animator::render(const body::SmplxPose& pose, model::FrameTime time) {
@@ -140,9 +142,9 @@ void Animator::capture(bool timed) {
   cache_generation_ = avatar_->cache_generation();
   const auto frame = [this, timed] {
     at::NoGradGuard no_grad;
-    const ScopedBinningBudget budget(budget_->budget(avatar_->gaussian_count()));
+    const BinningBudget budget = budget_->budget(avatar_->gaussian_count());
     // The time as the device tensor the replays write (the cache keeps only host times' attributes).
-    splat(avatar_->forward_trusted_pose(staged_pose_, timed ? time_ : at::Tensor()));
+    splat(avatar_->forward_trusted_pose(staged_pose_, timed ? time_ : at::Tensor()), &budget);
   };
   if (!budget_->measured()) {
     // The first frame of this avatar: eager passes (which also make every lazy one-time allocation outside the

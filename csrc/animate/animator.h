@@ -86,8 +86,9 @@ class Animator {
   at::Device device() const { return device_; }
 
  private:
-  // The posed avatar's image, seen from the staged camera (back-facing Gaussians culled), into result_.
-  void splat(const model::AvatarOutput& out);
+  // The posed avatar's image, seen from the staged camera (back-facing Gaussians culled), into result_; with a
+  // budget (a recorded frame), its buffers sized from it (splat.h).
+  void splat(const model::AvatarOutput& out, const BinningBudget* budget = nullptr);
   at::Tensor render_eagerly(const body::SmplxPose& pose, model::FrameTime time);
   at::Tensor render_with_graph(const body::SmplxPose& pose, model::FrameTime time);
   void stage_pose(const body::SmplxPose& pose);

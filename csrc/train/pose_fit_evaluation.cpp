@@ -18,7 +18,7 @@ FitLoss::FitLoss(const ImageLoss& image_loss, const body::WholeBodyKeypointMap* 
     : image_loss_(image_loss), keypoint_map_(keypoint_map), keypoint_weight_(keypoint_weight), gradient_(gradient) {}
 
 at::Tensor FitLoss::operator()(model::Avatar& avatar, const FitFrame& frame, const at::Tensor& correction,
-                               bool run_loss) const {
+                               bool run_loss, const BinningBudget* budget) const {
   const model::AvatarOutput out = avatar->forward_with_attributes(corrected_pose(frame.pose, correction),
                                                                   frame.attributes, frame.has_time, gradient_);
   Gaussians gaussians = model::to_gaussians(out);
@@ -26,7 +26,9 @@ at::Tensor FitLoss::operator()(model::Avatar& avatar, const FitFrame& frame, con
     gaussians.means = frame.camera_frame.points(gaussians.means);
     gaussians.covariances = frame.camera_frame.covariances(gaussians.covariances);
   }
-  const RenderResult r = render(gaussians, at::ones({3}, correction.options()), frame.camera);
+  RenderOptions options;
+  options.budget = budget;
+  const RenderResult r = render(gaussians, at::ones({3}, correction.options()), frame.camera, options);
   at::Tensor loss = image_terms(r, frame, run_loss);
   if (frame.pixel_share != 1) loss = loss * frame.pixel_share;
   if (!keypoint_map_ || !frame.keypoints.defined()) return loss;
@@ -197,8 +199,8 @@ FitEvaluation PoseFitGraphs::evaluate(const at::Tensor& correction) {
 }
 
 at::Tensor PoseFitGraphs::run_budgeted(Kind& k) {
-  const ScopedBinningBudget budget(budget_.budget(avatar_->gaussian_count()));
-  const at::Tensor loss = loss_(avatar_, k.frame, k.correction, k.run_loss);
+  const BinningBudget budget = budget_.budget(avatar_->gaussian_count());
+  const at::Tensor loss = loss_(avatar_, k.frame, k.correction, k.run_loss, &budget);
   // The gradient of the correction alone: the frozen avatar's parameters accumulate none.
   const at::Tensor gradient = torch::autograd::grad({loss}, {k.correction})[0];
   return at::cat({loss.detach().reshape({1}).to(at::kFloat), gradient.detach().to(at::kFloat)});

@@ -53,9 +53,10 @@ class FitLoss {
   // `gradient`: what the correction's gradient flows through (model::PoseGradient).
   FitLoss(const ImageLoss& image_loss, const body::WholeBodyKeypointMap* keypoint_map, double keypoint_weight,
           model::PoseGradient gradient = model::PoseGradient::kWhole);
-  // A 0-dim loss with a gradient to `correction` (kCorrectionWidth, on the avatar's device).
-  at::Tensor operator()(model::Avatar& avatar, const FitFrame& frame, const at::Tensor& correction,
-                        bool run_loss) const;
+  // A 0-dim loss with a gradient to `correction` (kCorrectionWidth, on the avatar's device); with a budget (a
+  // recorded evaluation), the render's buffers sized from it (splat.h).
+  at::Tensor operator()(model::Avatar& avatar, const FitFrame& frame, const at::Tensor& correction, bool run_loss,
+                        const BinningBudget* budget = nullptr) const;
 
  private:
   // The stage's image and silhouette terms, as means over the frame's image.

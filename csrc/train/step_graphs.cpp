@@ -101,7 +101,12 @@ void StepGraphs::check_oldest() {
 }
 
 StepOutputs StepGraphs::run_budgeted(Kind& kind, const std::function<StepOutputs(const StepInputs&)>& work) {
-  const ScopedBinningBudget budget(budget_.budget(avatar_->gaussian_count()));
+  // The budget only for this step: the same inputs may later run a step eagerly, which must read its count.
+  struct BudgetForThisStep {
+    StepInputs& inputs;
+    ~BudgetForThisStep() { inputs.budget.reset(); }
+  } scope{*kind.inputs};
+  kind.inputs->budget = budget_.budget(avatar_->gaussian_count());
   return work(*kind.inputs);
 }
 

@@ -114,7 +114,9 @@ StepOutputs TrainingStep::run(const StepInputs& in, bool lpips) {
   RenderResult r;
   {
     const StageScope stage("train: render");
-    r = render(gaussians, in.background, in.camera);
+    RenderOptions options;
+    if (in.budget) options.budget = &*in.budget;
+    r = render(gaussians, in.background, in.camera, options);
   }
   {
     const StageScope stage("train: observation record");

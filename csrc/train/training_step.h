@@ -52,6 +52,8 @@ class StepInputs {
   at::Tensor time;           // () float32; undefined when the kind has no time
   body::SmplxPose pose;      // float32 views of one buffer, in the kind's layout
   Camera camera;             // the kind's camera at the origin (the intrinsics and image size of its steps)
+  // A recorded step's splatting budget (splat.h), set by StepGraphs around the step; none: the op reads its count.
+  std::optional<BinningBudget> budget;
 
  private:
   std::string kind_;   // step_kind of the steps these buffers take

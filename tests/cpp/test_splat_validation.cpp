@@ -139,6 +139,27 @@ TEST(SplatValidation, OpacitiesOutsideTheUnitIntervalAreErrors) {
       "opacities must be finite and in [0, 1]; 1 of 4 are not (first: index 2, value -inf)");
 }
 
+TEST(SplatValidation, ABadBinningBudgetIsAnError) {
+  SceneSpec spec;
+  spec.count = 4;
+  const TestScene s = random_scene(spec, 2);
+  const auto message = [&](const BinningBudget& budget) {
+    RenderOptions options;
+    options.budget = &budget;
+    try {
+      render(s.gaussians, s.background, s.camera, options);
+    } catch (const c10::Error& e) {
+      return std::string(e.what_without_backtrace());
+    }
+    return std::string("no error");
+  };
+  const at::Tensor counts = at::zeros({BinningBudget::kCounts}, at::kLong);
+  EXPECT_NE(message(BinningBudget{-1, 10, counts}).find("budget must be non-negative, got -1 intersections"),
+            std::string::npos);
+  EXPECT_NE(message(BinningBudget{10, 10, counts}).find("counts must be a contiguous CUDA int64 tensor of 3 values"),
+            std::string::npos);
+}
+
 TEST(SplatValidation, NonFiniteBackgroundIsAnError) {
   expect_spoiled_scene_error([](TestScene& s) { s.background[1] = std::numeric_limits<double>::infinity(); },
                              "background must be finite");

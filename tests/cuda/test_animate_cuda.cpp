@@ -101,28 +101,22 @@ TEST(BinningBudget, WithinItTheRenderIsThePlainOneAndBeyondItOnlyTheBackground) 
   const Camera camera = front_camera(96, 128);
   const at::Tensor plain = render(g, background, camera).image;
   const at::Tensor counts = at::zeros({BinningBudget::kCounts}, at::TensorOptions(at::kCUDA).dtype(at::kLong));
-  at::Tensor within;
-  {
-    const ScopedBinningBudget budget(BinningBudget{1 << 22, 1 << 22, counts});
-    within = render(g, background, camera).image;
-  }
+  const auto render_within = [&](const BinningBudget& budget) {
+    RenderOptions options;
+    options.budget = &budget;
+    return render(g, background, camera, options).image;
+  };
+  const at::Tensor within = render_within(BinningBudget{1 << 22, 1 << 22, counts});
   EXPECT_TRUE(within.equal(plain));
   const at::Tensor reported = counts.cpu();
   const int64_t intersections = reported[0].item<int64_t>();
   EXPECT_GT(intersections, 0);
   EXPECT_GT(reported[1].item<int64_t>(), 0);
   EXPECT_EQ(reported[2].item<int64_t>(), 0);
-  {
-    // A budget that fits exactly: the per-tile sort when the longest tile allows it (else the radix path again).
-    const ScopedBinningBudget budget(BinningBudget{intersections, reported[1].item<int64_t>(), counts});
-    EXPECT_TRUE(render(g, background, camera).image.equal(plain));
-  }
+  // A budget that fits exactly: the per-tile sort when the longest tile allows it (else the radix path again).
+  EXPECT_TRUE(render_within(BinningBudget{intersections, reported[1].item<int64_t>(), counts}).equal(plain));
 
-  at::Tensor beyond;
-  {
-    const ScopedBinningBudget budget(BinningBudget{intersections - 1, 1 << 22, counts});
-    beyond = render(g, background, camera).image;
-  }
+  const at::Tensor beyond = render_within(BinningBudget{intersections - 1, 1 << 22, counts});
   EXPECT_TRUE(beyond.equal(background.view({1, 1, 3}).expand_as(beyond)));
   EXPECT_EQ(counts.cpu()[0].item<int64_t>(), intersections);
 }

@@ -405,8 +405,10 @@ TEST(CudaBlendSegments, OnlyRunsBeyondTheShareAreCut) {
     // A budget hides the pass's counts from the host: the segmented kernel runs and its plan on the device cuts
     // what the eager pass cut, so the image is the eager one.
     const at::Tensor counts = at::zeros({BinningBudget::kCounts}, at::TensorOptions(kCuda).dtype(at::kLong));
-    const ScopedBinningBudget budget(BinningBudget{1 << 22, 1 << 22, counts});
-    const Rendered budgeted = render_on(scene, kCuda, at::kFloat);
+    const BinningBudget budget{1 << 22, 1 << 22, counts};
+    RenderOptions budgeted_options;
+    budgeted_options.budget = &budget;
+    const Rendered budgeted = render_on(scene, kCuda, at::kFloat, budgeted_options);
     EXPECT_EQ(kernels::last_blend_path(), kernels::BlendPath::kSegmented) << label;
     EXPECT_TRUE(budgeted.image.equal(eager.image)) << label;
     EXPECT_TRUE(budgeted.alpha.equal(eager.alpha)) << label;

@@ -49,9 +49,6 @@ template <typename T> PinholeCamera<T> to_pinhole(const CameraSpec& c) {
   return cam;
 }
 
-// The BinningBudget installed on this thread (splat.h), or null.
-const BinningBudget* active_binning_budget();
-
 struct BackendSettings {
   ProjectionSettings projection;
   bool deterministic;  // CUDA: reduce gradients in a fixed order (bit-identical runs); the CPU path always is
@@ -120,7 +117,9 @@ struct Forward {
   ForwardOutputs outputs;
   ForwardContext context;
 };
-Forward forward(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings);
+// `budget` (may be null): the buffers sized from it, the true counts written to its tensor, no host read (splat.h).
+Forward forward(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings,
+                const BinningBudget* budget);
 // image: the forward pass's image output; the backward blend reads what every pixel's composite added up to.
 InputGradients backward(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings,
                         const at::Tensor& image, const ForwardContext& context, const OutputGradients& grads);

@@ -25,7 +25,8 @@ class GrowingBudget {
   // errors.
   GrowingBudget(at::Device device, double slack, std::string owner);
 
-  // The budget to install (ScopedBinningBudget) for `gaussians` Gaussians: a first guess until a pass is measured.
+  // The budget to render with (RenderOptions::budget) for `gaussians` Gaussians: a first guess until a pass is
+  // measured.
   BinningBudget budget(int64_t gaussians);
   bool measured() const { return measured_; }
   int64_t intersections() const { return intersections_; }

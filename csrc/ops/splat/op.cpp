@@ -19,6 +19,7 @@
 #include <torch/csrc/autograd/custom_function.h>
 #include <torch/library.h>
 
+#include "common/tensor_description.h"
 #include "ops/registration.h"
 #include "ops/splat/validation.h"
 #include "ops/splat/constants.h"
@@ -113,6 +114,32 @@ class ContextCapture {
 };
 thread_local ContextCapture* ContextCapture::innermost_ = nullptr;
 
+// Opened by render_gaussians around its call: the CUDA kernel below the dispatcher reads the caller's budget from it.
+// Nested calls (none today) would each see their own.
+class BudgetScope {
+ public:
+  explicit BudgetScope(const BinningBudget* budget) : outer_(current_) { current_ = budget; }
+  ~BudgetScope() { current_ = outer_; }
+  BudgetScope(const BudgetScope&) = delete;
+  BudgetScope& operator=(const BudgetScope&) = delete;
+  static const BinningBudget* current() { return current_; }
+
+ private:
+  static thread_local const BinningBudget* current_;
+  const BinningBudget* outer_;
+};
+thread_local const BinningBudget* BudgetScope::current_ = nullptr;
+
+void check_budget(const BinningBudget& budget) {
+  TORCH_CHECK(budget.intersections >= 0 && budget.longest_tile >= 0,
+              "sfgs::render: the binning budget must be non-negative, got ", budget.intersections,
+              " intersections and a longest tile of ", budget.longest_tile);
+  TORCH_CHECK(budget.counts.defined() && budget.counts.is_cuda() && budget.counts.scalar_type() == at::kLong &&
+                  budget.counts.is_contiguous() && budget.counts.numel() == BinningBudget::kCounts,
+              "sfgs::render: the binning budget's counts must be a contiguous CUDA int64 tensor of ",
+              BinningBudget::kCounts, " values, got ", describe(budget.counts));
+}
+
 RenderOutputs cpu_kernel(SFGS_OP_PARAMETERS) {
   const Arguments a = checked_arguments(means, scales, rotations, covariances, opacities, features, background,
                                         SFGS_OP_NON_TENSOR_ARGUMENTS, true);
@@ -125,7 +152,7 @@ RenderOutputs cpu_kernel(SFGS_OP_PARAMETERS) {
 RenderOutputs cuda_kernel(SFGS_OP_PARAMETERS) {
   const Arguments a = checked_arguments(means, scales, rotations, covariances, opacities, features, background,
                                         SFGS_OP_NON_TENSOR_ARGUMENTS, true);
-  cuda::Forward f = cuda::forward(a.inputs, a.camera, a.settings);
+  cuda::Forward f = cuda::forward(a.inputs, a.camera, a.settings, BudgetScope::current());
   ContextCapture::offer(a, std::move(f.context));
   return as_tuple(f.outputs);
 }
@@ -266,7 +293,9 @@ TORCH_LIBRARY_IMPL(sfgs, Meta, m) { m.impl("render_gaussians", TORCH_FN(meta_ker
 TORCH_LIBRARY_IMPL(sfgs, Autograd, m) { m.impl("render_gaussians", TORCH_FN(autograd_kernel)); }
 
 RenderOutputs render_gaussians(const SplatInputs& t, const Camera& camera, double low_pass_variance, bool antialiased,
-                               bool deterministic) {
+                               bool deterministic, const BinningBudget* budget) {
+  if (budget != nullptr) check_budget(*budget);
+  const BudgetScope scope(budget);
   return op().call(t.means, optional_tensor(t.scales), optional_tensor(t.rotations), optional_tensor(t.covariances),
                    t.opacities, t.features, t.background, camera.world_to_camera, camera.fx, camera.fy, camera.cx,
                    camera.cy, camera.width, camera.height, camera.near_plane, camera.far_plane, low_pass_variance,

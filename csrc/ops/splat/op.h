@@ -15,8 +15,10 @@ namespace sfgs::splat {
 using RenderOutputs = std::tuple<at::Tensor, at::Tensor, at::Tensor, at::Tensor>;
 
 // Calls the op through the dispatcher, autograd included. Undefined tensors of `tensors` are passed as None.
-// (Referencing this keeps op.cpp, and with it the registration, in a static link.)
+// `budget` (may be null) sizes a CUDA pass's buffers without a host read (splat.h); the schema has no place for it
+// (torch.ops callers render eagerly), so it reaches the CUDA kernel below the dispatcher through a scope this call
+// opens on its thread. (Referencing this keeps op.cpp, and with it the registration, in a static link.)
 RenderOutputs render_gaussians(const SplatInputs& tensors, const Camera& camera, double low_pass_variance,
-                               bool antialiased, bool deterministic);
+                               bool antialiased, bool deterministic, const BinningBudget* budget = nullptr);
 
 }  // namespace sfgs::splat

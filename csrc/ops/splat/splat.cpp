@@ -59,7 +59,7 @@ RenderResult render(const Gaussians& gaussians, const at::Tensor& background, co
   const auto [image, alpha, depth, radii] = splat::render_gaussians(
       splat::SplatInputs{gaussians.means, gaussians.scales, gaussians.rotations, gaussians.covariances,
                          gaussians.opacities, gaussians.features, background},
-      camera, dilate ? kLowPassVariancePx2 : 0.0, options.antialiased, options.deterministic);
+      camera, dilate ? kLowPassVariancePx2 : 0.0, options.antialiased, options.deterministic, options.budget);
   return RenderResult{image, alpha, depth, radii, radii.select(1, 0) > 0};
 }
 
@@ -132,27 +132,5 @@ std::string camera_problem(const Camera& c) {
 }
 
 bool cuda_backend_available() { return ops::kBuiltWithCuda; }
-
-namespace {
-thread_local const BinningBudget* installed_budget = nullptr;
-}  // namespace
-
-ScopedBinningBudget::ScopedBinningBudget(BinningBudget budget)
-    : budget_(std::move(budget)), previous_(installed_budget) {
-  TORCH_CHECK(budget_.intersections >= 0 && budget_.longest_tile >= 0,
-              "ScopedBinningBudget: the budget must be non-negative, got ", budget_.intersections,
-              " intersections and a longest tile of ", budget_.longest_tile);
-  TORCH_CHECK(budget_.counts.defined() && budget_.counts.is_cuda() && budget_.counts.scalar_type() == at::kLong &&
-                  budget_.counts.is_contiguous() && budget_.counts.numel() == BinningBudget::kCounts,
-              "ScopedBinningBudget: counts must be a contiguous CUDA int64 tensor of ", BinningBudget::kCounts,
-              " values, got ", describe(budget_.counts));
-  installed_budget = &budget_;
-}
-
-ScopedBinningBudget::~ScopedBinningBudget() { installed_budget = previous_; }
-
-namespace splat {
-const BinningBudget* active_binning_budget() { return installed_budget; }
-}  // namespace splat
 
 }  // namespace sfgs

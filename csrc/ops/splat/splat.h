@@ -51,11 +51,25 @@ struct Gaussians {
   at::Tensor features;     // (N, C), C >= 1: colours or any per-Gaussian feature
 };
 
+// A CUDA render reads one count back from the device to size its intersection buffers: its one host
+// synchronisation, which a CUDA graph cannot capture. Given a BinningBudget (RenderOptions::budget), CUDA renders size
+// those buffers from the budget instead and copy the pass's true counts into `counts` (a CUDA int64 tensor of
+// BinningBudget::kCounts: intersections, longest tile, invalid opacities); a pass beyond the budget, or with invalid
+// opacities, renders only the background. The caller checks the counts once the work is done and renders again with
+// a larger budget (ops/splat/growing_budget.h; model::Animator does). CPU renders ignore it.
+struct BinningBudget {
+  static constexpr int64_t kCounts = 3;
+  int64_t intersections = 0;
+  int64_t longest_tile = 0;  // Gaussians in the busiest tile
+  at::Tensor counts;
+};
+
 struct RenderOptions {
-  bool low_pass = true;           // add kLowPassVariancePx2 to every 2D covariance
-  bool antialiased = false;       // opacity compensation as in mip-splatting (implies the low-pass)
-  bool check_background = false;  // also check a CUDA background is finite (a device-to-host read; CPU: always)
-  bool deterministic = false;     // CUDA: bit-identical gradients across runs (the CPU backend always is)
+  bool low_pass = true;                   // add kLowPassVariancePx2 to every 2D covariance
+  bool antialiased = false;               // opacity compensation as in mip-splatting (implies the low-pass)
+  bool check_background = false;          // also check a CUDA background is finite (a device-to-host read; CPU: always)
+  bool deterministic = false;             // CUDA: bit-identical gradients across runs (the CPU backend always is)
+  const BinningBudget* budget = nullptr;  // CUDA: buffers sized from this budget, no host read (recorded work)
 };
 
 struct RenderResult {
@@ -69,30 +83,6 @@ struct RenderResult {
 // Differentiable w.r.t. means, scales, rotations, covariances, opacities, features and background.
 RenderResult render(const Gaussians& gaussians, const at::Tensor& background, const Camera& camera,
                     const RenderOptions& options = {});
-
-// A CUDA render reads one count back from the device to size its intersection buffers: its one host
-// synchronisation, which a CUDA graph cannot capture. While a BinningBudget is installed on the thread
-// (ScopedBinningBudget), CUDA renders size those buffers from the budget instead and copy the pass's true counts
-// into `counts` (a CUDA int64 tensor of BinningBudget::kCounts: intersections, longest tile, invalid opacities); a
-// pass beyond the budget, or with invalid opacities, renders only the background. The caller checks the counts
-// once the work is done and renders again with a larger budget (model::Animator does). CPU renders ignore it.
-struct BinningBudget {
-  static constexpr int64_t kCounts = 3;
-  int64_t intersections = 0;
-  int64_t longest_tile = 0;  // Gaussians in the busiest tile
-  at::Tensor counts;
-};
-class ScopedBinningBudget {
- public:
-  explicit ScopedBinningBudget(BinningBudget budget);
-  ~ScopedBinningBudget();
-  ScopedBinningBudget(const ScopedBinningBudget&) = delete;
-  ScopedBinningBudget& operator=(const ScopedBinningBudget&) = delete;
-
- private:
-  BinningBudget budget_;
-  const BinningBudget* previous_;
-};
 
 // Whether this build has the CUDA backend.
 bool cuda_backend_available();

@@ -104,7 +104,8 @@ kernels::BinStats read_bin_stats(const at::Tensor& device_stats, const at::Tenso
 }
 
 template <typename T>
-Forward forward_typed(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings) {
+Forward forward_typed(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings,
+                      const BinningBudget* budget) {
   const c10::cuda::CUDAGuard guard(in.means.device());
   const at::cuda::CUDAStream stream = at::cuda::getCurrentCUDAStream();
   TorchScratch scratch(in.means.device());
@@ -146,7 +147,6 @@ Forward forward_typed(const SplatInputs& in, const CameraSpec& camera, const Bac
   buffers.final_transmittance = c.final_transmittance.data_ptr<T>();
   buffers.contributors = c.contributors.data_ptr<int32_t>();
 
-  const BinningBudget* budget = active_binning_budget();
   kernels::BinStats stats{0, 0, 0};
   if (n > 0 && budget != nullptr) {
     TORCH_CHECK(budget->counts.device() == in.means.device(), "sfgs::render: the binning budget's counts are on ",
@@ -219,10 +219,11 @@ InputGradients backward_typed(const SplatInputs& in, const CameraSpec& camera, c
 
 }  // namespace
 
-Forward forward(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings) {
+Forward forward(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings,
+                const BinningBudget* budget) {
   check_inputs(in);
-  if (in.means.scalar_type() == at::kDouble) return forward_typed<double>(in, camera, settings);
-  return forward_typed<float>(in, camera, settings);
+  if (in.means.scalar_type() == at::kDouble) return forward_typed<double>(in, camera, settings, budget);
+  return forward_typed<float>(in, camera, settings, budget);
 }
 
 InputGradients backward(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings,
