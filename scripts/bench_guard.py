@@ -83,7 +83,9 @@ def print_gsplat_case(cases, baseline):
         if gsplat is None:
             line += ", gsplat figure not recorded"
         else:
-            line += f", gsplat {gsplat:.4f} ms: sfgs {gsplat / measured[metric]:.2f}x gsplat's speed (target {target}x)"
+            ratio = gsplat / measured[metric]
+            line += (f", gsplat {gsplat:.4f} ms: sfgs {ratio:.2f}x gsplat's speed (target {target}x; an indication: "
+                     "the gsplat figure is of the reference's scene, which bench/gsplat_compare.py renders with both)")
         print(line)
 
 
