@@ -204,16 +204,27 @@ GradientOutputs gradient_outputs(const BackwardTensors& t) {
           t.grad_transforms.defined() ? t.grad_transforms : at::empty({0, kTransformValues}, t.covariances.options())};
 }
 
+// The backward's arguments checked and its outputs allocated: what both the backend and the Meta kernel start from.
+BackwardTensors checked_backward_tensors(const at::Tensor& joints, const at::Tensor& weights,
+                                         const at::Tensor& transform_rows, const at::Tensor& covariances,
+                                         const OptionalTensor& grad_means, const OptionalTensor& grad_covariances,
+                                         const OptionalTensor& grad_posed_rest, const OptionalTensor& canonical_means,
+                                         const OptionalTensor& log_scales, const OptionalTensor& rest) {
+  const TransformGradientInputs inputs{canonical_means, log_scales, rest};
+  check_backward_arguments(joints, weights, transform_rows, covariances, grad_means, grad_covariances, grad_posed_rest,
+                           inputs);
+  return backward_tensors(joints, weights, transform_rows, covariances, grad_means, grad_covariances, grad_posed_rest,
+                          inputs);
+}
+
 GradientOutputs backward_kernel(const at::Tensor& joints, const at::Tensor& weights, const at::Tensor& transform_rows,
                                 const at::Tensor& covariances, const OptionalTensor& grad_means,
                                 const OptionalTensor& grad_covariances, const OptionalTensor& grad_posed_rest,
                                 const OptionalTensor& canonical_means, const OptionalTensor& log_scales,
                                 const OptionalTensor& rest) {
-  const TransformGradientInputs inputs{canonical_means, log_scales, rest};
-  check_backward_arguments(joints, weights, transform_rows, covariances, grad_means, grad_covariances, grad_posed_rest,
-                           inputs);
-  const BackwardTensors t = backward_tensors(joints, weights, transform_rows, covariances, grad_means, grad_covariances,
-                                             grad_posed_rest, inputs);
+  const BackwardTensors t =
+      checked_backward_tensors(joints, weights, transform_rows, covariances, grad_means, grad_covariances,
+                               grad_posed_rest, canonical_means, log_scales, rest);
   dispatch_backward(t);
   return gradient_outputs(t);
 }
@@ -223,11 +234,9 @@ GradientOutputs backward_meta(const at::Tensor& joints, const at::Tensor& weight
                               const OptionalTensor& grad_covariances, const OptionalTensor& grad_posed_rest,
                               const OptionalTensor& canonical_means, const OptionalTensor& log_scales,
                               const OptionalTensor& rest) {
-  const TransformGradientInputs inputs{canonical_means, log_scales, rest};
-  check_backward_arguments(joints, weights, transform_rows, covariances, grad_means, grad_covariances, grad_posed_rest,
-                           inputs);
-  return gradient_outputs(backward_tensors(joints, weights, transform_rows, covariances, grad_means, grad_covariances,
-                                           grad_posed_rest, inputs));
+  return gradient_outputs(checked_backward_tensors(joints, weights, transform_rows, covariances, grad_means,
+                                                   grad_covariances, grad_posed_rest, canonical_means, log_scales,
+                                                   rest));
 }
 
 const c10::TypedOperatorHandle<ForwardSignature>& forward_op() {
