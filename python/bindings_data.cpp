@@ -1,12 +1,15 @@
-// The module's metrics and dataset reading: sfgs.psnr, sfgs.ssim (three border conventions), sfgs.lpips and
-// sfgs.read_dataset (docs/python.md). Every function validates in C++ and raises RuntimeError naming what is wrong.
+// The module's metrics and dataset reading: sfgs.psnr, sfgs.ssim (three border conventions), sfgs.lpips,
+// sfgs.evaluate (a frame as `sfgs eval` scores it) and sfgs.read_dataset (docs/python.md). Every function validates in
+// C++ and raises RuntimeError naming what is wrong.
 #include <algorithm>
 #include <cmath>
 #include <map>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <utility>
 
+#include "metrics/evaluation.h"
 #include "metrics/image_metrics.h"
 #include "metrics/lpips.h"
 #include "python_values.h"
@@ -143,6 +146,40 @@ void bind_metrics_and_data(py::module_& m) {
       py::arg("prediction"), py::arg("target"), py::arg("net") = "alex", py::arg("weights_dir") = "",
       "LPIPS of RGB images in [0, 1], (H, W, 3) or (B, H, W, 3); weights from weights_dir (default $SFGS_LPIPS_DIR "
       "or ../shared/lpips). Differentiable.");
+  m.def(
+      "evaluate",
+      [](const py::object& prediction, const py::object& image, const py::object& mask, bool eight_bit, bool lpips,
+         const std::string& weights_dir) {
+        // The render as `sfgs eval` takes it: a shaded render may exceed 1 (the protocol's 8-bit round trip
+        // saturates it); only NaN is refused here. The frame's image must be an image in [0, 1].
+        const at::Tensor p = to_tensor(prediction, "evaluate(prediction)");
+        TORCH_CHECK(!p.defined() || !at::isFloatingType(p.scalar_type()) || !p.isnan().any().item<bool>(),
+                    "evaluate(prediction): the image holds NaN");
+        const at::Tensor t = image_in_unit_range(image, "evaluate(image)");
+        const at::Tensor m = mask.is_none() ? at::Tensor() : to_tensor(mask, "evaluate(mask)");
+        metrics::EvaluationOptions options;
+        options.eight_bit_round_trip = eight_bit;
+        options.composite_on_white = m.defined();
+        std::optional<metrics::ImageEvaluator> evaluator;
+        if (lpips) {
+          evaluator.emplace(options, lpips_network("alex", weights_dir));
+        } else {
+          options.lpips_weights_dir.clear();
+          evaluator.emplace(options);
+        }
+        const metrics::FrameMetrics frame = evaluator->add_frame(p, t, m);
+        py::dict out;
+        out["psnr"] = frame.psnr;
+        out["ssim"] = frame.ssim;
+        out["lpips"] = frame.lpips ? py::object(py::float_(*frame.lpips)) : py::object(py::none());
+        return out;
+      },
+      py::arg("prediction"), py::arg("image"), py::arg("mask") = py::none(), py::kw_only(),
+      py::arg("eight_bit") = false, py::arg("lpips") = true, py::arg("weights_dir") = "",
+      "One frame scored as `sfgs eval` scores it (docs/metrics.md): prediction and image (H, W, 3), composited on "
+      "white outside mask (H, W; None: the whole images), PSNR and SSIM in float64, LPIPS (AlexNet; weights as "
+      "sfgs.lpips finds them, lpips=False: None); eight_bit rounds the prediction through 8 bits first (`sfgs eval "
+      "--eight-bit`). Returns {'psnr', 'ssim', 'lpips'}. Not differentiable.");
   py::class_<PyDataset>(m, "Dataset", "A dataset folder (sfgs synth, NeuMan, X-Humans layouts; docs/dataset_format.md)")
       .def("__len__", &PyDataset::size)
       .def("frame", &PyDataset::frame, py::arg("index"),

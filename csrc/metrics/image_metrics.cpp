@@ -37,11 +37,12 @@ void check_image_pair(const char* metric, const at::Tensor& prediction, const at
   TORCH_CHECK(prediction.scalar_type() == target.scalar_type() && prediction.device() == target.device(), metric,
               ": prediction and target must share dtype and device, got ", describe(prediction), " and ",
               describe(target));
+  const bool channels_first = prediction.size(prediction.dim() - 3) == channels;
   TORCH_CHECK(channels <= 0 || prediction.size(-1) == channels, metric, ": images must have ", channels,
               " channels (last dimension: channels-last (H, W, C) or (B, H, W, C)), got ", describe(prediction),
-              prediction.dim() == 4 && prediction.size(1) == channels
-                  ? "; a (B, C, H, W) batch takes .permute(0, 2, 3, 1)"
-                  : "");
+              !channels_first         ? ""
+              : prediction.dim() == 4 ? "; a (B, C, H, W) batch takes .permute(0, 2, 3, 1)"
+                                      : "; a (C, H, W) image takes .permute(1, 2, 0)");
   // Channels last: a (B, C, H, W) batch would be read as images C rows high with W channels.
   TORCH_CHECK(prediction.size(-1) <= kMaxImageChannels, metric,
               ": images must be channels-last (H, W, C) or (B, H, W, C) with at most ", kMaxImageChannels,

@@ -13,6 +13,7 @@ from ._C import (  # noqa: F401
     Smplx,
     cuda_available,
     demo_scene,
+    evaluate,
     load_avatar,
     lpips,
     psnr,
@@ -23,4 +24,4 @@ from ._C import (  # noqa: F401
 )
 
 __all__ = ["render", "cuda_available", "demo_scene", "load_avatar", "read_motion", "read_dataset", "psnr", "ssim",
-           "lpips", "Avatar", "Dataset", "Smplx", "Mano"]
+           "lpips", "evaluate", "Avatar", "Dataset", "Smplx", "Mano"]

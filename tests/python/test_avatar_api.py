@@ -105,6 +105,31 @@ def test_render_matches_the_evaluation_renders(run):
     assert (png < 0.9).any(), "the body should be in view"
 
 
+def test_python_evaluation_equals_sfgs_eval_per_frame(run):
+    """sfgs.evaluate on Avatar.render's frame gives `sfgs eval`'s per-frame numbers (metrics_test.json)."""
+    with open(os.path.join(run, "metrics_test.json")) as f:
+        per_frame = json.load(f)["per_frame"]
+    avatar = sfgs.load_avatar(run)
+    avatar.set_cached(True)
+    dataset = sfgs.read_dataset(os.path.join(os.path.dirname(run), "data"))
+    (index,) = dataset.split("test")
+    truth = dataset.frame(index)
+    (expected,) = [m for m in per_frame if m["name"] == truth["name"]]
+    with torch.no_grad():
+        image = avatar.render(truth["camera"], truth["pose"])["image"]
+    scored = sfgs.evaluate(image, truth["image"], truth["eval_mask"], lpips=expected.get("lpips") is not None)
+    assert abs(scored["psnr"] - expected["psnr"]) <= 1e-6
+    assert abs(scored["ssim"] - expected["ssim"]) <= 1e-9
+    if expected.get("lpips") is not None:
+        assert abs(scored["lpips"] - expected["lpips"]) <= 1e-7
+    else:
+        assert scored["lpips"] is None
+    # The protocol differs from a plain PSNR of the two images: white outside the person.
+    assert scored["psnr"] != pytest.approx(sfgs.psnr(image.clamp(0, 1), truth["image"]).item(), abs=1e-3)
+    with pytest.raises(RuntimeError, match=r"permute"):
+        sfgs.evaluate(image.permute(2, 0, 1), truth["image"].permute(2, 0, 1), lpips=False)
+
+
 def read_png_rgb(path):
     """8-bit RGB, non-interlaced PNG (what sfgs writes) -> (H, W, 3) float in [0, 1], with the standard library."""
     data = open(path, "rb").read()
