@@ -82,6 +82,7 @@ setup(
     version=project_version(),
     packages=["sfgs"],
     package_dir={"": "python"},
+    package_data={"sfgs": ["_C.pyi", "py.typed"]},
     ext_modules=[CMakeExtension("sfgs._C")],
     cmdclass={"build_ext": CMakeBuild},
     options={"build": {"build_base": SETUPTOOLS_BUILD_DIR}, "egg_info": {"egg_base": SETUPTOOLS_BUILD_DIR}},
