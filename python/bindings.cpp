@@ -1,6 +1,8 @@
 // Python bindings: `import sfgs` exposes the splatting op and trained avatars (load a run, pose it, render it);
 // tensors it returns carry the C++ autograd nodes, so torch.autograd (gradcheck included) works through them.
 #include <algorithm>
+#include <array>
+#include <cmath>
 #include <memory>
 #include <optional>
 #include <string>
@@ -8,6 +10,7 @@
 #include <torch/extension.h>
 
 #include "animate/animator.h"
+#include "animate/camera_placement.h"
 #include "data/dataset.h"
 #include "data/motion_file.h"
 #include "model/sampling_filter.h"
@@ -133,6 +136,12 @@ class TrainedAvatar {
     d["log_scales"] = o.log_scales;
     d["posed_vertices"] = o.posed_vertices;
     return d;
+  }
+
+  std::array<double, 3> centre(const py::object& pose) {
+    const FramePose p = to_pose(pose);
+    const at::NoGradGuard no_grad;
+    return sfgs::animate::centre_of(t_.avatar->forward(p.pose, p.time));
   }
 
   py::dict render(const py::object& camera, const py::object& pose, const py::object& background) {
@@ -287,6 +296,35 @@ class TrainedAvatar {
   std::unique_ptr<sfgs::animate::Animator> animator_;  // CUDA renders without a gradient, made at the first
 };
 
+// A point (x, y, z): three numbers, or a tensor of three.
+std::array<double, 3> to_point(const py::object& object, const std::string& what) {
+  std::array<double, 3> point{};
+  if (THPVariable_Check(object.ptr())) {
+    const at::Tensor t = to_tensor(object, what).detach().to(at::kCPU, at::kDouble).reshape({-1});
+    TORCH_CHECK(t.numel() == 3, what, ": expected a point of 3 values (x, y, z), got ", t.numel());
+    for (int k = 0; k < 3; ++k) point[size_t(k)] = t[k].item<double>();
+  } else {
+    if (!py::isinstance<py::sequence>(object) || py::isinstance<py::str>(object) || py::len(object) != 3)
+      throw py::type_error(what + ": expected a point (x, y, z): three numbers or a tensor of three, got " +
+                           python_type(object));
+    const py::sequence values = object;
+    for (size_t k = 0; k < 3; ++k) point[k] = to_double(values[k], what);
+  }
+  for (const double v : point) TORCH_CHECK(std::isfinite(v), what, " must be finite, got ", v);
+  return point;
+}
+
+// A camera of `width` x `height` pixels, principal point centred, focal length `fx` pixels (None: the framing
+// default, animate::kFramingFocalPerHeight times the height), at the origin.
+sfgs::Camera framing_lens(const py::object& width, const py::object& height, const py::object& fx, const char* what) {
+  const int64_t w = to_int(width, std::string(what) + "(width)"), h = to_int(height, std::string(what) + "(height)");
+  TORCH_CHECK(w > 0 && h > 0, what, ": width and height must be positive, got ", w, " x ", h);
+  const double focal =
+      fx.is_none() ? sfgs::animate::kFramingFocalPerHeight * double(h) : to_double(fx, std::string(what) + "(fx)");
+  TORCH_CHECK(std::isfinite(focal) && focal > 0, what, ": fx must be positive, got ", focal);
+  return sfgs::Camera::looking_forward(focal, w, h);
+}
+
 }  // namespace
 
 PYBIND11_MODULE(_C, m) {
@@ -336,6 +374,10 @@ log_scales, posed_vertices. Differentiable w.r.t. the pose tensors unless torch.
            R"(Render the avatar in `pose` from `camera` (a dict: world_to_camera (4,4), fx, fy, cx, cy, width, height;
 frame(i)["camera"] gives one). Background white unless given (3). Returns image (H,W,3), alpha, depth, radii,
 visible, as render() does.)")
+      .def(
+          "centre", [](TrainedAvatar& a, const py::object& pose) { return a.centre(pose); },
+          py::arg("pose") = py::dict(),
+          "The centre (x, y, z) of the posed body's bounding box: where `sfgs render`'s cameras aim.")
       .def("frame", &TrainedAvatar::frame, py::arg("index"),
            "Training-dataset frame `index`: {'pose': dict, 'camera': dict, 'split': 'train'|'val'|'test'}")
       .def_property_readonly("frame_count", &TrainedAvatar::frame_count)
@@ -352,6 +394,39 @@ when given (> 0). Pass a frame to gaussians() or render().)")
                              [](const TrainedAvatar& a) { return a.trained().avatar->gaussian_count(); })
       .def_property_readonly("config_yaml", [](const TrainedAvatar& a) { return a.trained().config.to_yaml(); })
       .def_property_readonly("dataset_path", [](const TrainedAvatar& a) { return a.trained().dataset; });
+  m.def(
+      "look_at_camera",
+      [](const py::object& eye, const py::object& target, const py::object& width, const py::object& height,
+         const py::object& fx) {
+        return camera_dict(sfgs::animate::look_at_camera(framing_lens(width, height, fx, "look_at_camera"),
+                                                         to_point(eye, "look_at_camera(eye)"),
+                                                         to_point(target, "look_at_camera(target)")));
+      },
+      py::arg("eye"), py::arg("target"), py::arg("width"), py::arg("height"), py::arg("fx") = py::none(),
+      "A camera dict at `eye` looking at `target` (world +Y up, the body model facing +Z; OpenCV axes), width x "
+      "height pixels, principal point centred, focal length fx (default 1.2 x height, about 45 degrees of view).");
+  m.def(
+      "camera_in_front",
+      [](const py::object& target, const py::object& width, const py::object& height, double distance,
+         double height_above, double angle, const py::object& fx) {
+        return camera_dict(sfgs::animate::camera_in_front(framing_lens(width, height, fx, "camera_in_front"),
+                                                          to_point(target, "camera_in_front(target)"), distance,
+                                                          height_above, angle));
+      },
+      py::arg("target"), py::arg("width"), py::arg("height"), py::arg("distance") = sfgs::animate::kFramingDistance,
+      py::arg("height_above") = 0.0, py::arg("angle") = 0.0, py::arg("fx") = py::none(),
+      "`sfgs render`'s cameras: looking at `target` from `distance` m in front of it (+Z, where the body faces), "
+      "`height_above` m above it, turned `angle` radians about the vertical. Follow a body with target = "
+      "Avatar.centre(pose); orbit it by stepping the angle.");
+  m.def(
+      "orbit_camera",
+      [](const py::object& camera, const py::object& centre, double angle) {
+        return camera_dict(
+            sfgs::animate::orbit_camera(camera_from_dict(camera), to_point(centre, "orbit_camera(centre)"), angle));
+      },
+      py::arg("camera"), py::arg("centre"), py::arg("angle"),
+      "`camera` (a dict, e.g. a dataset frame's) moved `angle` radians about the vertical through `centre`, at its "
+      "own distance and height, looking at the centre: `sfgs render`'s default orbit of a training frame.");
   m.def(
       "load_avatar",
       [](const std::string& run, const std::string& device, const std::string& data, bool other_dataset) {

@@ -16,6 +16,7 @@
 #include <ATen/ATen.h>
 #include <nlohmann/json.hpp>
 
+#include "animate/camera_placement.h"
 #include "cli/commands.h"
 #include "common/math_constants.h"
 #include "animate/animator.h"
@@ -293,7 +294,7 @@ struct RenderRequest {
   int64_t frames = 0;  // 0: the whole motion file, or kDefaultRenderFrames of another motion
   bool force = false;
   std::string camera;  // orbit, fixed or follow; empty: the dataset's camera orbiting (library and dataset motions)
-  double distance = kRenderCameraDistance, height = 0, fps = kRenderFramesPerSecond;
+  double distance = animate::kFramingDistance, height = 0, fps = kRenderFramesPerSecond;
   int64_t width = 0, image_height = 0;  // 0: the training dataset's
 };
 
@@ -322,13 +323,13 @@ RenderPace render_frames(train::TrainedAvatar& t, RenderRequest& request, Writte
   const Camera base = train::render_camera(trained_on.frames[0]);
   const int64_t width = request.width > 0 ? request.width : base.width;
   const int64_t height = request.image_height > 0 ? request.image_height : base.height;
-  const Camera lens = Camera::looking_forward(kRenderFocalPerHeight * double(height), width, height);
+  const Camera lens = Camera::looking_forward(animate::kFramingFocalPerHeight * double(height), width, height);
   // The dataset's camera orbits the training frame's body; the other cameras aim at the motion's first frame (orbit,
   // fixed) or follow the body's root as it moves (follow), from the front (+Z, where the body model faces).
   const body::SmplxPose first_pose = source.pose(t.avatar, 0);
   const std::array<double, 3> first = request.camera.empty()
-                                          ? centre_of(train::pose_avatar(t.avatar, trained_on, 0))
-                                          : centre_of(t.avatar->forward(first_pose, source.replay_time(0)));
+                                          ? animate::centre_of(train::pose_avatar(t.avatar, trained_on, 0))
+                                          : animate::centre_of(t.avatar->forward(first_pose, source.replay_time(0)));
   const auto root_of = [](const body::SmplxPose& pose) {
     std::array<double, 3> root{0, 0, 0};
     if (!pose.transl.defined()) return root;
@@ -339,13 +340,14 @@ RenderPace render_frames(train::TrainedAvatar& t, RenderRequest& request, Writte
   const std::array<double, 3> first_root = root_of(first_pose);
   const auto camera_at = [&](int64_t i, const body::SmplxPose& pose) {
     const double angle = kTwoPi * double(i) / double(request.frames);
-    if (request.camera.empty()) return orbit_camera(base, first, angle);
+    if (request.camera.empty()) return animate::orbit_camera(base, first, angle);
     std::array<double, 3> target = first;
     if (request.camera == "follow") {
       const std::array<double, 3> root = root_of(pose);
       for (size_t k = 0; k < 3; ++k) target[k] += root[k] - first_root[k];
     }
-    return camera_in_front(lens, target, request.distance, request.height, request.camera == "orbit" ? angle : 0.0);
+    return animate::camera_in_front(lens, target, request.distance, request.height,
+                                    request.camera == "orbit" ? angle : 0.0);
   };
   VideoWriter video((fs::path(request.out) / "render.mp4").string(), int(width), int(height), request.fps,
                     request.force);
@@ -395,7 +397,7 @@ int run_render(Arguments& args) {
   TORCH_CHECK(
       request.camera.empty() || request.camera == "orbit" || request.camera == "fixed" || request.camera == "follow",
       "render: --camera must be orbit, fixed or follow, got '", request.camera, "'");
-  request.distance = args.real("distance", kRenderCameraDistance, 1e-3, 1e4);
+  request.distance = args.real("distance", animate::kFramingDistance, 1e-3, 1e4);
   request.height = args.real("height", 0.0, -1e4, 1e4);
   request.fps = args.real("fps", kRenderFramesPerSecond, 1.0, 1000.0);
   const std::array<int64_t, 2> size = args.image_size("size");

@@ -8,6 +8,7 @@
 
 #include <ATen/ATen.h>
 
+#include "animate/camera_placement.h"
 #include "cli/commands.h"
 #include "cli/motion_source.h"
 #include "common/atomic_file.h"
@@ -45,7 +46,7 @@ int export_web(Arguments& args, const train::RunFolder& run, const std::string& 
   const int64_t frames = args.has("frames") ? args.integer("frames", kDefaultRenderFrames, 1, 100000) : 0;
   const double fps = args.real("fps", kRenderFramesPerSecond, 1.0, 1000.0);
   const std::array<int64_t, 2> size = args.image_size("size");
-  const double distance = args.real("distance", kRenderCameraDistance, 1e-3, 1e4);
+  const double distance = args.real("distance", animate::kFramingDistance, 1e-3, 1e4);
   const double height = args.real("height", 0.0, -1e4, 1e4);
   const std::string data_folder = args.text("data", "");
   const bool force = args.flag("force");
@@ -65,10 +66,11 @@ int export_web(Arguments& args, const train::RunFolder& run, const std::string& 
   web_motion.pose = [&](int64_t i) { return t.avatar->forward(source.pose(t.avatar, i), std::nullopt); };
   const Camera base = train::render_camera(trained_on.frames[0]);
   const int64_t width = size[0] > 0 ? size[0] : base.width, image_height = size[1] > 0 ? size[1] : base.height;
-  const Camera lens = Camera::looking_forward(kRenderFocalPerHeight * double(image_height), width, image_height);
+  const Camera lens =
+      Camera::looking_forward(animate::kFramingFocalPerHeight * double(image_height), width, image_height);
   train::WebCamera camera;
-  camera.target = centre_of(web_motion.pose(0));
-  camera.camera = camera_in_front(lens, camera.target, distance, height, 0.0);
+  camera.target = animate::centre_of(web_motion.pose(0));
+  camera.camera = animate::camera_in_front(lens, camera.target, distance, height, 0.0);
   const train::WebExportSummary s = train::export_web_viewer(t.avatar, web_motion, camera, folder, force);
   std::printf(
       "sfgs export: %s playing '%s' to %s: %lld Gaussians (skinned by their %lld strongest joints), %lld frames at "

@@ -14,10 +14,7 @@
 
 namespace sfgs::cli {
 
-// The render cameras: distance from the body's centre (m), focal length as a multiple of the image height (about
-// 45 degrees of vertical view); the frame rate of the video, and of library motions sampled for it.
-inline constexpr double kRenderCameraDistance = 2.8;
-inline constexpr double kRenderFocalPerHeight = 1.2;
+// The frame rate of the video, and of library motions sampled for it (the cameras: animate/camera_placement.h).
 inline constexpr double kRenderFramesPerSecond = 24.0;
 // Frames of a library or dataset motion when none are asked for (a motion file plays whole).
 inline constexpr int64_t kDefaultRenderFrames = 48;
@@ -47,18 +44,5 @@ class MotionSource {
   std::optional<data::Dataset> dataset_;
   bool replays_ = false;  // dataset_ is the training dataset
 };
-
-// `lens` (its intrinsics and size) placed at `eye` and looking at `target`, world +Y up (the body model's frame),
-// image x to the world's right (OpenCV axes).
-Camera look_at_camera(const Camera& lens, const std::array<double, 3>& eye, const std::array<double, 3>& target);
-// The camera circling the subject: at the distance and height of `base`'s centre around `centre`, `angle` radians
-// on from base's own position, looking at the centre.
-Camera orbit_camera(const Camera& base, const std::array<double, 3>& centre, double angle);
-// `lens` looking at `target` from `distance` in front of it (+Z, where the body model faces), `height` above it,
-// turned `angle` radians about the vertical: render's fixed, follow and orbit cameras.
-Camera camera_in_front(const Camera& lens, const std::array<double, 3>& target, double distance, double height,
-                       double angle);
-// The centre of the posed body's bounding box (the mean of the Gaussians sits high: hands and face are dense).
-std::array<double, 3> centre_of(const model::AvatarOutput& posed);
 
 }  // namespace sfgs::cli

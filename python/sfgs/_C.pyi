@@ -67,12 +67,29 @@ def evaluate(
 ) -> Dict[str, Optional[float]]:
     """{'psnr', 'ssim', 'lpips'} of one frame as `sfgs eval` scores it."""
 
+def look_at_camera(
+    eye: Sequence[float], target: Sequence[float], width: int, height: int, fx: Optional[float] = None
+) -> CameraDict: ...
+def camera_in_front(
+    target: Sequence[float],
+    width: int,
+    height: int,
+    distance: float = 2.8,
+    height_above: float = 0.0,
+    angle: float = 0.0,
+    fx: Optional[float] = None,
+) -> CameraDict: ...
+def orbit_camera(camera: CameraDict, centre: Sequence[float], angle: float) -> CameraDict: ...
+
 class Avatar:
     def __init__(self, run: str, device: str = "cpu", data: str = "", other_dataset: bool = False) -> None: ...
     def gaussians(self, pose: PoseDict = {}) -> Dict[str, Tensor]: ...
     def render(
         self, camera: CameraDict, pose: PoseDict = {}, background: Optional[TensorLike] = None
     ) -> Dict[str, Tensor]: ...
+    def centre(self, pose: PoseDict = {}) -> List[float]:
+        """(x, y, z) of the posed body's bounding box centre."""
+
     def frame(self, index: int) -> Dict[str, Any]:
         """{'pose': PoseDict, 'camera': CameraDict, 'split': 'train' | 'val' | 'test'}."""
 

@@ -11,11 +11,14 @@ from ._C import (  # noqa: F401
     Dataset,
     Mano,
     Smplx,
+    camera_in_front,
     cuda_available,
     demo_scene,
     evaluate,
     load_avatar,
+    look_at_camera,
     lpips,
+    orbit_camera,
     psnr,
     read_dataset,
     read_motion,
@@ -24,4 +27,5 @@ from ._C import (  # noqa: F401
 )
 
 __all__ = ["render", "cuda_available", "demo_scene", "load_avatar", "read_motion", "read_dataset", "psnr", "ssim",
-           "lpips", "evaluate", "Avatar", "Dataset", "Smplx", "Mano"]
+           "lpips", "evaluate", "look_at_camera", "camera_in_front", "orbit_camera", "Avatar", "Dataset", "Smplx",
+           "Mano"]

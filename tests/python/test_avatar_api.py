@@ -89,6 +89,18 @@ def test_gaussians_have_their_shapes_and_follow_the_pose(run):
     assert body_pose.grad is not None and body_pose.grad.abs().sum() > 0
 
 
+def test_centre_frames_the_posed_body_for_the_camera_helpers(run):
+    avatar = sfgs.load_avatar(run)
+    pose = {"transl": torch.tensor([0.3, 0.0, 0.0])}
+    means = avatar.gaussians(pose)["means"].detach().double()
+    box_centre = (means.min(0).values + means.max(0).values) / 2
+    assert avatar.centre(pose) == pytest.approx(box_centre.tolist(), abs=1e-6)
+    camera = sfgs.camera_in_front(avatar.centre(pose), 40, 32)
+    with torch.no_grad():
+        alpha = avatar.render(camera, pose)["alpha"]
+    assert alpha[16, 20] > 0.5, "the body is in the middle of the image"
+
+
 def test_render_matches_the_evaluation_renders(run):
     """A test frame rendered through Python equals `sfgs eval --save-images`'s PNG up to 8-bit rounding."""
     avatar = sfgs.load_avatar(run)
