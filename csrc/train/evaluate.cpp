@@ -48,15 +48,20 @@ AvatarEvaluation evaluate_avatar(const data::Dataset& dataset, data::Split split
     const size_t end = std::min(frames.size(), first + kFramesRenderedAhead);
     // A chunk's frames are rendered back to back and kept on the device, then compared on the CPU: a render that
     // waited for the previous frame's metrics would start on an idle GPU.
-    std::vector<std::pair<at::Tensor, at::Tensor>> rendered;  // image, alpha
+    struct RenderedFrame {
+      Camera camera;
+      at::Tensor image, alpha;
+    };
+    std::vector<RenderedFrame> rendered;
     for (size_t i = first; i < end; ++i) {
       const data::FrameRecord& record = dataset.frames[size_t(frames[i])];
-      animator.set_camera(render_camera(record));
+      const Camera camera = render_camera(record);
+      animator.set_camera(camera);
       const auto start = std::chrono::steady_clock::now();
       // The Animator returns once the frame is done (it reads the splatting's counts).
       const at::Tensor image = animator.render(record.pose, dataset.replay_time(frames[i]));
       render_ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count());
-      rendered.emplace_back(image.clone(), animator.latest().alpha.clone());
+      rendered.push_back(RenderedFrame{camera, image.clone(), animator.latest().alpha.clone()});
     }
     for (size_t i = first; i < end; ++i) {
       const int64_t f = frames[i];
@@ -65,11 +70,12 @@ AvatarEvaluation evaluate_avatar(const data::Dataset& dataset, data::Split split
       previous_sequence = record.sequence;
       previous_frame = f;
       const data::Frame frame = dataset.load(f);
-      const at::Tensor image = rendered[i - first].first.to(at::kCPU);
+      const RenderedFrame& rendered_frame = rendered[i - first];
+      const at::Tensor image = rendered_frame.image.to(at::kCPU);
       {
         const at::Tensor person = frame.eval_mask >= 0.5;
         person_pixels += person.sum().item<double>();
-        uncovered_pixels += (person & (rendered[i - first].second.to(at::kCPU) < kCoveredAlpha)).sum().item<double>();
+        uncovered_pixels += (person & (rendered_frame.alpha.to(at::kCPU) < kCoveredAlpha)).sum().item<double>();
       }
       frames_of_sequence[record.sequence].push_back(result.frames.size());
       result.frames.push_back(evaluator.add_frame(image, frame.image, frame.eval_mask));
@@ -78,7 +84,7 @@ AvatarEvaluation evaluate_avatar(const data::Dataset& dataset, data::Split split
         const auto [compared_prediction, compared_target] =
             evaluator.compared_images(image, frame.image, frame.eval_mask);
         const std::vector<std::pair<std::string, at::Tensor>> masks =
-            region_masks(*truth, io::read_npy(record.mesh_path), render_camera(record), frame.eval_mask);
+            region_masks(*truth, io::read_npy(record.mesh_path), rendered_frame.camera, frame.eval_mask);
         regions.add(compared_prediction, compared_target, masks);
         unseen_of_sequence[record.sequence].add(labelled_person(masks), region_mask(masks, "unseen"));
       }

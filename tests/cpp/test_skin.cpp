@@ -37,6 +37,19 @@ Scene random_scene(int64_t n, int64_t j, at::ScalarType dtype, uint64_t seed) {
   return s;
 }
 
+// A scalar loss of the op's outputs with random weights: its gradient to each output is that output's weights.
+struct WeightedLoss {
+  at::Tensor means, covariances, posed_rest;
+  WeightedLoss(int64_t n, const at::TensorOptions& options)
+      : means(at::randn({n, 3}, options)),
+        covariances(at::randn({n, 6}, options)),
+        posed_rest(at::randn({n, 3}, options)) {}
+  at::Tensor operator()(const skin::SkinnedGaussians& out) const {
+    at::Tensor loss = (out.means * means).sum() + (out.covariances * covariances).sum();
+    return out.posed_rest.defined() ? loss + (out.posed_rest * posed_rest).sum() : loss;
+  }
+};
+
 TEST(SkinOp, MatchesTheLibTorchReferenceInFloat64AndFloat32) {
   for (const auto dtype : {at::kDouble, at::kFloat}) {
     const Scene s = random_scene(300, 9, dtype, 1);
@@ -54,13 +67,7 @@ TEST(SkinOp, MatchesTheLibTorchReferenceInFloat64AndFloat32) {
 TEST(SkinOp, GradientsMatchTheReferenceAndFiniteDifferences) {
   const Scene s = random_scene(40, 6, at::kDouble, 2);
   const skin::SkinningWeights weights = skin::SkinningWeights::from_dense(s.dense);
-  const at::Tensor grad_means = at::randn({40, 3}, s.means.options());
-  const at::Tensor grad_covariances = at::randn({40, 6}, s.means.options());
-  const at::Tensor grad_posed_rest = at::randn({40, 3}, s.means.options());
-  const auto loss_of = [&](const skin::SkinnedGaussians& out) {
-    at::Tensor loss = (out.means * grad_means).sum() + (out.covariances * grad_covariances).sum();
-    return out.posed_rest.defined() ? loss + (out.posed_rest * grad_posed_rest).sum() : loss;
-  };
+  const WeightedLoss loss_of(40, s.means.options());
   const auto gradients = [&](bool fused) {
     const at::Tensor means = s.means.clone().requires_grad_(true);
     const at::Tensor log_scales = s.log_scales.clone().requires_grad_(true);
@@ -101,13 +108,7 @@ TEST(SkinOp, GradientsMatchTheReferenceAndFiniteDifferences) {
 TEST(SkinOp, TransformGradientsMatchTheReferenceAndFiniteDifferences) {
   const Scene s = random_scene(50, 5, at::kDouble, 3);
   const skin::SkinningWeights weights = skin::SkinningWeights::from_dense(s.dense);
-  const at::Tensor grad_means = at::randn({50, 3}, s.means.options());
-  const at::Tensor grad_covariances = at::randn({50, 6}, s.means.options());
-  const at::Tensor grad_posed_rest = at::randn({50, 3}, s.means.options());
-  const auto loss_of = [&](const skin::SkinnedGaussians& out) {
-    at::Tensor loss = (out.means * grad_means).sum() + (out.covariances * grad_covariances).sum();
-    return out.posed_rest.defined() ? loss + (out.posed_rest * grad_posed_rest).sum() : loss;
-  };
+  const WeightedLoss loss_of(50, s.means.options());
   for (const bool with_rest : {true, false}) {
     const at::Tensor rest = with_rest ? s.rest : at::Tensor();
     const auto gradients = [&](bool fused) {

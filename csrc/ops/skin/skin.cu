@@ -44,11 +44,7 @@ unsigned blocks_for(int64_t count) { return unsigned((count + kThreads - 1) / kT
 
 }  // namespace
 
-int64_t backward_scratch_values(const SkinGradientArrays<float>& arrays) {
-  return arrays.grad_transforms == nullptr ? 0
-                                           : int64_t(blocks_for(arrays.count)) * arrays.joint_count * kTransformValues;
-}
-int64_t backward_scratch_values(const SkinGradientArrays<double>& arrays) {
+template <typename T> int64_t backward_scratch_values(const SkinGradientArrays<T>& arrays) {
   return arrays.grad_transforms == nullptr ? 0
                                            : int64_t(blocks_for(arrays.count)) * arrays.joint_count * kTransformValues;
 }
@@ -80,6 +76,8 @@ template <typename T> void skin_backward(const SkinGradientArrays<T>& arrays, T*
   cuda_launch::check_launch("skinning", "sum_block_rows_kernel");
 }
 
+template int64_t backward_scratch_values<float>(const SkinGradientArrays<float>&);
+template int64_t backward_scratch_values<double>(const SkinGradientArrays<double>&);
 template void skin_forward<float>(const SkinArrays<float>&, cudaStream_t);
 template void skin_forward<double>(const SkinArrays<double>&, cudaStream_t);
 template void skin_backward<float>(const SkinGradientArrays<float>&, float*, cudaStream_t);

@@ -11,19 +11,16 @@ namespace {
 
 constexpr int64_t kGrain = 2048;  // Gaussians per parallel task, and per chunk of the transforms' gradient
 
-template <typename T> void forward_of(const SkinArrays<T>& a) {
-  at::parallel_for(0, a.count, kGrain, [&](int64_t begin, int64_t end) {
-    for (int64_t i = begin; i < end; ++i) skin_one(a, i);
+template <typename Arrays, typename Step> void for_each_gaussian(const Arrays& arrays, Step step) {
+  at::parallel_for(0, arrays.count, kGrain, [&](int64_t begin, int64_t end) {
+    for (int64_t i = begin; i < end; ++i) step(arrays, i);
   });
 }
 
 template <typename T> void backward_of(const SkinGradientArrays<T>& g) {
-  if (g.grad_transforms == nullptr) {
-    at::parallel_for(0, g.count, kGrain, [&](int64_t begin, int64_t end) {
-      for (int64_t i = begin; i < end; ++i) skin_one_backward(g, i, [](int64_t, T) {});
-    });
-    return;
-  }
+  if (g.grad_transforms == nullptr)
+    return for_each_gaussian(
+        g, [](const SkinGradientArrays<T>& a, int64_t i) { skin_one_backward(a, i, [](int64_t, T) {}); });
   const int64_t values = g.joint_count * kTransformValues;
   const int64_t chunks = (g.count + kGrain - 1) / kGrain;
   std::vector<T> chunk_sums(size_t(chunks * values), T(0));
@@ -44,8 +41,8 @@ template <typename T> void backward_of(const SkinGradientArrays<T>& g) {
 
 }  // namespace
 
-void forward(const SkinArrays<float>& a) { forward_of(a); }
-void forward(const SkinArrays<double>& a) { forward_of(a); }
+void forward(const SkinArrays<float>& a) { for_each_gaussian(a, skin_one<float>); }
+void forward(const SkinArrays<double>& a) { for_each_gaussian(a, skin_one<double>); }
 void backward(const SkinGradientArrays<float>& a) { backward_of(a); }
 void backward(const SkinGradientArrays<double>& a) { backward_of(a); }
 

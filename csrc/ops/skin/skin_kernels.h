@@ -11,8 +11,7 @@ namespace sfgs::skin::cuda_kernels {
 
 // Values of scratch memory skin_backward needs (the per-block sums of the transforms' gradient); 0 when it is not
 // wanted.
-int64_t backward_scratch_values(const SkinGradientArrays<float>& arrays);
-int64_t backward_scratch_values(const SkinGradientArrays<double>& arrays);
+template <typename T> int64_t backward_scratch_values(const SkinGradientArrays<T>& arrays);
 
 template <typename T> void skin_forward(const SkinArrays<T>& arrays, cudaStream_t stream);
 // `scratch`: backward_scratch_values(arrays) values of device memory (may be null when that is 0).
