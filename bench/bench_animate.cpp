@@ -298,8 +298,7 @@ void print_tile_runs(sfgs::model::Avatar& avatar, const sfgs::Camera& camera, co
                                         host(g.features),
                                         at::ones({g.features.size(1)})};
   const sfgs::splat::BackendSettings settings{{sfgs::kLowPassVariancePx2, false}, false};
-  const sfgs::splat::cpu::Forward pass =
-      sfgs::splat::cpu::forward(inputs, sfgs::splat::validated_camera(camera), settings);
+  const sfgs::splat::cpu::Forward pass = sfgs::splat::cpu::forward(inputs, camera, settings);
   const int width = int(camera.width), height = int(camera.height);
   const int tiles_x = (width + sfgs::kTileSize - 1) / sfgs::kTileSize;
   const int64_t tiles = pass.context.tile_offsets.size(0) - 1;

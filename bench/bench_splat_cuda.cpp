@@ -228,9 +228,7 @@ Result measure(const Workload& w) {
   const backend::SplatInputs inputs{
       s.gaussians.means.detach(),     s.gaussians.scales.detach(),   s.gaussians.rotations.detach(), at::Tensor(),
       s.gaussians.opacities.detach(), s.gaussians.features.detach(), s.background.detach()};
-  const auto& c = s.camera;
-  const backend::CameraSpec camera{c.world_to_camera, c.fx,          c.fy,         c.cx,       c.cy,
-                                   int(c.width),      int(c.height), c.near_plane, c.far_plane};
+  const sfgs::Camera& camera = s.camera;
   const backend::BackendSettings settings{backend::ProjectionSettings{sfgs::kLowPassVariancePx2, false}, false};
   const backend::OutputGradients grads{s.grad_image, s.grad_alpha, at::Tensor()};
   const auto backend_forward = [&] { return backend::cuda::forward(inputs, camera, settings, nullptr); };

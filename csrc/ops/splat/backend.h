@@ -24,15 +24,8 @@ struct SplatInputs {
   bool uses_covariances() const { return covariances.defined(); }
 };
 
-// Camera in double precision; backends convert to their compute type.
-struct CameraSpec {
-  std::array<double, 16> world_to_camera;  // row-major 4x4
-  double fx, fy, cx, cy;
-  int width, height;
-  double near_plane, far_plane;
-};
-
-template <typename T> PinholeCamera<T> to_pinhole(const CameraSpec& c) {
+// The user's Camera (splat.h, checked by camera_problem) in a backend's compute type.
+template <typename T> PinholeCamera<T> to_pinhole(const Camera& c) {
   PinholeCamera<T> cam;
   for (int row = 0; row < 3; ++row) {
     for (int col = 0; col < 3; ++col) cam.rotation[col][row] = T(c.world_to_camera[row * 4 + col]);
@@ -42,8 +35,8 @@ template <typename T> PinholeCamera<T> to_pinhole(const CameraSpec& c) {
   cam.fy = T(c.fy);
   cam.cx = T(c.cx);
   cam.cy = T(c.cy);
-  cam.width = c.width;
-  cam.height = c.height;
+  cam.width = int(c.width);
+  cam.height = int(c.height);
   cam.near_plane = T(c.near_plane);
   cam.far_plane = T(c.far_plane);
   return cam;
@@ -56,7 +49,7 @@ struct BackendSettings {
 
 // The inputs as the raw arrays of stages.h (the tensors must outlive the scene).
 template <typename T>
-SplatScene<T> make_scene(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings) {
+SplatScene<T> make_scene(const SplatInputs& in, const Camera& camera, const BackendSettings& settings) {
   const auto data = [](const at::Tensor& t) { return t.defined() ? t.data_ptr<T>() : nullptr; };
   return SplatScene<T>{to_pinhole<T>(camera), settings.projection,  data(in.means),          data(in.scales),
                        data(in.rotations),    data(in.covariances), data(in.opacities),      data(in.features),
@@ -96,8 +89,8 @@ struct Forward {
   ForwardOutputs outputs;
   ForwardContext context;
 };
-Forward forward(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings);
-InputGradients backward(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings,
+Forward forward(const SplatInputs& in, const Camera& camera, const BackendSettings& settings);
+InputGradients backward(const SplatInputs& in, const Camera& camera, const BackendSettings& settings,
                         const ForwardContext& context, const OutputGradients& grads);
 }  // namespace cpu
 
@@ -118,10 +111,10 @@ struct Forward {
   ForwardContext context;
 };
 // `budget` (may be null): the buffers sized from it, the true counts written to its tensor, no host read (splat.h).
-Forward forward(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings,
+Forward forward(const SplatInputs& in, const Camera& camera, const BackendSettings& settings,
                 const BinningBudget* budget);
 // image: the forward pass's image output; the backward blend reads what every pixel's composite added up to.
-InputGradients backward(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings,
+InputGradients backward(const SplatInputs& in, const Camera& camera, const BackendSettings& settings,
                         const at::Tensor& image, const ForwardContext& context, const OutputGradients& grads);
 }  // namespace cuda
 

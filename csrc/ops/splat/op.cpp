@@ -51,25 +51,24 @@ constexpr const char* kSchema =
 // The op's arguments, checked (validation.h) and in the backends' types.
 struct Arguments {
   SplatInputs inputs;
-  CameraSpec camera;
+  Camera camera;
   BackendSettings settings;
 };
 
 Arguments checked_arguments(SFGS_OP_PARAMETERS, bool on_backend_device) {
   TORCH_CHECK(world_to_camera.size() == 16,
               "sfgs::render: world_to_camera must have 16 entries (row-major 4 x 4), got ", world_to_camera.size());
-  Camera camera;
-  std::copy(world_to_camera.begin(), world_to_camera.end(), camera.world_to_camera.begin());
-  camera.fx = fx;
-  camera.fy = fy;
-  camera.cx = cx;
-  camera.cy = cy;
-  camera.width = width;
-  camera.height = height;
-  camera.near_plane = near_plane;
-  camera.far_plane = far_plane;
   Arguments a;
-  a.camera = validated_camera(camera);
+  std::copy(world_to_camera.begin(), world_to_camera.end(), a.camera.world_to_camera.begin());
+  a.camera.fx = fx;
+  a.camera.fy = fy;
+  a.camera.cx = cx;
+  a.camera.cy = cy;
+  a.camera.width = width;
+  a.camera.height = height;
+  a.camera.near_plane = near_plane;
+  a.camera.far_plane = far_plane;
+  check_camera(a.camera);
   a.inputs = validated_inputs(SplatInputs{means, scales.value_or(at::Tensor()), rotations.value_or(at::Tensor()),
                                           covariances.value_or(at::Tensor()), opacities, features, background},
                               on_backend_device);
@@ -81,7 +80,7 @@ RenderOutputs as_tuple(const ForwardOutputs& out) { return {out.image, out.alpha
 
 // What the autograd node keeps besides the tensors it saves for backward.
 struct SavedState : torch::CustomClassHolder {
-  CameraSpec camera;
+  Camera camera;
   BackendSettings settings;
   std::variant<cpu::ForwardContext, cuda::ForwardContext> backend;
 

@@ -91,10 +91,9 @@ SplatInputs validated_inputs(const SplatInputs& g, bool on_backend_device) {
   return in;
 }
 
-CameraSpec validated_camera(const Camera& c) {
-  const std::string problem = camera_problem(c);
+void check_camera(const Camera& camera) {
+  const std::string problem = camera_problem(camera);
   TORCH_CHECK(problem.empty(), "sfgs::render: ", problem);
-  return CameraSpec{c.world_to_camera, c.fx, c.fy, c.cx, c.cy, int(c.width), int(c.height), c.near_plane, c.far_plane};
 }
 
 void check_background_finite(const at::Tensor& background) {

@@ -20,8 +20,8 @@ SplatInputs validated_inputs(const SplatInputs& given, bool on_backend_device);
 // The tensors are on a device the backends run on: the CPU, or CUDA in a build with the CUDA backend.
 void check_backend_device(const at::Tensor& means);
 
-// camera_problem() as an error; the CameraSpec the backends take otherwise.
-CameraSpec validated_camera(const Camera& camera);
+// camera_problem() as an error.
+void check_camera(const Camera& camera);
 
 // Value checks that read the data (host tensors only; CUDA folds the opacity check into its forward pass).
 void check_background_finite(const at::Tensor& background);

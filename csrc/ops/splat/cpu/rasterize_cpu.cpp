@@ -14,11 +14,11 @@ template <typename T> TileLists<T> tile_lists(const ForwardContext& c) {
 }
 
 template <typename T>
-Forward forward_typed(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings) {
+Forward forward_typed(const SplatInputs& in, const Camera& camera, const BackendSettings& settings) {
   check_background_finite(in.background);
   check_opacities(in.opacities);
   const SplatScene<T> scene = make_scene<T>(in, camera, settings);
-  const TileGrid grid = make_grid(camera.width, camera.height);
+  const TileGrid grid = make_grid(int(camera.width), int(camera.height));
   Projection projection = project(scene, grid, in.means.options());
   const Binning binning = bin<T>(projection, grid);
 
@@ -37,10 +37,10 @@ Forward forward_typed(const SplatInputs& in, const CameraSpec& camera, const Bac
 }
 
 template <typename T>
-InputGradients backward_typed(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings,
+InputGradients backward_typed(const SplatInputs& in, const Camera& camera, const BackendSettings& settings,
                               const ForwardContext& c, const OutputGradients& grads) {
   const SplatScene<T> scene = make_scene<T>(in, camera, settings);
-  const TileGrid grid = make_grid(camera.width, camera.height);
+  const TileGrid grid = make_grid(int(camera.width), int(camera.height));
   const int64_t h = grid.height, w = grid.width;
   const auto real = in.means.options();
   const auto or_zeros = [&](const at::Tensor& g, at::IntArrayRef sizes) {
@@ -71,12 +71,12 @@ InputGradients backward_typed(const SplatInputs& in, const CameraSpec& camera, c
 
 }  // namespace
 
-Forward forward(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings) {
+Forward forward(const SplatInputs& in, const Camera& camera, const BackendSettings& settings) {
   if (in.means.scalar_type() == at::kDouble) return forward_typed<double>(in, camera, settings);
   return forward_typed<float>(in, camera, settings);
 }
 
-InputGradients backward(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings,
+InputGradients backward(const SplatInputs& in, const Camera& camera, const BackendSettings& settings,
                         const ForwardContext& context, const OutputGradients& grads) {
   if (in.means.scalar_type() == at::kDouble) return backward_typed<double>(in, camera, settings, context, grads);
   return backward_typed<float>(in, camera, settings, context, grads);

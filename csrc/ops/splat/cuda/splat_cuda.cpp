@@ -104,14 +104,14 @@ kernels::BinStats read_bin_stats(const at::Tensor& device_stats, const at::Tenso
 }
 
 template <typename T>
-Forward forward_typed(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings,
+Forward forward_typed(const SplatInputs& in, const Camera& camera, const BackendSettings& settings,
                       const BinningBudget* budget) {
   const c10::cuda::CUDAGuard guard(in.means.device());
   const at::cuda::CUDAStream stream = at::cuda::getCurrentCUDAStream();
   TorchScratch scratch(in.means.device());
   const SplatScene<T> scene = make_scene<T>(in, camera, settings);
   const int64_t n = scene.count, h = camera.height, w = camera.width, channels = scene.channels;
-  const int64_t tiles = tile_count(make_grid(camera.width, camera.height));
+  const int64_t tiles = tile_count(make_grid(int(camera.width), int(camera.height)));
   const auto real = in.means.options();
   const auto i32 = real.dtype(at::kInt);
   const auto i64 = real.dtype(at::kLong);
@@ -167,7 +167,7 @@ Forward forward_typed(const SplatInputs& in, const CameraSpec& camera, const Bac
 }
 
 template <typename T>
-InputGradients backward_typed(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings,
+InputGradients backward_typed(const SplatInputs& in, const Camera& camera, const BackendSettings& settings,
                               const at::Tensor& image, const ForwardContext& c, const OutputGradients& grads) {
   const c10::cuda::CUDAGuard guard(in.means.device());
   const at::cuda::CUDAStream stream = at::cuda::getCurrentCUDAStream();
@@ -219,14 +219,14 @@ InputGradients backward_typed(const SplatInputs& in, const CameraSpec& camera, c
 
 }  // namespace
 
-Forward forward(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings,
+Forward forward(const SplatInputs& in, const Camera& camera, const BackendSettings& settings,
                 const BinningBudget* budget) {
   check_inputs(in);
   if (in.means.scalar_type() == at::kDouble) return forward_typed<double>(in, camera, settings, budget);
   return forward_typed<float>(in, camera, settings, budget);
 }
 
-InputGradients backward(const SplatInputs& in, const CameraSpec& camera, const BackendSettings& settings,
+InputGradients backward(const SplatInputs& in, const Camera& camera, const BackendSettings& settings,
                         const at::Tensor& image, const ForwardContext& context, const OutputGradients& grads) {
   check_inputs(in);
   if (in.means.scalar_type() == at::kDouble) return backward_typed<double>(in, camera, settings, image, context, grads);
