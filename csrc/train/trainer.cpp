@@ -198,7 +198,7 @@ TrainSummary train_round(const data::Dataset& given, const TrainConfig& config, 
   // Everything is validated: only now are the run's files written.
   const std::string config_text = config.to_yaml();
   write_file_atomically(run.config_file(), std::vector<unsigned char>(config_text.begin(), config_text.end()), true);
-  session.keep_start_fits(start ? std::optional(start->bytes) : std::nullopt);
+  session.add_part(make_start_fits_copy(start ? std::optional(start->bytes) : std::nullopt));
   if (plan.checkpoint)
     rewind_log(run, plan.start);
   else

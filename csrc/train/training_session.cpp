@@ -11,12 +11,9 @@
 #include <ATen/ATen.h>
 #include <nlohmann/json.hpp>
 
-#include "common/atomic_file.h"
 #include "common/device_graph.h"
 #include "common/stage_timer.h"
 #include "metrics/image_metrics.h"
-#include "train/avatar_keypoints.h"
-#include "train/training_records.h"
 
 namespace sfgs::train {
 
@@ -65,19 +62,11 @@ TrainingSession::TrainingSession(const data::Dataset& dataset, const TrainConfig
   regularisers_ = std::make_unique<Regularisers>(config.loss, avatar_->part_labels(), avatar_->faces(), device_);
   frames_ = std::make_unique<FrameCache>(dataset, dataset.split(data::Split::kTrain), device_.is_cuda());
   step_ = std::make_unique<TrainingStep>(avatar_, *image_loss_, *regularisers_);
-  if (config.pose_refinement.enabled) {
-    const bool keypoints =
-        config.pose_refinement.keypoint_weight > 0 && dataset.frames_with_keypoints(data::Split::kTrain) > 0;
-    const std::optional<body::WholeBodyKeypointMap> map =
-        keypoints ? std::optional(body_keypoint_map(config.body.smplx)) : std::nullopt;
-    refinement_ = std::make_unique<PoseRefinement>(dataset, config.pose_refinement, config.schedule.iterations, device_,
-                                                   map ? &*map : nullptr);
-  }
+  parts_ = make_training_parts(dataset, config, avatar_->gaussian_count(), device_);
   // A benchmark's stage recorder times stages by synchronising, which a graph cannot hold. Pose refinement's alignment
   // passes run between recorded steps, and a step trains on the fits the last pass left, uploaded like any frame's.
   if (device_.is_cuda() && config.schedule.cuda_graphs && device_graphs_available() && !stage_recorder_installed())
     graphs_ = std::make_unique<StepGraphs>(avatar_, device_);
-  records_ = std::make_unique<TrainingRecords>(avatar_->gaussian_count(), device_);
   summary_.validation_psnr = std::nan("");
   summary_.has_validation_frames = !dataset.split(data::Split::kVal).empty();
 }
@@ -86,26 +75,19 @@ TrainingSession::~TrainingSession() = default;
 
 void TrainingSession::restore(CheckpointReader& checkpoint) {
   checkpoint.load_avatar(avatar_);
-  // The records go back to records_, not to the avatar (train/training_records.h).
+  // The records go back to their part, not to the avatar (train/training_records.h).
   avatar_->set_observation(at::Tensor());
   avatar_->set_sampling_record(at::Tensor());
   checkpoint.load_optimizer(*optimizer_);
-  records_->restore(checkpoint.info());
   // The schedule may have changed on resume: the groups take the config's rates, not the checkpoint's.
   for (size_t g = 0; g < base_rates_.size(); ++g) adam_options(*optimizer_, g).eps(config_.schedule.adam_epsilon);
   std::istringstream(checkpoint.info().rng_state) >> rng_;
   training_seconds_ = checkpoint.info().training_seconds;
   last_checkpoint_ = checkpoint.info().iteration;
-  if (refinement_) {
-    TORCH_CHECK(checkpoint.info().pose_refinement.defined(), "checkpoint '", run_.checkpoint_file(),
-                "' holds no pose refinement state, but the run's config refines poses");
-    refinement_->restore(checkpoint.info().pose_refinement);
-  }
+  for (const auto& part : parts_) part->restore(checkpoint.info(), run_.checkpoint_file());
 }
 
-void TrainingSession::keep_start_fits(std::optional<std::vector<unsigned char>> bytes) {
-  start_fits_ = std::move(bytes);
-}
+void TrainingSession::add_part(std::unique_ptr<TrainingPart> part) { parts_.push_back(std::move(part)); }
 
 void TrainingSession::open_log() {
   log_ = std::make_unique<JsonLinesLog>(run_.log_file());
@@ -126,14 +108,13 @@ void TrainingSession::step(int64_t it) {
   std::uniform_real_distribution<float> colour(0.0f, 1.0f);
   const int64_t f = train_frames[pick(rng_)];
   const data::FrameRecord& record = dataset_.frames[size_t(f)];
-  if (refinement_) {
-    const nlohmann::json aligned = refinement_->align(it, avatar_, config_.loss, config_.schedule.cuda_graphs);
-    if (!aligned.empty()) log_->write(aligned);
+  for (const auto& part : parts_) {
+    const nlohmann::json entry = part->before_step(it, avatar_);
+    if (!entry.empty()) log_->write(entry);
   }
   StepData data;
   data.background = {colour(rng_), colour(rng_), colour(rng_)};
-  // With pose refinement the frame trains on its fit as the last alignment pass left it.
-  data.pose = refinement_ ? refinement_->fit(f) : record.pose;
+  data.pose = record.pose;
   data.camera = render_camera(record);
   // The time branch is a residual that new motions go without: some steps train without it (docs/avatar.md).
   data.time = replay_clock_.time_of(record);
@@ -144,6 +125,7 @@ void TrainingSession::step(int64_t it) {
     const StageScope stage("train: frame (kept or decoded)");
     data.frame = frames_->get(f);
   }
+  for (const auto& part : parts_) part->prepare_step(f, data);
 
   StepOutputs outputs;
   if (graphs_) {
@@ -164,7 +146,7 @@ void TrainingSession::step(int64_t it) {
     const StageScope stage("train: optimizer");
     adam_->step(outputs.skip_update);
   }
-  records_->add(outputs);
+  for (const auto& part : parts_) part->after_step(outputs);
   LossTerms& terms = outputs.terms;
   // A copy: a recorded step rewrites its outputs at every replay.
   if (terms.count("lpips"))
@@ -287,10 +269,7 @@ void TrainingSession::validate(int64_t done) {
   nlohmann::json entry{{"event", "validation"}, {"iteration", done}, {"training_seconds", training_seconds_}};
   if (!std::isnan(val)) entry["val_psnr"] = val;
   if (!std::isnan(test)) entry["test_psnr"] = test;
-  if (refinement_) {
-    const nlohmann::json error = refinement_->error_against_truth();
-    if (!error.empty()) entry["pose_error"] = error;
-  }
+  for (const auto& part : parts_) part->describe_validation(entry);
   log_->write(entry);
 }
 
@@ -305,15 +284,10 @@ void TrainingSession::checkpoint(int64_t done) {
   info.dataset = absolute_dataset_path(dataset_);
   info.dataset_fingerprint = dataset_.fingerprint();
   info.betas = dataset_.betas.to(at::kFloat).cpu();
-  records_->save(info);
-  if (refinement_) info.pose_refinement = refinement_->state();
+  for (const auto& part : parts_) part->save(info);
   try {
     save_checkpoint(run_.checkpoint_file(), info, avatar_, *optimizer_);
-    if (refinement_) refinement_->write_fits(run_.refined_fits_file());
-    if (start_fits_)
-      write_file_atomically(run_.start_fits_file(), *start_fits_, true);
-    else
-      std::remove(run_.start_fits_file().c_str());
+    for (const auto& part : parts_) part->write_beside_checkpoint(run_);
   } catch (const std::runtime_error& e) {
     if (first_non_finite_tensor(*avatar_).empty()) throw;
     stop_diverged(

@@ -1,6 +1,8 @@
 #pragma once
 // The state of one training call (internal to the trainer): the avatar and its optimiser, the losses, the frame
-// sampler, the log and the watch for divergence, and the step, validation and checkpoint that act on them.
+// sampler, the log and the watch for divergence, and the step, validation and checkpoint that act on them. What else a
+// run does around its steps (pose refinement, the training records, the start-fits copy) plugs in as TrainingParts
+// (train/training_parts.h).
 #include <memory>
 #include <optional>
 #include <random>
@@ -13,15 +15,13 @@
 #include "train/checkpoint.h"
 #include "train/frame_cache.h"
 #include "train/loss_watch.h"
-#include "train/pose_refinement.h"
 #include "train/progress.h"
 #include "train/step_graphs.h"
+#include "train/training_parts.h"
 #include "train/training_step.h"
 #include "train/trainer.h"
 
 namespace sfgs::train {
-
-class TrainingRecords;
 
 // Adam with the colour networks in their own parameter group (their own learning rate): the optimiser a run's
 // checkpoint holds the state of.
@@ -38,9 +38,8 @@ class TrainingSession {
   // must be open (open_log) first.
   TrainSummary run(int64_t start, int64_t end);
   void open_log();
-  // The bytes of the start-fits file the run trains from (none: the dataset's own fits), written beside every
-  // checkpoint (RunFolder::start_fits_file; removed there when none) so that the copy always belongs to it.
-  void keep_start_fits(std::optional<std::vector<unsigned char>> bytes);
+  // Plugs in a part after those the config asks for (make_training_parts); before restore() and run().
+  void add_part(std::unique_ptr<TrainingPart> part);
 
  private:
   void step(int64_t iteration);
@@ -69,15 +68,13 @@ class TrainingSession {
   std::unique_ptr<Regularisers> regularisers_;
   std::unique_ptr<FrameCache> frames_;
   std::unique_ptr<TrainingStep> step_;
-  std::unique_ptr<StepGraphs> graphs_;  // null: steps run eagerly (CPU, pose refinement, schedule.cuda_graphs off)
-  std::unique_ptr<PoseRefinement> refinement_;  // null unless config.pose_refinement.enabled
+  std::unique_ptr<StepGraphs> graphs_;  // null: steps run eagerly (CPU, stage timing, schedule.cuda_graphs off)
+  std::vector<std::unique_ptr<TrainingPart>> parts_;
   std::unique_ptr<JsonLinesLog> log_;
   std::unique_ptr<ProgressBar> bar_;
   LossWatch watch_;
   std::mt19937_64 rng_;
   double training_seconds_ = 0;
-  std::unique_ptr<TrainingRecords> records_;  // the observation and sampling records
-  std::optional<std::vector<unsigned char>> start_fits_;
   int64_t last_checkpoint_ = -1;  // iteration of the newest good checkpoint, -1 for none
   TrainSummary summary_;
 };
