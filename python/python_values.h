@@ -60,12 +60,41 @@ inline py::dict camera_dict(const sfgs::Camera& c) {
   return d;
 }
 
+// A render's result as the Python API returns it.
+inline py::dict result_dict(const sfgs::RenderResult& r) {
+  py::dict out;
+  out["image"] = r.image;
+  out["alpha"] = r.alpha;
+  out["depth"] = r.depth;
+  out["radii"] = r.radii;
+  out["visible"] = r.visible;
+  return out;
+}
+
+// Renders of a batch as one result, each output stacked along a new first dimension.
+inline sfgs::RenderResult stacked(const std::vector<sfgs::RenderResult>& frames) {
+  const auto all = [&](at::Tensor sfgs::RenderResult::*member) {
+    std::vector<at::Tensor> tensors;
+    for (const sfgs::RenderResult& r : frames) tensors.push_back(r.*member);
+    return at::stack(tensors);
+  };
+  sfgs::RenderResult r;
+  r.image = all(&sfgs::RenderResult::image);
+  r.alpha = all(&sfgs::RenderResult::alpha);
+  r.depth = all(&sfgs::RenderResult::depth);
+  r.radii = all(&sfgs::RenderResult::radii);
+  r.visible = all(&sfgs::RenderResult::visible);
+  return r;
+}
+
 // Dataset frame `index` without its images: {'pose': dict (with 'time', None for a frame without replay time),
 // 'camera': dict, 'split': 'train'|'val'|'test' (absent when in none), 'name'}. bindings_data.cpp.
 py::dict frame_record_dict(const sfgs::data::Dataset& dataset, int64_t index);
 
 // The metrics (psnr, ssim, lpips) and dataset reading (read_dataset), bindings_data.cpp.
 void bind_metrics_and_data(py::module_& m);
+// Trained avatars (Avatar, load_avatar) and motion files (read_motion), bindings_avatar.cpp.
+void bind_avatar(py::module_& m);
 // The SMPL-X and MANO layers (Smplx, Mano), bindings_body.cpp.
 void bind_body_layers(py::module_& m);
 

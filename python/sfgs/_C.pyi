@@ -1,7 +1,7 @@
 """Type stubs of the compiled module sfgs._C (python/bindings*.cpp), re-exported by `import sfgs`; docs/python.md is
 the reference. tests/python/test_stubs.py checks that every public name and every parameter name here matches the
 module."""
-from typing import Any, Dict, List, Optional, Sequence, Union
+from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
 
 import torch
 
@@ -26,10 +26,10 @@ def render(
     features: TensorLike,
     background: TensorLike,
     world_to_camera: TensorLike,
-    fx: float,
-    fy: float,
-    cx: float,
-    cy: float,
+    fx: Union[float, Tensor],
+    fy: Union[float, Tensor],
+    cx: Union[float, Tensor],
+    cy: Union[float, Tensor],
     width: int,
     height: int,
     *,
@@ -85,8 +85,24 @@ class Avatar:
     def __init__(self, run: str, device: str = "cpu", data: str = "", other_dataset: bool = False) -> None: ...
     def gaussians(self, pose: PoseDict = {}) -> Dict[str, Tensor]: ...
     def render(
-        self, camera: CameraDict, pose: PoseDict = {}, background: Optional[TensorLike] = None
+        self,
+        camera: Union[CameraDict, List[CameraDict]],
+        pose: Union[PoseDict, List[PoseDict]] = {},
+        background: Optional[TensorLike] = None,
     ) -> Dict[str, Tensor]: ...
+    def training_loss(
+        self,
+        camera: CameraDict,
+        pose: PoseDict,
+        image: TensorLike,
+        *,
+        mask: Optional[TensorLike] = None,
+        background: Optional[TensorLike] = None,
+        lpips: bool = True,
+    ) -> Dict[str, Tensor]: ...
+    def named_tensors(self, parameters: bool) -> List[Tuple[str, Tensor]]: ...
+    def set_training(self, training: bool) -> None: ...
+    def move_to(self, device: str) -> None: ...
     def centre(self, pose: PoseDict = {}) -> List[float]:
         """(x, y, z) of the posed body's bounding box centre."""
 
@@ -107,6 +123,16 @@ class Avatar:
     def config_yaml(self) -> str: ...
     @property
     def dataset_path(self) -> str: ...
+    @property
+    def training(self) -> bool: ...
+    @property
+    def device(self) -> str: ...
+    @property
+    def run(self) -> str: ...
+    @property
+    def data(self) -> str: ...
+    @property
+    def other_dataset(self) -> bool: ...
 
 class Dataset:
     def __len__(self) -> int: ...

@@ -7,7 +7,6 @@ from ._C import (  # noqa: F401
     MIN_ALPHA,
     MIN_TRANSMITTANCE,
     TILE_SIZE,
-    Avatar,
     Dataset,
     Mano,
     Smplx,
@@ -15,7 +14,6 @@ from ._C import (  # noqa: F401
     cuda_available,
     demo_scene,
     evaluate,
-    load_avatar,
     look_at_camera,
     lpips,
     orbit_camera,
@@ -25,6 +23,7 @@ from ._C import (  # noqa: F401
     render,
     ssim,
 )
+from .avatar import Avatar, load_avatar  # noqa: F401
 
 __all__ = ["render", "cuda_available", "demo_scene", "load_avatar", "read_motion", "read_dataset", "psnr", "ssim",
            "lpips", "evaluate", "look_at_camera", "camera_in_front", "orbit_camera", "Avatar", "Dataset", "Smplx",

@@ -1,10 +1,10 @@
 """The avatar API of `import sfgs`: load a run trained by the sfgs executable, pose it, render it.
 
-Trains a tiny avatar with the `sfgs` executable named by SFGS_EXECUTABLE (CTest sets it); skipped without it."""
+The tiny run of conftest.py, trained by the `sfgs` executable named by SFGS_EXECUTABLE (CTest sets it); skipped
+without it."""
 import json
 import os
 import struct
-import subprocess
 import zlib
 
 import pytest
@@ -14,26 +14,6 @@ import sfgs
 
 SFGS = os.environ.get("SFGS_EXECUTABLE", "")
 pytestmark = pytest.mark.skipif(not os.path.isfile(SFGS), reason="SFGS_EXECUTABLE does not name the sfgs executable")
-
-TINY_CONFIG = """
-run: {seed: 3, log_every: 1, validate_every: 2, checkpoint_every: 4}
-avatar: {subdivision_levels: 0, plane_channels: 4, plane_resolution: 16, time_resolution: 4,
-         face_plane_resolution: 16, hidden_width: 16}
-loss: {use_lpips: false}
-schedule: {iterations: 4, warmup_iterations: 1}
-"""
-
-
-@pytest.fixture(scope="module")
-def run(tmp_path_factory):
-    root = tmp_path_factory.mktemp("avatar_api")
-    (root / "tiny.yaml").write_text(TINY_CONFIG)
-    data, out = str(root / "data"), str(root / "run")
-    subprocess.run([SFGS, "synth", "--out", data, "--frames", "10", "--width", "40", "--height", "32"], check=True)
-    subprocess.run([SFGS, "train", "--data", data, "--out", out, "--config", str(root / "tiny.yaml"), "--quiet"],
-                   check=True)
-    subprocess.run([SFGS, "eval", "--run", out, "--data", data, "--save-images"], check=True)
-    return out
 
 
 def test_loads_the_run_and_its_dataset(run):

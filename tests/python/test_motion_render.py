@@ -8,7 +8,8 @@ import subprocess
 import numpy as np
 import pytest
 
-from test_avatar_api import TINY_CONFIG, read_png_rgb
+from conftest import TINY_CONFIG
+from test_avatar_api import read_png_rgb
 
 SFGS = os.environ.get("SFGS_EXECUTABLE", "")
 pytestmark = [pytest.mark.cli,

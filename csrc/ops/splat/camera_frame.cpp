@@ -108,4 +108,87 @@ Camera with_centred_principal_point(Camera camera) {
   return camera;
 }
 
+namespace {
+
+void check_shapes(const CameraTensors& c) {
+  const at::Tensor& m = c.world_to_camera;
+  TORCH_CHECK(m.defined() && m.dim() == 2 && m.size(0) == 4 && m.size(1) == 4 && at::isFloatingType(m.scalar_type()),
+              "camera: world_to_camera must be a floating (4, 4) tensor, got ", describe(m));
+  const at::Tensor& k = c.intrinsics;
+  TORCH_CHECK(k.defined() && k.dim() == 1 && k.size(0) == 4 && at::isFloatingType(k.scalar_type()),
+              "camera: intrinsics must be a floating (4) tensor (fx, fy, cx, cy), got ", describe(k));
+}
+
+}  // namespace
+
+Camera CameraTensors::value() const {
+  check_shapes(*this);
+  const at::Tensor k = intrinsics.detach().to(at::kCPU, at::kDouble).contiguous();
+  const double* v = k.data_ptr<double>();
+  return Camera::from_tensor(world_to_camera.detach(), v[0], v[1], v[2], v[3], width, height, near_plane, far_plane);
+}
+
+namespace {
+
+// (N, 3, 3) rotation matrices of quaternions (N, 4: w, x, y, z), normalised here.
+at::Tensor rotation_matrices(const at::Tensor& quaternions) {
+  const at::Tensor q = quaternions / quaternions.norm(2, 1, true);
+  const at::Tensor w = q.select(1, 0), x = q.select(1, 1), y = q.select(1, 2), z = q.select(1, 3);
+  return at::stack({1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),  //
+                    2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),  //
+                    2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)},
+                   1)
+      .view({-1, 3, 3});
+}
+
+// Packed covariances (N, 6) as (N, 3, 3) matrices and back.
+at::Tensor unpacked(const at::Tensor& packed) {
+  const at::Tensor index = at::tensor({0, 1, 2, 1, 3, 4, 2, 4, 5}, packed.options().dtype(at::kLong));
+  return packed.index_select(1, index).view({-1, 3, 3});
+}
+at::Tensor packed(const at::Tensor& matrices) {
+  const at::Tensor index = at::tensor({0, 1, 2, 4, 5, 8}, matrices.options().dtype(at::kLong));
+  return matrices.reshape({-1, 9}).index_select(1, index);
+}
+
+}  // namespace
+
+Gaussians seen_from(const Gaussians& gaussians, const CameraTensors& camera) {
+  check_shapes(camera);
+  const at::Tensor& means = gaussians.means;
+  TORCH_CHECK(means.defined() && means.dim() == 2 && means.size(1) == 3, "seen_from: means must be (N, 3), got ",
+              describe(means));
+  const int64_t n = means.size(0);
+  const at::Tensor& given = gaussians.covariances;
+  TORCH_CHECK(given.defined() ? given.sizes() == at::IntArrayRef({n, 6})
+                              : gaussians.scales.defined() && gaussians.rotations.defined() &&
+                                    gaussians.scales.sizes() == at::IntArrayRef({n, 3}) &&
+                                    gaussians.rotations.sizes() == at::IntArrayRef({n, 4}),
+              "seen_from: covariances (N, 6), or scales (N, 3) with rotations (N, 4), must be given for the ", n,
+              " means; got covariances ", describe(given), ", scales ", describe(gaussians.scales), ", rotations ",
+              describe(gaussians.rotations));
+  const at::TensorOptions options = gaussians.means.options();
+  const at::Tensor placement = camera.world_to_camera.to(options);
+  const at::Tensor k = camera.intrinsics.to(options), k0 = k.detach();
+  // A: the intrinsics' values to the tensors', identity in value.
+  const at::Tensor zero = at::zeros({}, options), one = at::ones({}, options);
+  const at::Tensor a = at::stack({k[0] / k0[0], zero, (k[2] - k0[2]) / k0[0],  //
+                                  zero, k[1] / k0[1], (k[3] - k0[3]) / k0[1],  //
+                                  zero, zero, one})
+                           .view({3, 3});
+  const at::Tensor map = a.matmul(placement.slice(0, 0, 3).slice(1, 0, 3));
+  const at::Tensor shift = a.matmul(placement.slice(0, 0, 3).select(1, 3));
+  at::Tensor covariances = gaussians.covariances;
+  if (!covariances.defined()) {
+    const at::Tensor r = rotation_matrices(gaussians.rotations);
+    covariances = packed((r * gaussians.scales.square().unsqueeze(1)).matmul(r.transpose(1, 2)));
+  }
+  Gaussians moved;
+  moved.means = at::addmm(shift.unsqueeze(0), gaussians.means, map.t());
+  moved.covariances = packed(map.matmul(unpacked(covariances)).matmul(map.t()));
+  moved.opacities = gaussians.opacities;
+  moved.features = gaussians.features;
+  return moved;
+}
+
 }  // namespace sfgs

@@ -62,4 +62,27 @@ Camera camera_at_origin_of(Camera camera);
 // the device, as above). world_to_camera is no longer a rotation: for points and covariances, not view directions.
 Camera with_centred_principal_point(Camera camera);
 
+// A camera whose placement and intrinsics may carry a gradient. The op takes its camera as numbers; a caller that
+// wants the image's gradient with respect to the camera moves the Gaussians instead (seen_from) and renders them with
+// the camera's value at the origin.
+struct CameraTensors {
+  at::Tensor world_to_camera;  // (4, 4), its last row (0, 0, 0, 1)
+  at::Tensor intrinsics;       // (4): fx, fy, cx, cy in pixels
+  int64_t width = 0, height = 0;
+  double near_plane = kDefaultNearPlane;
+  double far_plane = kDefaultFarPlane;
+
+  bool requires_grad() const { return world_to_camera.requires_grad() || intrinsics.requires_grad(); }
+  // Its value (a host read of 20 numbers), checked by the op when rendered.
+  Camera value() const;
+};
+
+// Gaussians moved so that camera_at_origin_of(camera.value()) renders the image `camera` gives them, differentiable
+// with respect to the Gaussians and both of the camera's tensors: points x -> A (R x + t) and covariances S ->
+// (A R) S (A R)^T, where A = [[fx / fx0, 0, (cx - cx0) / fx0], [0, fy / fy0, (cy - cy0) / fy0], [0, 0, 1]] takes the
+// intrinsics' values (fx0, ...) to the tensors' (the identity in value: a camera-space x scaled by fx / fx0 projects
+// as fx would, and a shear by the depth moves the principal point). Scales and rotations are turned into
+// covariances first; the result has means, covariances, opacities and features.
+Gaussians seen_from(const Gaussians& gaussians, const CameraTensors& camera);
+
 }  // namespace sfgs
