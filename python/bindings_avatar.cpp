@@ -2,6 +2,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <filesystem>
 #include <memory>
 #include <optional>
 #include <string>
@@ -15,8 +16,11 @@
 #include "data/dataset.h"
 #include "data/motion_file.h"
 #include "model/sampling_filter.h"
+#include "common/atomic_file.h"
+#include "train/checkpoint.h"
 #include "train/losses.h"
 #include "train/run_folder.h"
+#include "train/trainer.h"
 #include "camera_arguments.h"
 #include "python_values.h"
 
@@ -268,6 +272,26 @@ class TrainedAvatar {
   const std::string& data() const { return data_; }
   bool other_dataset() const { return other_dataset_; }
 
+  // The avatar as a run folder that sfgs eval, render and export and load_avatar take: the run's config, records and
+  // fits files with this avatar's parameters. The optimiser's state starts afresh (a resumed training restarts Adam's
+  // moments); the checkpoint is written atomically.
+  void save(const std::string& folder, bool overwrite) {
+    namespace fs = std::filesystem;
+    const sfgs::train::RunFolder source{run_}, out{folder};
+    TORCH_CHECK(overwrite || !fs::exists(out.checkpoint_file()), "Avatar.save: '", out.checkpoint_file(),
+                "' exists; pass overwrite=True to replace it");
+    fs::create_directories(folder);
+    const sfgs::train::CheckpointInfo info = sfgs::train::CheckpointReader(source.checkpoint_file()).info();
+    const std::string config = t_.config.to_yaml();
+    sfgs::write_file_atomically(out.config_file(), std::vector<unsigned char>(config.begin(), config.end()), true);
+    const std::unique_ptr<torch::optim::Adam> optimizer = sfgs::train::make_optimizer(t_.avatar, t_.config.schedule);
+    sfgs::train::save_checkpoint(out.checkpoint_file(), info, t_.avatar, *optimizer);
+    const bool same = fs::equivalent(source.path, out.path);
+    for (const auto& [from, to] :
+         {std::pair(t_.refined_fits, out.refined_fits_file()), std::pair(t_.start_fits, out.start_fits_file())})
+      if (!from.empty() && !same) sfgs::write_file_atomically(to, sfgs::train::file_bytes(from), true);
+  }
+
   void set_cached(bool cached) {
     if (cached)
       t_.avatar->cache_static_features();
@@ -421,6 +445,9 @@ Returns the weighted terms (l1, ssim, lpips, lab, gradient, image, the regularis
            R"(An AMASS .npz or ExAvatar motion folder (docs/motions.md) as this avatar takes it: {'frames': [pose dict,
 ...], 'fps', 'format', 'note', 'absolute_hands'}; hand poses converted to the avatar's convention; resampled to `fps`
 when given (> 0). Pass a frame to gaussians() or render().)")
+      .def("save", &TrainedAvatar::save, py::arg("folder"), py::kw_only(), py::arg("overwrite") = false,
+           R"(Write the avatar as a run folder (config.yaml, checkpoint.pt, the run's fits files) that load_avatar and
+sfgs eval, render and export take: this avatar's parameters with the run's config and training records.)")
       .def("set_cached", &TrainedAvatar::set_cached, py::arg("cached"),
            "Cache the pose-independent features for fast inference (True) or drop the cache (False)")
       .def_property_readonly("iteration", [](const TrainedAvatar& a) { return a.trained().iteration; })

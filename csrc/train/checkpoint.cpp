@@ -12,6 +12,20 @@
 #include "model/sampling_filter.h"
 
 namespace sfgs::train {
+
+std::unique_ptr<torch::optim::Adam> make_optimizer(const model::Avatar& avatar, const Schedule& schedule) {
+  std::vector<at::Tensor> colour, other;
+  for (const auto& p : avatar->named_parameters())
+    (p.key().find("colour") != std::string::npos ? colour : other).push_back(p.value());
+  std::vector<torch::optim::OptimizerParamGroup> groups;
+  const auto options = [&](double rate) {
+    return std::make_unique<torch::optim::AdamOptions>(torch::optim::AdamOptions(rate).eps(schedule.adam_epsilon));
+  };
+  groups.emplace_back(other, options(schedule.learning_rate));
+  if (!colour.empty()) groups.emplace_back(colour, options(schedule.colour_learning_rate));
+  return std::make_unique<torch::optim::Adam>(groups, *options(schedule.learning_rate));
+}
+
 namespace {
 
 constexpr const char* kFormatName = "sfgs-checkpoint";

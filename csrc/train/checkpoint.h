@@ -3,10 +3,12 @@
 // and which dataset it was trained on. Written atomically and only when every parameter is finite; read back with a
 // checksum per avatar tensor (and one over the optimiser state), so a damaged file is refused by name instead of
 // evaluating to wrong numbers. Version 1 files (no checksums, relative dataset paths) still load.
+#include <memory>
 #include <string>
 
 #include <ATen/core/Tensor.h>
 #include <nlohmann/json.hpp>
+#include <torch/optim/adam.h>
 #include <torch/optim/optimizer.h>
 #include <torch/serialize/input-archive.h>
 
@@ -14,6 +16,10 @@
 #include "train/train_config.h"
 
 namespace sfgs::train {
+
+// Adam with the colour networks in their own parameter group (their own learning rate): the optimiser a run's
+// checkpoint holds the state of.
+std::unique_ptr<torch::optim::Adam> make_optimizer(const model::Avatar& avatar, const Schedule& schedule);
 
 struct CheckpointInfo {
   int64_t version = 0;              // of the file format

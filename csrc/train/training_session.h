@@ -23,10 +23,6 @@
 
 namespace sfgs::train {
 
-// Adam with the colour networks in their own parameter group (their own learning rate): the optimiser a run's
-// checkpoint holds the state of.
-std::unique_ptr<torch::optim::Adam> make_optimizer(const model::Avatar& avatar, const Schedule& schedule);
-
 class TrainingSession {
  public:
   TrainingSession(const data::Dataset& dataset, const TrainConfig& config, const RunFolder& run,

@@ -104,6 +104,11 @@ class Avatar(torch.nn.Module):
     def motion(self, path: str, fps: float = 0.0) -> Dict[str, Any]:
         return self._avatar.motion(path, fps)
 
+    def save(self, folder: str, *, overwrite: bool = False) -> None:
+        """Write this avatar as a run folder that ``load_avatar`` and ``sfgs eval``, ``render`` and ``export`` take
+        (the run's config, training records and fits files with these parameters; Adam's moments start afresh)."""
+        self._avatar.save(folder, overwrite=overwrite)
+
     def set_cached(self, cached: bool) -> None:
         self._avatar.set_cached(cached)
 

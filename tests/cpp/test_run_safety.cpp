@@ -23,7 +23,6 @@
 #include "train/loss_watch.h"
 #include "train/rounds.h"
 #include "train/trainer.h"
-#include "train/training_session.h"
 
 namespace sfgs::testing {
 namespace {

@@ -14,9 +14,9 @@
 
 #include "test_avatar_utils.h"
 #include "test_trainer_utils.h"
+#include "train/checkpoint.h"
 #include "train/adam_step.h"
 #include "train/step_graphs.h"
-#include "train/training_session.h"
 #include "train/training_step.h"
 #include "train/rounds.h"
 

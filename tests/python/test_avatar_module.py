@@ -128,3 +128,33 @@ def test_renders_differentiate_the_camera_and_optimise_a_pose(run):
         optimiser.step()
         errors.append(error.item())
     assert errors[-1] < errors[0]
+
+
+def test_a_fine_tuned_avatar_saves_as_a_run_that_sfgs_eval_scores(run, tmp_path):
+    import json
+    import os
+    import subprocess
+
+    avatar = sfgs.load_avatar(run)
+    with torch.no_grad():
+        for p in avatar.parameters():
+            p.mul_(0.9)
+    folder = str(tmp_path / "tuned")
+    avatar.save(folder)
+    with pytest.raises(RuntimeError, match="exists; pass overwrite=True"):
+        avatar.save(folder)
+    avatar.save(folder, overwrite=True)
+    reloaded = sfgs.load_avatar(folder)
+    for (name, value), (_, saved) in zip(avatar.state_dict().items(), reloaded.state_dict().items()):
+        assert torch.equal(value, saved), name
+    frame = avatar.frame(9)
+    with torch.no_grad():
+        image = avatar.render(frame["camera"], frame["pose"])["image"]
+    sfgs_executable = os.environ["SFGS_EXECUTABLE"]
+    subprocess.run([sfgs_executable, "eval", "--run", folder, "--split", "test"], check=True,
+                   capture_output=True)
+    with open(os.path.join(folder, "metrics_test.json")) as f:
+        reported = json.load(f)["per_frame"][0]["psnr"]
+    data = sfgs.read_dataset(avatar.dataset_path).frame(9)
+    expected = sfgs.evaluate(image, data["image"], data["eval_mask"], lpips=False)["psnr"]
+    assert reported == pytest.approx(expected, abs=1e-6)
