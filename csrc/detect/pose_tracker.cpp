@@ -1,0 +1,176 @@
+#include "detect/pose_tracker.h"
+
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
+#include <ATen/ATen.h>
+
+#include "common/math_constants.h"
+#include "common/tensor_description.h"
+#include "detect/models.h"
+
+namespace sfgs::detect {
+namespace {
+
+// The detector (pose_detection.tflite): a 224 x 224 input in [-1, 1]; per anchor a box (cx, cy, w, h) and four
+// keypoints, in input pixels relative to the anchor, and a score logit.
+constexpr int64_t kDetectorSize = 224;
+constexpr int64_t kDetectorKeypoints = 4;
+constexpr double kScoreClip = 100;         // logits are clipped to +-this before the sigmoid
+constexpr double kSuppressionIoU = 0.3;    // detections overlapping the best by more are merged into it
+// SSD anchors: strides of the feature maps, and anchors per cell of each (layers of one stride are merged: two per
+// layer, three layers of stride 32).
+constexpr int64_t kAnchorStrides[] = {8, 16, 32};
+constexpr int64_t kAnchorsPerCell[] = {2, 2, 6};
+// The landmark network: 256 x 256 in [0, 1]; 39 landmarks of 5 values (33 of the body, 2 that place the next
+// frame's region, 4 unused); heatmaps of 64 x 64 refine them.
+constexpr int64_t kLandmarkSize = 256;
+constexpr int64_t kLandmarks = 39, kBodyLandmarks = 33, kLandmarkValues = 5;
+constexpr int64_t kHeatmapSize = 64, kHeatmapWindow = 7;
+constexpr double kMinHeatmapConfidence = 0.5;  // a landmark is refined where its window's peak reaches this
+// The body's region: from the hips' centre to the point that gives its scale, upright, 1.25 times as large.
+constexpr int kCentreKeypoint = 0, kScaleKeypoint = 1;
+constexpr int kNextCentreLandmark = 33, kNextScaleLandmark = 34;
+constexpr double kRegionAngle = kPi / 2, kRegionScale = 1.25;
+
+const char* landmark_file(PoseModel model) {
+  switch (model) {
+    case PoseModel::kLite: return "pose_landmark_lite.tflite";
+    case PoseModel::kFull: return "pose_landmark_full.tflite";
+    case PoseModel::kHeavy: return "pose_landmark_heavy.tflite";
+  }
+  return "pose_landmark_full.tflite";
+}
+
+at::Tensor detector_anchors() {
+  std::vector<float> centres;
+  for (size_t layer = 0; layer < 3; ++layer) {
+    const int64_t cells = kDetectorSize / kAnchorStrides[layer];
+    for (int64_t row = 0; row < cells; ++row)
+      for (int64_t col = 0; col < cells; ++col)
+        for (int64_t k = 0; k < kAnchorsPerCell[layer]; ++k) {
+          centres.push_back(float((double(col) + 0.5) / double(cells)));
+          centres.push_back(float((double(row) + 0.5) / double(cells)));
+        }
+  }
+  return at::tensor(centres).view({-1, 2});
+}
+
+double iou(const float* a, const float* b) {
+  const double w = std::min(a[0] + a[2] / 2, b[0] + b[2] / 2) - std::max(a[0] - a[2] / 2, b[0] - b[2] / 2);
+  const double h = std::min(a[1] + a[3] / 2, b[1] + b[3] / 2) - std::max(a[1] - a[3] / 2, b[1] - b[3] / 2);
+  if (w <= 0 || h <= 0) return 0;
+  const double overlap = w * h;
+  return overlap / (double(a[2]) * a[3] + double(b[2]) * b[3] - overlap);
+}
+
+}  // namespace
+
+PoseTracker::PoseTracker(at::Device device, PoseOptions options)
+    : options_(options),
+      detector_(TfliteNetwork::load(mediapipe_model("pose_detection.tflite"), device)),
+      landmarker_(TfliteNetwork::load(mediapipe_model(landmark_file(options.model)), device)),
+      anchors_(detector_anchors()) {}
+
+std::optional<Region> PoseTracker::detect(const at::Tensor& image) const {
+  const Region frame = letterbox(image.size(1), image.size(0));
+  const std::vector<at::Tensor> out =
+      detector_.run({crop(image, frame, kDetectorSize, -1.0, 1.0, Border::kZero)});
+  // Decoded on the host: a few thousand candidates, of which a handful pass the score.
+  const at::Tensor raw = out[0].view({-1, 4 + 2 * kDetectorKeypoints}).cpu();
+  const at::Tensor scores = at::sigmoid(out[1].view({-1}).cpu().clamp(-kScoreClip, kScoreClip));
+  const at::Tensor kept = at::nonzero(scores >= options_.min_detection_score).view({-1});
+  if (kept.numel() == 0) return std::nullopt;
+  // Boxes and keypoints in the letterbox's unit square: (cx, cy, w, h, kx0, ky0, ...).
+  const at::Tensor anchors = anchors_.index_select(0, kept);
+  at::Tensor decoded = raw.index_select(0, kept) / double(kDetectorSize);
+  const at::Tensor offsets = at::cat({anchors, at::zeros({kept.size(0), 2}), anchors.repeat({1, kDetectorKeypoints})},
+                                     1);
+  decoded = (decoded + offsets).contiguous();
+  const at::Tensor order = std::get<1>(scores.index_select(0, kept).sort(0, true));
+  // Weighted suppression: the best detection's cluster (IoU above the threshold), averaged by score.
+  const auto* d = decoded.data_ptr<float>();
+  const auto* s = scores.index_select(0, kept).contiguous().data_ptr<float>();
+  const int64_t best = order[0].item<int64_t>(), width = decoded.size(1);
+  std::vector<double> mean(size_t(width), 0.0);
+  double total = 0;
+  for (int64_t k = 0; k < decoded.size(0); ++k) {
+    if (iou(d + best * width, d + k * width) <= kSuppressionIoU && k != best) continue;
+    for (int64_t v = 0; v < width; ++v) mean[size_t(v)] += double(s[k]) * d[k * width + v];
+    total += s[k];
+  }
+  for (double& v : mean) v /= total;
+  const auto keypoint = [&](int k) { return frame.to_image(mean[size_t(4 + 2 * k)], mean[size_t(5 + 2 * k)]); };
+  const auto a = keypoint(kCentreKeypoint), b = keypoint(kScaleKeypoint);
+  return alignment_region(a[0], a[1], b[0], b[1], kRegionAngle).scaled(kRegionScale, true);
+}
+
+PoseFrame PoseTracker::landmarks_in(const at::Tensor& image, const Region& region) const {
+  const std::vector<at::Tensor> out =
+      landmarker_.run({crop(image, region, kLandmarkSize, 0.0, 1.0, Border::kReplicate)});
+  PoseFrame frame;
+  frame.region = region;
+  frame.score = out[1].item<double>();
+  if (!(frame.score > options_.min_tracking_score)) return frame;
+  at::Tensor values = out[0].view({kLandmarks, kLandmarkValues}).cpu().clone();
+  at::Tensor unit = values.slice(1, 0, 2) / double(kLandmarkSize);
+  // Heatmap refinement: the score-weighted mean of the 7 x 7 heatmap cells around each landmark, where they are sure.
+  const at::Tensor heat = at::sigmoid(out[3].view({kHeatmapSize, kHeatmapSize, kLandmarks})).cpu().contiguous();
+  const auto* h = heat.data_ptr<float>();
+  auto* u = unit.data_ptr<float>();
+  for (int64_t l = 0; l < kLandmarks; ++l) {
+    const int64_t col = int64_t(u[2 * l] * kHeatmapSize), row = int64_t(u[2 * l + 1] * kHeatmapSize);
+    const int64_t reach = (kHeatmapWindow - 1) / 2;
+    double sum = 0, x = 0, y = 0, peak = 0;
+    for (int64_t r = std::max<int64_t>(0, row - reach); r < std::min(kHeatmapSize, row + reach + 1); ++r)
+      for (int64_t c = std::max<int64_t>(0, col - reach); c < std::min(kHeatmapSize, col + reach + 1); ++c) {
+        const double w = h[(r * kHeatmapSize + c) * kLandmarks + l];
+        sum += w;
+        x += w * double(c);
+        y += w * double(r);
+        peak = std::max(peak, w);
+      }
+    if (peak >= kMinHeatmapConfidence && sum > 0) {
+      u[2 * l] = float(x / sum / kHeatmapSize);
+      u[2 * l + 1] = float(y / sum / kHeatmapSize);
+    }
+  }
+  const at::Tensor pixels = points_to_image(unit.to(at::kDouble), region).to(at::kFloat);
+  const at::Tensor depth = values.slice(1, 2, 3) / double(kLandmarkSize) * region.width;
+  const at::Tensor probabilities = at::sigmoid(values.slice(1, 3, 5));
+  const at::Tensor all = at::cat({pixels, depth, probabilities}, 1);
+  frame.found = true;
+  frame.landmarks = all.slice(0, 0, kBodyLandmarks).contiguous();
+  const auto next = [&](int64_t l) { return std::array<double, 2>{all[l][0].item<double>(), all[l][1].item<double>()}; };
+  const auto a = next(kNextCentreLandmark), b = next(kNextScaleLandmark);
+  frame.mask = map_to_image(at::sigmoid(out[2].view({kLandmarkSize, kLandmarkSize})), region, image.size(0),
+                            image.size(1));
+  // Where the next frame looks: the detector's rule on this frame's two auxiliary landmarks.
+  frame.next_region = alignment_region(a[0], a[1], b[0], b[1], kRegionAngle).scaled(kRegionScale, true);
+  return frame;
+}
+
+PoseFrame PoseTracker::track(const at::Tensor& image) {
+  TORCH_CHECK(image.dim() == 3 && image.size(2) == 3 && image.scalar_type() == at::kFloat &&
+                  image.device() == detector_.device(),
+              "PoseTracker: a float32 (H, W, 3) image in [0, 1] on ", detector_.device(), " expected, got ",
+              describe(image));
+  if (!followed_) followed_ = detect(image);
+  if (!followed_) return PoseFrame{};
+  PoseFrame frame = landmarks_in(image, *followed_);
+  if (!frame.found) {
+    // Lost: detect again in this frame.
+    followed_ = detect(image);
+    if (!followed_) return frame;
+    frame = landmarks_in(image, *followed_);
+    if (!frame.found) {
+      followed_.reset();
+      return frame;
+    }
+  }
+  followed_ = frame.next_region;
+  return frame;
+}
+
+}  // namespace sfgs::detect

@@ -1,0 +1,57 @@
+#pragma once
+// The body part of MediaPipe Holistic run with LibTorch (docs/prepare.md): a person detector on the letterboxed
+// frame, then the pose landmark network on a region that follows the person from frame to frame; 33 body landmarks
+// and a person mask per frame. Same pre- and post-processing as MediaPipe's pose graph (anchors, weighted
+// suppression, alignment regions, heatmap refinement); the landmarks are not smoothed over time.
+#include <optional>
+#include <string>
+
+#include <ATen/core/Tensor.h>
+
+#include "detect/region.h"
+#include "detect/tflite_network.h"
+
+namespace sfgs::detect {
+
+// MediaPipe's pose landmark models: model complexity 0, 1, 2.
+enum class PoseModel { kLite, kFull, kHeavy };
+
+struct PoseOptions {
+  PoseModel model = PoseModel::kFull;
+  double min_detection_score = 0.5;  // a detection below this is no person
+  double min_tracking_score = 0.5;   // a landmark pass whose pose flag is not above this loses the person
+};
+
+struct PoseFrame {
+  bool found = false;
+  at::Tensor landmarks;  // (33, 5) on the CPU: x, y (image pixels), z (pixels, relative to the hips), visibility,
+                         // presence (probabilities)
+  at::Tensor mask;       // (H, W) person probability, on the image's device
+  Region region;         // what the landmark network saw
+  Region next_region;    // where it looks in the next frame (from this frame's auxiliary landmarks)
+  double score = 0;      // the pose flag of the landmark pass
+};
+
+class PoseTracker {
+ public:
+  // Models from mediapipe_models_dir() (detect/models.h), on `device`.
+  PoseTracker(at::Device device, PoseOptions options = {});
+  // The next frame of a video (or a lone image): (H, W, 3) float32 in [0, 1] on the tracker's device. Detects the
+  // person when no region is followed; otherwise follows the region the last frame's landmarks gave.
+  PoseFrame track(const at::Tensor& image);
+  // Forgets the followed region: the next frame detects again (a cut, or a new video).
+  void reset() { followed_.reset(); }
+
+  // The first detection in the image (its region for the landmark network), if any: exposed for tests.
+  std::optional<Region> detect(const at::Tensor& image) const;
+
+ private:
+  PoseFrame landmarks_in(const at::Tensor& image, const Region& region) const;
+
+  PoseOptions options_;
+  TfliteNetwork detector_, landmarker_;
+  at::Tensor anchors_;  // (2254, 2) anchor centres in the detector's unit square
+  std::optional<Region> followed_;
+};
+
+}  // namespace sfgs::detect
