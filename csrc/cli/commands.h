@@ -6,6 +6,7 @@ namespace sfgs::cli {
 
 int run_synth(Arguments& args);
 int run_fit(Arguments& args);
+int run_prepare(Arguments& args);
 int run_train(Arguments& args);
 int run_eval(Arguments& args);
 int run_render(Arguments& args);

@@ -41,6 +41,11 @@ commands:
            --iterations G,B,D[,S] (80,600,1200,200)  --focal PX (the dataset's, else max(W, H))  --betas-from-data
            --start-from-data (DIR/smplx_optimized as the start)  --no-masks  --truth DIR (DIR/ground_truth)
            --log-every N (25)  --force  --quiet
+  prepare  a dataset from a video of one person (or a folder of its frames; docs/prepare.md): tracks the person
+           (MediaPipe's pose networks run in sfgs), writes frames, masks, whole-body keypoints and a camera in the
+           NeuMan layout, then fits SMPL-X (sfgs fit): VIDEO|DIR --out DATASET  --device cpu|cuda  --focal PX
+           (max(W, H))  --model lite|full|heavy (full)  --frames N (all)  --body SMPLX.npz  --no-fit
+           --truth DIR (exact fits to measure the fit against)  --force  --quiet
   train    train an avatar: --data DATASET --out RUN  --config FILE  --iterations N  --device cpu|cuda
            --stop-at N (pause there, resumable)  --force  --quiet
            --start-fits RUN|FILE: the training frames start from an earlier run's refined fits (a second round
@@ -111,6 +116,7 @@ int main(int argc, char** argv) {
       {"demo", {sfgs::cli::run_demo, {"force"}}},
       {"synth", {sfgs::cli::run_synth, {"force"}}},
       {"fit", {sfgs::cli::run_fit, {"betas-from-data", "start-from-data", "no-masks", "force", "quiet"}}},
+      {"prepare", {sfgs::cli::run_prepare, {"no-fit", "force", "quiet"}}},
       {"train", {sfgs::cli::run_train, {"resume", "force", "quiet"}}},
       {"eval",
        {sfgs::cli::run_eval,
@@ -139,7 +145,10 @@ int main(int argc, char** argv) {
     return 2;
   }
   try {
-    sfgs::cli::Arguments args(std::vector<std::string>(argv + 2, argv + argc), it->second.second);
+    std::vector<std::string> given(argv + 2, argv + argc);
+    // `sfgs prepare VIDEO ...`: the input may come first, without its option name.
+    if (command == "prepare" && !given.empty() && given[0].rfind("--", 0) != 0) given[0] = "--input=" + given[0];
+    sfgs::cli::Arguments args(given, it->second.second);
     return it->second.first(args);
   } catch (const c10::Error& e) {
     std::cerr << "sfgs " << command << ": " << e.what_without_backtrace() << "\n";

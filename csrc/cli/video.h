@@ -1,8 +1,11 @@
 #pragma once
-// MP4 output through OpenCV when the build has it; without OpenCV (or without its MP4 encoder) the writer reports
-// itself unavailable and the frames stay as PNGs. The file is encoded into a temporary and moved into place only
-// once its structure is complete, so a full disk is an error, never a truncated render.mp4.
+// Video files read and written through OpenCV when the build has it. MP4 output: without OpenCV (or without its MP4
+// encoder) the writer reports itself unavailable and the frames stay as PNGs. The file is encoded into a temporary and
+// moved into place only once its structure is complete, so a full disk is an error, never a truncated render.mp4.
+#include <cstdint>
+#include <functional>
 #include <memory>
+#include <optional>
 #include <string>
 
 #include <ATen/core/Tensor.h>
@@ -24,5 +27,9 @@ class VideoWriter {
   struct State;
   std::unique_ptr<State> state_;
 };
+
+// The frames of a video file in order, each (H, W, 3) float32 in [0, 1] on the CPU, none at the end. Throws naming
+// the file when it cannot be opened, and in a build without OpenCV (give a folder of frames instead).
+std::function<std::optional<at::Tensor>()> read_video(const std::string& path);
 
 }  // namespace sfgs::cli

@@ -10,6 +10,7 @@
 #include <stdexcept>
 
 #include <ATen/ATen.h>
+#include <opencv2/imgproc.hpp>
 #include <opencv2/videoio.hpp>
 
 #include "cli/video.h"
@@ -114,6 +115,19 @@ bool VideoWriter::close() {
   }
   commit_file(state_->temporary, state_->path);
   return true;
+}
+
+std::function<std::optional<at::Tensor>()> read_video(const std::string& path) {
+  auto capture = std::make_shared<cv::VideoCapture>(path);
+  TORCH_CHECK(capture->isOpened(), "cannot read video '", path, "' (missing, or a format OpenCV cannot decode)");
+  return [capture, path]() -> std::optional<at::Tensor> {
+    cv::Mat bgr;
+    if (!capture->read(bgr) || bgr.empty()) return std::nullopt;
+    TORCH_CHECK(bgr.type() == CV_8UC3, "video '", path, "': expected 8-bit colour frames");
+    cv::Mat rgb;
+    cv::cvtColor(bgr, rgb, cv::COLOR_BGR2RGB);
+    return at::from_blob(rgb.data, {rgb.rows, rgb.cols, 3}, at::kByte).to(at::kFloat).div_(kEightBitMax);
+  };
 }
 
 }  // namespace sfgs::cli

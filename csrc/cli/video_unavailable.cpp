@@ -1,5 +1,6 @@
 // Stands in for video_opencv.cpp in builds without OpenCV.
 #include <ATen/core/Tensor.h>
+#include <c10/util/Exception.h>
 
 #include "cli/video.h"
 
@@ -12,5 +13,10 @@ VideoWriter::~VideoWriter() = default;
 bool VideoWriter::available() const { return false; }
 void VideoWriter::add(const at::Tensor&) {}
 bool VideoWriter::close() { return false; }
+
+std::function<std::optional<at::Tensor>()> read_video(const std::string& path) {
+  TORCH_CHECK(false, "cannot read video '", path,
+              "': this build of sfgs has no OpenCV (libopencv-dev); give a folder of its frames (.png, .jpg)");
+}
 
 }  // namespace sfgs::cli

@@ -17,8 +17,8 @@ namespace {
 // keypoints, in input pixels relative to the anchor, and a score logit.
 constexpr int64_t kDetectorSize = 224;
 constexpr int64_t kDetectorKeypoints = 4;
-constexpr double kScoreClip = 100;         // logits are clipped to +-this before the sigmoid
-constexpr double kSuppressionIoU = 0.3;    // detections overlapping the best by more are merged into it
+constexpr double kScoreClip = 100;       // logits are clipped to +-this before the sigmoid
+constexpr double kSuppressionIoU = 0.3;  // detections overlapping the best by more are merged into it
 // SSD anchors: strides of the feature maps, and anchors per cell of each (layers of one stride are merged: two per
 // layer, three layers of stride 32).
 constexpr int64_t kAnchorStrides[] = {8, 16, 32};
@@ -36,9 +36,12 @@ constexpr double kRegionAngle = kPi / 2, kRegionScale = 1.25;
 
 const char* landmark_file(PoseModel model) {
   switch (model) {
-    case PoseModel::kLite: return "pose_landmark_lite.tflite";
-    case PoseModel::kFull: return "pose_landmark_full.tflite";
-    case PoseModel::kHeavy: return "pose_landmark_heavy.tflite";
+    case PoseModel::kLite:
+      return "pose_landmark_lite.tflite";
+    case PoseModel::kFull:
+      return "pose_landmark_full.tflite";
+    case PoseModel::kHeavy:
+      return "pose_landmark_heavy.tflite";
   }
   return "pose_landmark_full.tflite";
 }
@@ -75,8 +78,7 @@ PoseTracker::PoseTracker(at::Device device, PoseOptions options)
 
 std::optional<Region> PoseTracker::detect(const at::Tensor& image) const {
   const Region frame = letterbox(image.size(1), image.size(0));
-  const std::vector<at::Tensor> out =
-      detector_.run({crop(image, frame, kDetectorSize, -1.0, 1.0, Border::kZero)});
+  const std::vector<at::Tensor> out = detector_.run({crop(image, frame, kDetectorSize, -1.0, 1.0, Border::kZero)});
   // Decoded on the host: a few thousand candidates, of which a handful pass the score.
   const at::Tensor raw = out[0].view({-1, 4 + 2 * kDetectorKeypoints}).cpu();
   const at::Tensor scores = at::sigmoid(out[1].view({-1}).cpu().clamp(-kScoreClip, kScoreClip));
@@ -85,8 +87,8 @@ std::optional<Region> PoseTracker::detect(const at::Tensor& image) const {
   // Boxes and keypoints in the letterbox's unit square: (cx, cy, w, h, kx0, ky0, ...).
   const at::Tensor anchors = anchors_.index_select(0, kept);
   at::Tensor decoded = raw.index_select(0, kept) / double(kDetectorSize);
-  const at::Tensor offsets = at::cat({anchors, at::zeros({kept.size(0), 2}), anchors.repeat({1, kDetectorKeypoints})},
-                                     1);
+  const at::Tensor offsets =
+      at::cat({anchors, at::zeros({kept.size(0), 2}), anchors.repeat({1, kDetectorKeypoints})}, 1);
   decoded = (decoded + offsets).contiguous();
   const at::Tensor order = std::get<1>(scores.index_select(0, kept).sort(0, true));
   // Weighted suppression: the best detection's cluster (IoU above the threshold), averaged by score.
@@ -142,10 +144,12 @@ PoseFrame PoseTracker::landmarks_in(const at::Tensor& image, const Region& regio
   const at::Tensor all = at::cat({pixels, depth, probabilities}, 1);
   frame.found = true;
   frame.landmarks = all.slice(0, 0, kBodyLandmarks).contiguous();
-  const auto next = [&](int64_t l) { return std::array<double, 2>{all[l][0].item<double>(), all[l][1].item<double>()}; };
+  const auto next = [&](int64_t l) {
+    return std::array<double, 2>{all[l][0].item<double>(), all[l][1].item<double>()};
+  };
   const auto a = next(kNextCentreLandmark), b = next(kNextScaleLandmark);
-  frame.mask = map_to_image(at::sigmoid(out[2].view({kLandmarkSize, kLandmarkSize})), region, image.size(0),
-                            image.size(1));
+  frame.mask =
+      map_to_image(at::sigmoid(out[2].view({kLandmarkSize, kLandmarkSize})), region, image.size(0), image.size(1));
   // Where the next frame looks: the detector's rule on this frame's two auxiliary landmarks.
   frame.next_region = alignment_region(a[0], a[1], b[0], b[1], kRegionAngle).scaled(kRegionScale, true);
   return frame;

@@ -63,9 +63,9 @@ at::Tensor crop(const at::Tensor& image, const Region& region, int64_t size, dou
   const at::Tensor grid =
       grid_coordinates(points_to_image(unit, region), image.size(1), image.size(0)).view({1, size, size, 2});
   const at::Tensor nchw = image.permute({2, 0, 1}).unsqueeze(0);
-  const at::Tensor sampled = at::grid_sampler(nchw, grid, /*bilinear*/ 0,
-                                              border == Border::kZero ? /*zeros*/ 0 : /*border*/ 1,
-                                              /*align_corners*/ false);
+  const at::Tensor sampled =
+      at::grid_sampler(nchw, grid, /*bilinear*/ 0, border == Border::kZero ? /*zeros*/ 0 : /*border*/ 1,
+                       /*align_corners*/ false);
   return sampled.permute({0, 2, 3, 1}).contiguous() * (high - low) + low;
 }
 
@@ -80,8 +80,7 @@ at::Tensor map_to_image(const at::Tensor& map, const Region& region, int64_t hei
   const at::TensorOptions options = map.options();
   const std::vector<at::Tensor> yx =
       at::meshgrid({at::arange(height, options) + 0.5, at::arange(width, options) + 0.5}, "ij");
-  const at::Tensor points = at::stack({yx[1], yx[0]}, 2).view({-1, 2}) -
-                            at::tensor({region.cx, region.cy}, options);
+  const at::Tensor points = at::stack({yx[1], yx[0]}, 2).view({-1, 2}) - at::tensor({region.cx, region.cy}, options);
   const double c = std::cos(region.rotation), s = std::sin(region.rotation);
   // Into the region's axes (the inverse rotation), then its unit square.
   const at::Tensor turn = at::tensor({c, -s, s, c}, options).view({2, 2});

@@ -9,9 +9,9 @@
 namespace sfgs::detect {
 
 struct Region {
-  double cx = 0, cy = 0;     // centre, pixels (pixel centres at +0.5)
+  double cx = 0, cy = 0;  // centre, pixels (pixel centres at +0.5)
   double width = 0, height = 0;
-  double rotation = 0;       // radians; the region's x axis is the image's turned by this (y down: clockwise)
+  double rotation = 0;  // radians; the region's x axis is the image's turned by this (y down: clockwise)
 
   // The image point of a point given in the region's unit square ((0, 0) top left, (1, 1) bottom right).
   std::array<double, 2> to_image(double u, double v) const;

@@ -157,12 +157,18 @@ TfliteOptions options_of(int32_t code, const Node* o) {
 
 at::ScalarType scalar_type_of(int8_t type, const std::string& source, const std::string& tensor) {
   switch (type) {
-    case 0: return at::kFloat;
-    case 1: return at::kHalf;
-    case 2: return at::kInt;
-    case 3: return at::kByte;
-    case 4: return at::kLong;
-    case 9: return at::kChar;
+    case 0:
+      return at::kFloat;
+    case 1:
+      return at::kHalf;
+    case 2:
+      return at::kInt;
+    case 3:
+      return at::kByte;
+    case 4:
+      return at::kLong;
+    case 9:
+      return at::kChar;
     default:
       TORCH_CHECK(false, "'", source, "': tensor '", tensor, "' has TensorFlow Lite type ", int(type),
                   ", which sfgs does not read");
@@ -176,10 +182,17 @@ std::vector<int64_t> index_vector(const Node& dimension, int type_field, int val
   std::vector<int64_t> out;
   const auto append = [&](const auto& values) { out.assign(values.begin(), values.end()); };
   switch (type) {
-    case kInt32Vector: append(v.values<int32_t>(field::kIndexVectorValues)); break;
-    case kUint16Vector: append(v.values<uint16_t>(field::kIndexVectorValues)); break;
-    case kUint8Vector: append(v.values<uint8_t>(field::kIndexVectorValues)); break;
-    default: v.check(false, "a sparse index vector of a known type");
+    case kInt32Vector:
+      append(v.values<int32_t>(field::kIndexVectorValues));
+      break;
+    case kUint16Vector:
+      append(v.values<uint16_t>(field::kIndexVectorValues));
+      break;
+    case kUint8Vector:
+      append(v.values<uint8_t>(field::kIndexVectorValues));
+      break;
+    default:
+      v.check(false, "a sparse index vector of a known type");
   }
   return out;
 }
@@ -205,10 +218,10 @@ at::Tensor densified(const at::Tensor& values, const std::vector<int64_t>& shape
   TORCH_CHECK(readable, "'", source, "': tensor '", name,
               "' is sparse in a layout sfgs does not read (it reads dense outer dimensions and a CSR innermost one)");
   const int64_t columns = shape.back();
-  const std::vector<int64_t> segments = index_vector(dimensions.back(), field::kDimensionSegmentsType,
-                                                     field::kDimensionSegments);
-  const std::vector<int64_t> indices = index_vector(dimensions.back(), field::kDimensionIndicesType,
-                                                    field::kDimensionIndices);
+  const std::vector<int64_t> segments =
+      index_vector(dimensions.back(), field::kDimensionSegmentsType, field::kDimensionSegments);
+  const std::vector<int64_t> indices =
+      index_vector(dimensions.back(), field::kDimensionIndicesType, field::kDimensionIndices);
   TORCH_CHECK(int64_t(segments.size()) == rows + 1 && int64_t(indices.size()) == values.numel() &&
                   segments.back() == values.numel(),
               "'", source, "': sparse tensor '", name, "' has inconsistent segments and indices");
@@ -216,8 +229,8 @@ at::Tensor densified(const at::Tensor& values, const std::vector<int64_t>& shape
   std::vector<int64_t> flat;
   for (int64_t r = 0; r < rows; ++r)
     for (int64_t k = segments[size_t(r)]; k < segments[size_t(r) + 1]; ++k) {
-      TORCH_CHECK(k >= 0 && k < int64_t(indices.size()) && indices[size_t(k)] >= 0 && indices[size_t(k)] < columns,
-                  "'", source, "': sparse tensor '", name, "' has an index outside its shape");
+      TORCH_CHECK(k >= 0 && k < int64_t(indices.size()) && indices[size_t(k)] >= 0 && indices[size_t(k)] < columns, "'",
+                  source, "': sparse tensor '", name, "' has an index outside its shape");
       flat.push_back(r * columns + indices[size_t(k)]);
     }
   dense.index_put_({at::tensor(flat, at::kLong)}, values.reshape({-1}));
@@ -227,12 +240,25 @@ at::Tensor densified(const at::Tensor& values, const std::vector<int64_t>& shape
 }  // namespace
 
 std::string tflite_op_name(int32_t code) {
-  static const std::map<int32_t, const char*> names = {
-      {0, "ADD"},         {2, "CONCATENATION"}, {3, "CONV_2D"},           {4, "DEPTHWISE_CONV_2D"},
-      {5, "DEPTH_TO_SPACE"}, {6, "DEQUANTIZE"}, {9, "FULLY_CONNECTED"},   {14, "LOGISTIC"},
-      {17, "MAX_POOL_2D"}, {18, "MUL"},         {19, "RELU"},             {22, "RESHAPE"},
-      {23, "RESIZE_BILINEAR"}, {32, "CUSTOM"},  {34, "PAD"},              {40, "MEAN"},
-      {45, "STRIDED_SLICE"}, {54, "PRELU"},     {124, "DENSIFY"}};
+  static const std::map<int32_t, const char*> names = {{0, "ADD"},
+                                                       {2, "CONCATENATION"},
+                                                       {3, "CONV_2D"},
+                                                       {4, "DEPTHWISE_CONV_2D"},
+                                                       {5, "DEPTH_TO_SPACE"},
+                                                       {6, "DEQUANTIZE"},
+                                                       {9, "FULLY_CONNECTED"},
+                                                       {14, "LOGISTIC"},
+                                                       {17, "MAX_POOL_2D"},
+                                                       {18, "MUL"},
+                                                       {19, "RELU"},
+                                                       {22, "RESHAPE"},
+                                                       {23, "RESIZE_BILINEAR"},
+                                                       {32, "CUSTOM"},
+                                                       {34, "PAD"},
+                                                       {40, "MEAN"},
+                                                       {45, "STRIDED_SLICE"},
+                                                       {54, "PRELU"},
+                                                       {124, "DENSIFY"}};
   const auto it = names.find(code);
   return it != names.end() ? it->second : "builtin " + std::to_string(code);
 }

@@ -47,12 +47,12 @@ struct TfliteOptions {
   int32_t filter_w = 1, filter_h = 1;  // pooling
   int32_t depth_multiplier = 1;
   TfliteActivation activation = TfliteActivation::kNone;
-  int32_t axis = 0;           // concatenation
-  int32_t block_size = 1;     // depth to space
+  int32_t axis = 0;            // concatenation
+  int32_t block_size = 1;      // depth to space
   bool align_corners = false;  // resize bilinear
   bool half_pixel_centers = false;
-  bool keep_dims = false;      // mean
-  bool keep_num_dims = false;  // fully connected
+  bool keep_dims = false;                                                                            // mean
+  bool keep_num_dims = false;                                                                        // fully connected
   int32_t begin_mask = 0, end_mask = 0, ellipsis_mask = 0, new_axis_mask = 0, shrink_axis_mask = 0;  // strided slice
 };
 
@@ -64,8 +64,8 @@ struct TfliteTensor {
 };
 
 struct TfliteOperator {
-  int32_t code = 0;         // TfliteOp, or another builtin code
-  std::string custom_code;  // for kCustom
+  int32_t code = 0;                      // TfliteOp, or another builtin code
+  std::string custom_code;               // for kCustom
   std::vector<int32_t> inputs, outputs;  // tensor indices; -1 for an optional input left out
   TfliteOptions options;
 };

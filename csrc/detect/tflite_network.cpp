@@ -30,11 +30,16 @@ const std::set<int32_t>& runnable() {
 
 at::Tensor activated(const at::Tensor& x, TfliteActivation activation) {
   switch (activation) {
-    case TfliteActivation::kNone: return x;
-    case TfliteActivation::kRelu: return at::relu(x);
-    case TfliteActivation::kReluN1To1: return x.clamp(-1, 1);
-    case TfliteActivation::kRelu6: return x.clamp(0, 6);
-    case TfliteActivation::kTanh: return at::tanh(x);
+    case TfliteActivation::kNone:
+      return x;
+    case TfliteActivation::kRelu:
+      return at::relu(x);
+    case TfliteActivation::kReluN1To1:
+      return x.clamp(-1, 1);
+    case TfliteActivation::kRelu6:
+      return x.clamp(0, 6);
+    case TfliteActivation::kTanh:
+      return at::tanh(x);
   }
   return x;
 }
@@ -119,14 +124,16 @@ std::vector<at::Tensor> TfliteNetwork::run(const std::vector<at::Tensor>& inputs
   for (size_t k = 0; k < inputs.size(); ++k) {
     const std::vector<int64_t>& shape = input_shape(k);
     const at::Tensor& x = inputs[k];
-    TORCH_CHECK(x.dim() == int64_t(shape.size()) && x.scalar_type() == at::kFloat && x.device() == device_ &&
-                    std::equal(shape.begin() + 1, shape.end(), x.sizes().begin() + 1),
-                "'", graph_.source, "': input ", k, " must be a float32 tensor of shape (N", [&] {
-                  std::string s;
-                  for (size_t d = 1; d < shape.size(); ++d) s += ", " + std::to_string(shape[d]);
-                  return s;
-                }(),
-                ") on ", device_, ", got ", describe(x));
+    TORCH_CHECK(
+        x.dim() == int64_t(shape.size()) && x.scalar_type() == at::kFloat && x.device() == device_ &&
+            std::equal(shape.begin() + 1, shape.end(), x.sizes().begin() + 1),
+        "'", graph_.source, "': input ", k, " must be a float32 tensor of shape (N",
+        [&] {
+          std::string s;
+          for (size_t d = 1; d < shape.size(); ++d) s += ", " + std::to_string(shape[d]);
+          return s;
+        }(),
+        ") on ", device_, ", got ", describe(x));
     values[size_t(graph_.inputs[k])] = x;
   }
   for (const TfliteOperator& op : graph_.operators) {
@@ -140,8 +147,8 @@ std::vector<at::Tensor> TfliteNetwork::run(const std::vector<at::Tensor>& inputs
 
 at::Tensor TfliteNetwork::run_operator(const TfliteOperator& op, const std::vector<at::Tensor>& values) const {
   const auto input = [&](size_t k) -> const at::Tensor& {
-    TORCH_CHECK(k < op.inputs.size() && op.inputs[k] >= 0 && values[size_t(op.inputs[k])].defined(), "'",
-                graph_.source, "': ", tflite_op_name(op.code), " lacks input ", k);
+    TORCH_CHECK(k < op.inputs.size() && op.inputs[k] >= 0 && values[size_t(op.inputs[k])].defined(), "'", graph_.source,
+                "': ", tflite_op_name(op.code), " lacks input ", k);
     return values[size_t(op.inputs[k])];
   };
   const auto optional_input = [&](size_t k) {
@@ -165,20 +172,21 @@ at::Tensor TfliteNetwork::run_operator(const TfliteOperator& op, const std::vect
     }
     case TfliteOp::kDepthwiseConv2d: {
       const at::Tensor w = input(1).permute({3, 0, 1, 2});  // (1, kh, kw, C M) -> (C M, 1, kh, kw)
-      const at::Tensor y =
-          at::conv2d(windowed_input(x, o, w.size(2), w.size(3), 0.0), w, optional_input(2),
-                     at::IntArrayRef{o.stride_h, o.stride_w}, at::IntArrayRef{0, 0},
-                     at::IntArrayRef{o.dilation_h, o.dilation_w}, x.size(3));
+      const at::Tensor y = at::conv2d(windowed_input(x, o, w.size(2), w.size(3), 0.0), w, optional_input(2),
+                                      at::IntArrayRef{o.stride_h, o.stride_w}, at::IntArrayRef{0, 0},
+                                      at::IntArrayRef{o.dilation_h, o.dilation_w}, x.size(3));
       return activated(y.permute({0, 2, 3, 1}), o.activation);
     }
     case TfliteOp::kMaxPool2d: {
-      const at::Tensor y = at::max_pool2d(windowed_input(x, o, o.filter_h, o.filter_w,
-                                                         -std::numeric_limits<double>::infinity()),
-                                          {o.filter_h, o.filter_w}, {o.stride_h, o.stride_w});
+      const at::Tensor y =
+          at::max_pool2d(windowed_input(x, o, o.filter_h, o.filter_w, -std::numeric_limits<double>::infinity()),
+                         {o.filter_h, o.filter_w}, {o.stride_h, o.stride_w});
       return activated(y.permute({0, 2, 3, 1}), o.activation);
     }
-    case TfliteOp::kAdd: return activated(x + input(1), o.activation);
-    case TfliteOp::kMul: return activated(x * input(1), o.activation);
+    case TfliteOp::kAdd:
+      return activated(x + input(1), o.activation);
+    case TfliteOp::kMul:
+      return activated(x * input(1), o.activation);
     case TfliteOp::kConcatenation: {
       std::vector<at::Tensor> parts;
       for (size_t k = 0; k < op.inputs.size(); ++k) parts.push_back(input(k));
@@ -220,9 +228,12 @@ at::Tensor TfliteNetwork::run_operator(const TfliteOperator& op, const std::vect
       }
       return activated(y, o.activation);
     }
-    case TfliteOp::kLogistic: return at::sigmoid(x);
-    case TfliteOp::kRelu: return at::relu(x);
-    case TfliteOp::kPrelu: return at::where(x >= 0, x, x * input(1));
+    case TfliteOp::kLogistic:
+      return at::sigmoid(x);
+    case TfliteOp::kRelu:
+      return at::relu(x);
+    case TfliteOp::kPrelu:
+      return at::where(x >= 0, x, x * input(1));
     case TfliteOp::kMean: {
       std::vector<int64_t> axes = integers(1);
       for (int64_t& a : axes) a = a < 0 ? a + x.dim() : a;
@@ -231,8 +242,10 @@ at::Tensor TfliteNetwork::run_operator(const TfliteOperator& op, const std::vect
     case TfliteOp::kStridedSlice:
       return strided_slice(x, integers(1), integers(2), integers(3), o);
     case TfliteOp::kDequantize:
-    case TfliteOp::kDensify: return x.to(at::kFloat);
-    default: break;
+    case TfliteOp::kDensify:
+      return x.to(at::kFloat);
+    default:
+      break;
   }
   TORCH_CHECK(false, "'", graph_.source, "': operator ", tflite_op_name(op.code), " is not one sfgs runs");
 }

@@ -29,7 +29,7 @@ class TfliteNetwork {
 
   TfliteGraph graph_;
   at::Device device_;
-  std::vector<at::Tensor> constants_;               // per tensor: its value on the device (float32), or undefined
+  std::vector<at::Tensor> constants_;           // per tensor: its value on the device (float32), or undefined
   std::vector<std::vector<int64_t>> integers_;  // per tensor: an integer constant's values, on the host
 };
 

@@ -1,0 +1,53 @@
+// `sfgs prepare`: a video of one person (or a folder of its frames) to a dataset `sfgs train` reads
+// (prepare/prepare.h, docs/prepare.md).
+#include <c10/util/Exception.h>
+
+#include <cstdio>
+#include <filesystem>
+
+#include "cli/commands.h"
+#include "cli/video.h"
+#include "prepare/prepare.h"
+
+namespace sfgs::cli {
+
+int run_prepare(Arguments& args) {
+  const std::string input = args.required("input");
+  prepare::PrepareOptions o;
+  o.out = args.required("out");
+  o.device = args.text("device", o.device);
+  o.focal = args.real("focal", 0.0, 0.0, 1e7);
+  const std::string model = args.text("model", "full");
+  TORCH_CHECK(model == "lite" || model == "full" || model == "heavy", "--model: expected lite, full or heavy, got '",
+              model, "'");
+  o.model = model == "lite"    ? detect::PoseModel::kLite
+            : model == "heavy" ? detect::PoseModel::kHeavy
+                               : detect::PoseModel::kFull;
+  o.max_frames = args.integer("frames", 0, 0, 10000000);
+  o.fit = !args.flag("no-fit");
+  o.fit_options.body_model = args.text("body", "");
+  o.fit_options.truth = args.text("truth", "");
+  o.overwrite = args.flag("force");
+  o.quiet = args.flag("quiet");
+  args.finish();
+  const prepare::FrameSource frames =
+      std::filesystem::is_directory(input) ? prepare::image_folder(input) : read_video(input);
+  const prepare::PrepareReport r = prepare::prepare_dataset(frames, o);
+  std::printf("sfgs prepare: %lld of %lld frames show a person (%lld x %lld, focal %.0f px); detection %.1f s",
+              (long long)r.frames_with_person, (long long)r.frames, (long long)r.width, (long long)r.height, r.focal,
+              r.detection_seconds);
+  if (r.fit) std::printf(", fit %.1f s", r.fit->seconds);
+  std::printf("\n");
+  if (r.fit && r.fit->accuracy)
+    std::printf("sfgs prepare: the fit against %s: MPJPE %.1f mm (PA %.1f), hands %.1f mm, pelvis depth %.1f mm\n",
+                r.fit->accuracy->reference.c_str(), r.fit->accuracy->mpjpe_mm, r.fit->accuracy->pa_mpjpe_mm,
+                r.fit->accuracy->hand_mpjpe_mm, r.fit->accuracy->depth_error_mm);
+  if (o.fit)
+    std::printf("sfgs prepare: wrote %s; train on it with: sfgs train --data %s --out RUN\n", o.out.c_str(),
+                o.out.c_str());
+  else
+    std::printf("sfgs prepare: wrote %s (no fits: sfgs fit --data %s makes them)\n", o.out.c_str(), o.out.c_str());
+  return 0;
+}
+
+}  // namespace sfgs::cli

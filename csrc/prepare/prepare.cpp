@@ -1,0 +1,157 @@
+#include "prepare/prepare.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <vector>
+
+#include <ATen/ATen.h>
+#include <nlohmann/json.hpp>
+
+#include "common/atomic_file.h"
+#include "data/image_io.h"
+#include "data/keypoint_file.h"
+#include "data/neuman_writer.h"
+#include "detect/wholebody.h"
+#include "train/progress.h"
+
+namespace sfgs::prepare {
+namespace fs = std::filesystem;
+namespace {
+
+// A mask pixel is the person where the segmentation's probability exceeds this.
+constexpr double kMaskThreshold = 0.5;
+// The interleaved split of NeuMan's layout: every tenth frame is validation (offset 4) or test (offset 9).
+constexpr int64_t kSplitPeriod = 10, kValidationOffset = 4, kTestOffset = 9;
+constexpr int64_t kProgressEvery = 30;  // frames between progress lines
+
+std::string padded(int64_t number, int digits) {
+  char name[32];
+  std::snprintf(name, sizeof name, "%0*lld", digits, (long long)number);
+  return name;
+}
+
+}  // namespace
+
+FrameSource image_folder(const std::string& folder) {
+  TORCH_CHECK(fs::is_directory(folder), "prepare: '", folder, "' is neither a video nor a folder of images");
+  std::vector<std::string> files;
+  for (const auto& entry : fs::directory_iterator(folder)) {
+    std::string extension = entry.path().extension().string();
+    std::transform(extension.begin(), extension.end(), extension.begin(), ::tolower);
+    if (entry.is_regular_file() && (extension == ".png" || extension == ".jpg" || extension == ".jpeg"))
+      files.push_back(entry.path().string());
+  }
+  std::sort(files.begin(), files.end());
+  TORCH_CHECK(!files.empty(), "prepare: folder '", folder, "' holds no .png or .jpg images");
+  auto next = std::make_shared<size_t>(0);
+  return [files, next]() -> std::optional<at::Tensor> {
+    if (*next >= files.size()) return std::nullopt;
+    return data::read_image_rgb(files[(*next)++]);
+  };
+}
+
+PrepareReport prepare_dataset(const FrameSource& frames, const PrepareOptions& options) {
+  TORCH_CHECK(!options.out.empty(), "prepare: give the dataset folder (--out)");
+  TORCH_CHECK(options.device == "cpu" || options.device == "cuda", "prepare: device must be cpu or cuda, got '",
+              options.device, "'");
+  const fs::path out = fs::absolute(options.out);
+  TORCH_CHECK(options.overwrite || !fs::exists(out) || fs::is_empty(out), "prepare: '", out.string(),
+              "' exists; give another folder or --force to replace it");
+  if (out.has_parent_path()) fs::create_directories(out.parent_path());
+  const fs::path building = temporary_path(out.string());
+  fs::remove_all(building);
+  // Removes the folder being built unless it was moved into place: an error leaves nothing behind.
+  struct Unfinished {
+    fs::path folder;
+    ~Unfinished() {
+      std::error_code ignored;
+      fs::remove_all(folder, ignored);
+    }
+  } unfinished{building};
+  fs::create_directories(building / "images");
+  fs::create_directories(building / "masks");
+  fs::create_directories(building / "keypoints_whole_body");
+  train::JsonLinesLog log((building / "prepare_log.jsonl").string());
+
+  const at::Device device = options.device == "cuda" ? at::Device(at::kCUDA) : at::Device(at::kCPU);
+  detect::PoseOptions pose_options;
+  pose_options.model = options.model;
+  detect::PoseTracker tracker(device, pose_options);
+  PrepareReport report;
+  std::vector<data::ColmapFrame> cameras;
+  std::vector<std::string> train, validation, test;
+  const auto started = std::chrono::steady_clock::now();
+  while (options.max_frames <= 0 || report.frames < options.max_frames) {
+    const std::optional<at::Tensor> next = frames();
+    if (!next) break;
+    const at::Tensor& image = *next;
+    TORCH_CHECK(image.dim() == 3 && image.size(2) == 3, "prepare: frame ", report.frames, " is not an RGB image");
+    if (report.frames == 0) {
+      report.height = image.size(0);
+      report.width = image.size(1);
+      report.focal = options.focal > 0 ? options.focal : double(std::max(report.width, report.height));
+    }
+    TORCH_CHECK(image.size(0) == report.height && image.size(1) == report.width, "prepare: frame ", report.frames,
+                " is ", image.size(1), " x ", image.size(0), ", the first was ", report.width, " x ", report.height);
+    const detect::PoseFrame pose = tracker.track(image.to(device));
+    const int64_t index = report.frames++;
+    if (!pose.found) {
+      log.write({{"event", "frame"}, {"frame", index}, {"person", false}});
+      continue;
+    }
+    // Frames are numbered as written, so the dataset's numbers have no gaps.
+    const int64_t number = report.frames_with_person++;
+    const std::string name = padded(number, 5) + ".png";
+    data::write_png((building / "images" / name).string(), image, false);
+    data::write_png((building / "masks" / (std::to_string(number) + ".png")).string(),
+                    (pose.mask > kMaskThreshold).to(at::kFloat).cpu().unsqueeze(2).expand({-1, -1, 3}).contiguous(),
+                    false);
+    data::write_wholebody_keypoints((building / "keypoints_whole_body" / (std::to_string(number) + ".json")).string(),
+                                    detect::wholebody_keypoints(pose), false);
+    Camera camera = Camera::looking_forward(report.focal, report.width, report.height);
+    cameras.push_back({name, camera});
+    (number % kSplitPeriod == kTestOffset         ? test
+     : number % kSplitPeriod == kValidationOffset ? validation
+                                                  : train)
+        .push_back(name);
+    log.write({{"event", "frame"}, {"frame", index}, {"person", true}, {"number", number}, {"score", pose.score}});
+    if (!options.quiet && report.frames % kProgressEvery == 0)
+      std::fprintf(
+          stderr, "sfgs prepare: %lld frames, %lld with a person, %.1f frames/s\n", (long long)report.frames,
+          (long long)report.frames_with_person,
+          double(report.frames) / std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count());
+  }
+  report.detection_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();
+  TORCH_CHECK(report.frames > 0, "prepare: the input has no frames");
+  TORCH_CHECK(report.frames_with_person > 0, "prepare: no person was found in any of the ", report.frames,
+              " frames (the detector looks for one whole person, in view)");
+  data::write_colmap_model(building.string(), cameras, false);
+  data::write_split_file((building / "train_split.txt").string(), train, false);
+  data::write_split_file((building / "val_split.txt").string(), validation, false);
+  data::write_split_file((building / "test_split.txt").string(), test, false);
+  log.write({{"event", "detection"},
+             {"frames", report.frames},
+             {"frames_with_person", report.frames_with_person},
+             {"width", report.width},
+             {"height", report.height},
+             {"focal", report.focal},
+             {"seconds", report.detection_seconds}});
+  // The frames, masks, keypoints and camera are in place as one piece; the fit then writes its own files there
+  // (atomically), so a failed fit leaves a dataset that `sfgs fit` can be run on again.
+  if (fs::exists(out)) fs::remove_all(out);
+  fs::rename(building, out);
+  if (options.fit) {
+    fit::FitOptions f = options.fit_options;
+    if (!f.truth.empty()) f.truth = fs::absolute(f.truth).string();
+    f.data = f.out = out.string();
+    f.device = options.device;
+    f.focal = report.focal;
+    f.quiet = options.quiet;
+    report.fit = fit::run_fit(f);
+  }
+  return report;
+}
+
+}  // namespace sfgs::prepare

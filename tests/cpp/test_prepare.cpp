@@ -1,0 +1,89 @@
+// `sfgs prepare` as a library (prepare/prepare.h): a synthetic video's frames become a NeuMan-layout dataset with
+// masks, whole-body keypoints, a camera and fits that read back as a trainable dataset; bad inputs are clear errors
+// and leave nothing behind. Skipped without the MediaPipe models.
+#include <unistd.h>
+
+#include <filesystem>
+#include <string>
+
+#include <ATen/ATen.h>
+#include <gtest/gtest.h>
+
+#include "data/dataset.h"
+#include "data/keypoint_file.h"
+#include "data/synthetic.h"
+#include "detect/models.h"
+#include "prepare/prepare.h"
+#include "test_body_utils.h"
+
+namespace sfgs::testing {
+namespace {
+namespace fs = std::filesystem;
+
+bool models_fetched() { return fs::exists(detect::mediapipe_models_dir() + "/models.json"); }
+
+fs::path scratch(const std::string& name) {
+  const fs::path p = fs::temp_directory_path() / ("sfgs_prepare_" + name + "_" + std::to_string(::getpid()));
+  fs::remove_all(p);
+  return p;
+}
+
+TEST(Prepare, AVideosFramesBecomeATrainableDataset) {
+  if (!models_fetched()) GTEST_SKIP() << "no MediaPipe models in " << detect::mediapipe_models_dir();
+  const fs::path root = scratch("video");
+  data::SyntheticVideoOptions v;
+  v.motions = {"walk"};
+  v.frames = 6;
+  v.width = 180;
+  v.height = 320;
+  data::write_synthetic_video((root / "video").string(), v);
+  prepare::PrepareOptions o;
+  o.out = (root / "dataset").string();
+  o.quiet = true;
+  o.fit_options.iterations = {10, 20, 10, 5};
+  const prepare::PrepareReport r =
+      prepare::prepare_dataset(prepare::image_folder((root / "video" / "images").string()), o);
+  EXPECT_EQ(r.frames, 6);
+  EXPECT_EQ(r.frames_with_person, 6);
+  EXPECT_EQ(r.width, 180);
+  EXPECT_DOUBLE_EQ(r.focal, 320.0);
+  ASSERT_TRUE(r.fit.has_value());
+  EXPECT_TRUE(r.fit->trainable_dataset);
+  const at::Tensor keypoints =
+      data::read_wholebody_keypoints((root / "dataset" / "keypoints_whole_body" / "0.json").string());
+  EXPECT_EQ(keypoints.size(0), 133);
+  EXPECT_GT(keypoints.slice(0, 5, 17).select(1, 2).min().item<double>(), 0.5) << "the limbs are seen";
+  EXPECT_EQ(keypoints.slice(0, 23).select(1, 2).max().item<double>(), 0.0) << "face and hands are not detected yet";
+  const data::Dataset d = data::read_dataset((root / "dataset").string());
+  EXPECT_EQ(d.size(), 6);
+  EXPECT_FALSE(d.split(data::Split::kTrain).empty());
+  for (const auto& entry : fs::directory_iterator(root))
+    EXPECT_EQ(entry.path().string().find(".tmp"), std::string::npos) << "left behind: " << entry.path();
+  // An existing dataset is kept unless overwriting is asked for.
+  expect_error([&] { prepare::prepare_dataset(prepare::image_folder((root / "video" / "images").string()), o); },
+               {"exists", "--force"});
+  fs::remove_all(root);
+}
+
+TEST(Prepare, InputsWithoutAPersonAreClearErrorsAndLeaveNothing) {
+  if (!models_fetched()) GTEST_SKIP() << "no MediaPipe models in " << detect::mediapipe_models_dir();
+  const fs::path root = scratch("empty");
+  int served = 0;
+  const prepare::FrameSource blank = [&]() -> std::optional<at::Tensor> {
+    if (served++ == 3) return std::nullopt;
+    return at::ones({120, 90, 3});
+  };
+  prepare::PrepareOptions o;
+  o.out = (root / "dataset").string();
+  o.quiet = true;
+  expect_error([&] { prepare::prepare_dataset(blank, o); }, {"no person was found in any of the 3 frames"});
+  EXPECT_FALSE(fs::exists(root / "dataset"));
+  fs::create_directories(root);
+  for (const auto& entry : fs::directory_iterator(root)) ADD_FAILURE() << "left behind: " << entry.path();
+  expect_error([&] { prepare::image_folder((root / "nothing").string()); }, {"is neither a video nor a folder"});
+  expect_error([&] { prepare::image_folder(root.string()); }, {"holds no .png or .jpg images"});
+  fs::remove_all(root);
+}
+
+}  // namespace
+}  // namespace sfgs::testing
