@@ -6,8 +6,9 @@
 namespace sfgs::cli {
 
 int run_prepare(Arguments&) {
-  TORCH_CHECK(false, "this build of sfgs has no person detection: install libflatbuffers-dev "
-                     "(scripts/install_deps.sh) and build again");
+  TORCH_CHECK(false,
+              "this build of sfgs has no person detection: install libflatbuffers-dev "
+              "(scripts/install_deps.sh) and build again");
 }
 
 }  // namespace sfgs::cli

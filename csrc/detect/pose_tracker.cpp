@@ -9,20 +9,14 @@
 #include "common/math_constants.h"
 #include "common/tensor_description.h"
 #include "detect/models.h"
+#include "detect/ssd.h"
 
 namespace sfgs::detect {
 namespace {
 
-// The detector (pose_detection.tflite): a 224 x 224 input in [-1, 1]; per anchor a box (cx, cy, w, h) and four
-// keypoints, in input pixels relative to the anchor, and a score logit.
-constexpr int64_t kDetectorSize = 224;
-constexpr int64_t kDetectorKeypoints = 4;
-constexpr double kScoreClip = 100;       // logits are clipped to +-this before the sigmoid
-constexpr double kSuppressionIoU = 0.3;  // detections overlapping the best by more are merged into it
-// SSD anchors: strides of the feature maps, and anchors per cell of each (layers of one stride are merged: two per
-// layer, three layers of stride 32).
-constexpr int64_t kAnchorStrides[] = {8, 16, 32};
-constexpr int64_t kAnchorsPerCell[] = {2, 2, 6};
+// The detector (pose_detection.tflite): a 224 x 224 input in [-1, 1]; per anchor a box and four keypoints (layers
+// of one stride merged: two anchors a cell at strides 8 and 16, six at 32).
+const SsdLayout kDetectorLayout{224, {8, 16, 32}, {2, 2, 6}, 4};
 // The landmark network: 256 x 256 in [0, 1]; 39 landmarks of 5 values (33 of the body, 2 that place the next
 // frame's region, 4 unused); heatmaps of 64 x 64 refine them.
 constexpr int64_t kLandmarkSize = 256;
@@ -46,64 +40,23 @@ const char* landmark_file(PoseModel model) {
   return "pose_landmark_full.tflite";
 }
 
-at::Tensor detector_anchors() {
-  std::vector<float> centres;
-  for (size_t layer = 0; layer < 3; ++layer) {
-    const int64_t cells = kDetectorSize / kAnchorStrides[layer];
-    for (int64_t row = 0; row < cells; ++row)
-      for (int64_t col = 0; col < cells; ++col)
-        for (int64_t k = 0; k < kAnchorsPerCell[layer]; ++k) {
-          centres.push_back(float((double(col) + 0.5) / double(cells)));
-          centres.push_back(float((double(row) + 0.5) / double(cells)));
-        }
-  }
-  return at::tensor(centres).view({-1, 2});
-}
-
-double iou(const float* a, const float* b) {
-  const double w = std::min(a[0] + a[2] / 2, b[0] + b[2] / 2) - std::max(a[0] - a[2] / 2, b[0] - b[2] / 2);
-  const double h = std::min(a[1] + a[3] / 2, b[1] + b[3] / 2) - std::max(a[1] - a[3] / 2, b[1] - b[3] / 2);
-  if (w <= 0 || h <= 0) return 0;
-  const double overlap = w * h;
-  return overlap / (double(a[2]) * a[3] + double(b[2]) * b[3] - overlap);
-}
-
 }  // namespace
 
 PoseTracker::PoseTracker(at::Device device, PoseOptions options)
     : options_(options),
       detector_(TfliteNetwork::load(mediapipe_model("pose_detection.tflite"), device)),
       landmarker_(TfliteNetwork::load(mediapipe_model(landmark_file(options.model)), device)),
-      anchors_(detector_anchors()) {}
+      anchors_(ssd_anchors(kDetectorLayout)) {}
 
 std::optional<Region> PoseTracker::detect(const at::Tensor& image) const {
   const Region frame = letterbox(image.size(1), image.size(0));
-  const std::vector<at::Tensor> out = detector_.run({crop(image, frame, kDetectorSize, -1.0, 1.0, Border::kZero)});
-  // Decoded on the host: a few thousand candidates, of which a handful pass the score.
-  const at::Tensor raw = out[0].view({-1, 4 + 2 * kDetectorKeypoints}).cpu();
-  const at::Tensor scores = at::sigmoid(out[1].view({-1}).cpu().clamp(-kScoreClip, kScoreClip));
-  const at::Tensor kept = at::nonzero(scores >= options_.min_detection_score).view({-1});
-  if (kept.numel() == 0) return std::nullopt;
-  // Boxes and keypoints in the letterbox's unit square: (cx, cy, w, h, kx0, ky0, ...).
-  const at::Tensor anchors = anchors_.index_select(0, kept);
-  at::Tensor decoded = raw.index_select(0, kept) / double(kDetectorSize);
-  const at::Tensor offsets =
-      at::cat({anchors, at::zeros({kept.size(0), 2}), anchors.repeat({1, kDetectorKeypoints})}, 1);
-  decoded = (decoded + offsets).contiguous();
-  const at::Tensor order = std::get<1>(scores.index_select(0, kept).sort(0, true));
-  // Weighted suppression: the best detection's cluster (IoU above the threshold), averaged by score.
-  const auto* d = decoded.data_ptr<float>();
-  const auto* s = scores.index_select(0, kept).contiguous().data_ptr<float>();
-  const int64_t best = order[0].item<int64_t>(), width = decoded.size(1);
-  std::vector<double> mean(size_t(width), 0.0);
-  double total = 0;
-  for (int64_t k = 0; k < decoded.size(0); ++k) {
-    if (iou(d + best * width, d + k * width) <= kSuppressionIoU && k != best) continue;
-    for (int64_t v = 0; v < width; ++v) mean[size_t(v)] += double(s[k]) * d[k * width + v];
-    total += s[k];
-  }
-  for (double& v : mean) v /= total;
-  const auto keypoint = [&](int k) { return frame.to_image(mean[size_t(4 + 2 * k)], mean[size_t(5 + 2 * k)]); };
+  const std::vector<at::Tensor> out =
+      detector_.run({crop(image, frame, kDetectorLayout.input, -1.0, 1.0, Border::kZero)});
+  const std::optional<std::vector<double>> best =
+      best_detection(out[0], out[1], anchors_, kDetectorLayout, options_.min_detection_score);
+  if (!best) return std::nullopt;
+  const std::vector<double>& d = *best;  // in the letterbox's unit square
+  const auto keypoint = [&](int k) { return frame.to_image(d[size_t(4 + 2 * k)], d[size_t(5 + 2 * k)]); };
   const auto a = keypoint(kCentreKeypoint), b = keypoint(kScaleKeypoint);
   return alignment_region(a[0], a[1], b[0], b[1], kRegionAngle).scaled(kRegionScale, true);
 }

@@ -79,6 +79,7 @@ PrepareReport prepare_dataset(const FrameSource& frames, const PrepareOptions& o
   detect::PoseOptions pose_options;
   pose_options.model = options.model;
   detect::PoseTracker tracker(device, pose_options);
+  const detect::PartsLandmarker parts(device);
   PrepareReport report;
   std::vector<data::ColmapFrame> cameras;
   std::vector<std::string> train, validation, test;
@@ -95,7 +96,8 @@ PrepareReport prepare_dataset(const FrameSource& frames, const PrepareOptions& o
     }
     TORCH_CHECK(image.size(0) == report.height && image.size(1) == report.width, "prepare: frame ", report.frames,
                 " is ", image.size(1), " x ", image.size(0), ", the first was ", report.width, " x ", report.height);
-    const detect::PoseFrame pose = tracker.track(image.to(device));
+    const at::Tensor frame_image = image.to(device);
+    const detect::PoseFrame pose = tracker.track(frame_image);
     const int64_t index = report.frames++;
     if (!pose.found) {
       log.write({{"event", "frame"}, {"frame", index}, {"person", false}});
@@ -108,8 +110,12 @@ PrepareReport prepare_dataset(const FrameSource& frames, const PrepareOptions& o
     data::write_png((building / "masks" / (std::to_string(number) + ".png")).string(),
                     (pose.mask > kMaskThreshold).to(at::kFloat).cpu().unsqueeze(2).expand({-1, -1, 3}).contiguous(),
                     false);
-    data::write_wholebody_keypoints((building / "keypoints_whole_body" / (std::to_string(number) + ".json")).string(),
-                                    detect::wholebody_keypoints(pose), false);
+    data::write_wholebody_keypoints(
+        (building / "keypoints_whole_body" / (std::to_string(number) + ".json")).string(),
+        detect::wholebody_keypoints(pose, parts.face(frame_image, pose),
+                                    parts.hand(frame_image, pose, detect::HandSide::kLeft),
+                                    parts.hand(frame_image, pose, detect::HandSide::kRight)),
+        false);
     Camera camera = Camera::looking_forward(report.focal, report.width, report.height);
     cameras.push_back({name, camera});
     (number % kSplitPeriod == kTestOffset         ? test
