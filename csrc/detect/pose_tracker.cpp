@@ -62,8 +62,7 @@ std::optional<Region> PoseTracker::detect(const at::Tensor& image) const {
 }
 
 PoseFrame PoseTracker::landmarks_in(const at::Tensor& image, const Region& region) const {
-  const std::vector<at::Tensor> out =
-      landmarker_.run({crop(image, region, kLandmarkSize, 0.0, 1.0, Border::kReplicate)});
+  const std::vector<at::Tensor> out = landmarker_.run({crop(image, region, kLandmarkSize, 0.0, 1.0, Border::kZero)});
   PoseFrame frame;
   frame.region = region;
   frame.score = out[1].item<double>();
