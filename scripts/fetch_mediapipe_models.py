@@ -3,8 +3,9 @@
 package @mediapipe/holistic at a pinned version (Apache-2.0), its tarball checked against a pinned SHA-256. Writes
 the .tflite files into DIR (default: models/mediapipe beside this script's repository, which git ignores): the
 loose pose landmark models, and those packed into holistic_solution_packed_assets.data, cut out at the offsets its
-loader script lists. Each model is checked for the TFLite file identifier and written atomically. Standard library
-only; a second run with the files in place downloads nothing."""
+loader script lists, and the tarball itself (the reference that tests/python/test_prepare_parity.py runs in Chromium).
+Each model is checked for the TFLite file identifier and written atomically. Standard library only; a second run
+with the files in place downloads nothing."""
 import argparse
 import hashlib
 import io
@@ -24,6 +25,7 @@ LOOSE = ["pose_landmark_lite.tflite", "pose_landmark_full.tflite", "pose_landmar
 PACKED = ["pose_detection.tflite", "face_detection_short_range.tflite", "face_landmark.tflite",
           "face_landmark_with_attention.tflite", "hand_landmark_full.tflite", "hand_recrop.tflite"]
 MANIFEST = "models.json"
+TARBALL = f"holistic-{VERSION}.tgz"
 
 
 def default_folder():
@@ -51,7 +53,7 @@ def complete(folder):
         return False
     if manifest.get("version") != VERSION:
         return False
-    for name in LOOSE + PACKED:
+    for name in LOOSE + PACKED + [TARBALL]:
         path = os.path.join(folder, name)
         if not os.path.isfile(path):
             return False
@@ -61,14 +63,26 @@ def complete(folder):
     return True
 
 
-def download():
-    with urllib.request.urlopen(TARBALL_URL, timeout=120) as response:
-        data = response.read()
+def check_tarball(data):
     digest = hashlib.sha256(data).hexdigest()
     if digest != TARBALL_SHA256:
         raise SystemExit(f"fetch_mediapipe_models: {TARBALL_URL} has SHA-256 {digest}, expected {TARBALL_SHA256}; "
                          "not using it")
     return data
+
+
+def download():
+    with urllib.request.urlopen(TARBALL_URL, timeout=120) as response:
+        return check_tarball(response.read())
+
+
+def tarball(folder):
+    """The package's tarball as fetched into `folder` (checked), or None when it is not there."""
+    path = os.path.join(folder, TARBALL)
+    if not os.path.isfile(path):
+        return None
+    with open(path, "rb") as f:
+        return check_tarball(f.read())
 
 
 def models_of(tarball):
@@ -100,13 +114,16 @@ def main():
     if complete(folder):
         print(f"MediaPipe Holistic {VERSION} models are in {folder}")
         return
-    models = models_of(download())
+    package = download()
+    models = models_of(package)
     for name, data in models.items():
         write_atomically(os.path.join(folder, name), data)
+    write_atomically(os.path.join(folder, TARBALL), package)
+    models[TARBALL] = package
     manifest = {"package": PACKAGE, "version": VERSION, "license": "Apache-2.0", "tarball": TARBALL_URL,
                 "sha256": {name: hashlib.sha256(data).hexdigest() for name, data in models.items()}}
     write_atomically(os.path.join(folder, MANIFEST), (json.dumps(manifest, indent=1) + "\n").encode())
-    print(f"fetched MediaPipe Holistic {VERSION}: {len(models)} models in {folder}")
+    print(f"fetched MediaPipe Holistic {VERSION}: {len(models) - 1} models and the package in {folder}")
 
 
 if __name__ == "__main__":

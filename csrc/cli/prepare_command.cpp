@@ -38,6 +38,9 @@ int run_prepare(Arguments& args) {
               r.detection_seconds);
   if (r.fit) std::printf(", fit %.1f s", r.fit->seconds);
   std::printf("\n");
+  if (r.frames_with_several > 0)
+    std::printf("sfgs prepare: %lld frames show several people; each followed the largest (prepare_log.jsonl)\n",
+                (long long)r.frames_with_several);
   if (r.fit && r.fit->accuracy)
     std::printf("sfgs prepare: the fit against %s: MPJPE %.1f mm (PA %.1f), hands %.1f mm, pelvis depth %.1f mm\n",
                 r.fit->accuracy->reference.c_str(), r.fit->accuracy->mpjpe_mm, r.fit->accuracy->pa_mpjpe_mm,

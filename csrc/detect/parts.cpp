@@ -117,12 +117,13 @@ PartLandmarks PartsLandmarker::face(const at::Tensor& image, const PoseFrame& po
           .scaled(kFaceFromPoseScale, true);
   const std::vector<at::Tensor> detected =
       face_detector_.run({crop(image, around, kFaceDetectorLayout.input, -1.0, 1.0, Border::kZero)});
-  const std::optional<std::vector<double>> best =
-      best_detection(detected[0], detected[1], face_anchors_, kFaceDetectorLayout, kMinFaceScore);
-  if (!best) return out;
+  const std::vector<std::vector<double>> faces =
+      detections(detected[0], detected[1], face_anchors_, kFaceDetectorLayout, kMinFaceScore);
+  if (faces.empty()) return out;
+  const std::vector<double>& best = faces.front();
   std::vector<std::array<double, 2>> keypoints;
   for (int64_t k = 0; k < kFaceDetectorLayout.keypoints; ++k)
-    keypoints.push_back(around.to_image((*best)[size_t(4 + 2 * k)], (*best)[size_t(5 + 2 * k)]));
+    keypoints.push_back(around.to_image(best[size_t(4 + 2 * k)], best[size_t(5 + 2 * k)]));
   out.region = box_region(keypoints, rotation_of(keypoints[kDetectionRightEye], keypoints[kDetectionLeftEye], 0))
                    .shifted(0, kFaceShift)
                    .scaled(kFaceScale, true);

@@ -48,17 +48,26 @@ PoseTracker::PoseTracker(at::Device device, PoseOptions options)
       landmarker_(TfliteNetwork::load(mediapipe_model(landmark_file(options.model)), device)),
       anchors_(ssd_anchors(kDetectorLayout)) {}
 
-std::optional<Region> PoseTracker::detect(const at::Tensor& image) const {
+std::optional<PersonDetection> PoseTracker::detect(const at::Tensor& image) const {
   const Region frame = letterbox(image.size(1), image.size(0));
   const std::vector<at::Tensor> out =
       detector_.run({crop(image, frame, kDetectorLayout.input, -1.0, 1.0, Border::kZero)});
-  const std::optional<std::vector<double>> best =
-      best_detection(out[0], out[1], anchors_, kDetectorLayout, options_.min_detection_score);
-  if (!best) return std::nullopt;
-  const std::vector<double>& d = *best;  // in the letterbox's unit square
+  const std::vector<std::vector<double>> people =
+      detections(out[0], out[1], anchors_, kDetectorLayout, options_.min_detection_score);
+  if (people.empty()) return std::nullopt;
+  // The largest person is the one the video is of: its size is the distance from the hips' centre to the scale
+  // point (the detector's box is the face's).
+  const auto size = [](const std::vector<double>& d) {
+    return std::hypot(d[size_t(4 + 2 * kScaleKeypoint)] - d[size_t(4 + 2 * kCentreKeypoint)],
+                      d[size_t(5 + 2 * kScaleKeypoint)] - d[size_t(5 + 2 * kCentreKeypoint)]);
+  };
+  const auto largest =
+      std::max_element(people.begin(), people.end(), [&](const auto& a, const auto& b) { return size(a) < size(b); });
+  const std::vector<double>& d = *largest;
   const auto keypoint = [&](int k) { return frame.to_image(d[size_t(4 + 2 * k)], d[size_t(5 + 2 * k)]); };
   const auto a = keypoint(kCentreKeypoint), b = keypoint(kScaleKeypoint);
-  return alignment_region(a[0], a[1], b[0], b[1], kRegionAngle).scaled(kRegionScale, true);
+  return PersonDetection{alignment_region(a[0], a[1], b[0], b[1], kRegionAngle).scaled(kRegionScale, true),
+                         int64_t(people.size())};
 }
 
 PoseFrame PoseTracker::landmarks_in(const at::Tensor& image, const Region& region) const {
@@ -112,12 +121,18 @@ PoseFrame PoseTracker::track(const at::Tensor& image) {
                   image.device() == detector_.device(),
               "PoseTracker: a float32 (H, W, 3) image in [0, 1] on ", detector_.device(), " expected, got ",
               describe(image));
-  if (!followed_) followed_ = detect(image);
+  int64_t people = 0;
+  const auto detect_now = [&]() {
+    const std::optional<PersonDetection> found = detect(image);
+    people = found ? found->people : 0;
+    followed_ = found ? std::optional(found->region) : std::nullopt;
+  };
+  if (!followed_) detect_now();
   if (!followed_) return PoseFrame{};
   PoseFrame frame = landmarks_in(image, *followed_);
   if (!frame.found) {
     // Lost: detect again in this frame.
-    followed_ = detect(image);
+    detect_now();
     if (!followed_) return frame;
     frame = landmarks_in(image, *followed_);
     if (!frame.found) {
@@ -125,6 +140,7 @@ PoseFrame PoseTracker::track(const at::Tensor& image) {
       return frame;
     }
   }
+  frame.people = people;
   followed_ = frame.next_region;
   return frame;
 }

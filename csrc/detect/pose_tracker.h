@@ -1,6 +1,7 @@
 #pragma once
 // The body part of MediaPipe Holistic run with LibTorch (docs/prepare.md): a person detector on the letterboxed
-// frame, then the pose landmark network on a region that follows the person from frame to frame; 33 body landmarks
+// frame (the largest person is followed), then the pose landmark network on a region that follows the person from
+// frame to frame; 33 body landmarks
 // and a person mask per frame. Same pre- and post-processing as MediaPipe's pose graph (anchors, weighted
 // suppression, alignment regions, heatmap refinement); the landmarks are not smoothed over time.
 #include <optional>
@@ -30,6 +31,12 @@ struct PoseFrame {
   Region region;         // what the landmark network saw
   Region next_region;    // where it looks in the next frame (from this frame's auxiliary landmarks)
   double score = 0;      // the pose flag of the landmark pass
+  int64_t people = 0;    // persons the detector saw when this frame detected (0: the region was followed)
+};
+
+struct PersonDetection {
+  Region region;       // the largest person's, for the landmark network
+  int64_t people = 0;  // persons detected
 };
 
 class PoseTracker {
@@ -42,8 +49,8 @@ class PoseTracker {
   // Forgets the followed region: the next frame detects again (a cut, or a new video).
   void reset() { followed_.reset(); }
 
-  // The first detection in the image (its region for the landmark network), if any: exposed for tests.
-  std::optional<Region> detect(const at::Tensor& image) const;
+  // The largest person the detector sees in the image, if any: exposed for tests.
+  std::optional<PersonDetection> detect(const at::Tensor& image) const;
 
  private:
   PoseFrame landmarks_in(const at::Tensor& image, const Region& region) const;

@@ -2,7 +2,6 @@
 // The SSD-style detectors of MediaPipe (the person's, the face's): anchors on feature maps of given strides, boxes and
 // keypoints decoded relative to them, and a weighted suppression that keeps the best detection's cluster.
 #include <cstdint>
-#include <optional>
 #include <vector>
 
 #include <ATen/core/Tensor.h>
@@ -19,10 +18,11 @@ struct SsdLayout {
 // (A, 2) anchor centres in the input's unit square, row by row, cell by cell.
 at::Tensor ssd_anchors(const SsdLayout& layout);
 
-// The best detection's cluster averaged by score: (cx, cy, w, h, x0, y0, x1, y1, ...) in the input's unit square, or
-// none when no anchor's score reaches `min_score`. `boxes` (1, A, 4 + 2 K) and `logits` (1, A, 1) are the network's
-// outputs; logits are clipped to +-100 before the sigmoid.
-std::optional<std::vector<double>> best_detection(const at::Tensor& boxes, const at::Tensor& logits,
-                                                  const at::Tensor& anchors, const SsdLayout& layout, double min_score);
+// The detections, best first: each a cluster of anchors (the best remaining one and those overlapping it by an IoU
+// above 0.3) averaged by score, as (cx, cy, w, h, x0, y0, x1, y1, ...) in the input's unit square; none when no
+// anchor's score reaches `min_score`. `boxes` (1, A, 4 + 2 K) and `logits` (1, A, 1) are the network's outputs;
+// logits are clipped to +-100 before the sigmoid.
+std::vector<std::vector<double>> detections(const at::Tensor& boxes, const at::Tensor& logits,
+                                            const at::Tensor& anchors, const SsdLayout& layout, double min_score);
 
 }  // namespace sfgs::detect

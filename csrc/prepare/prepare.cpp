@@ -122,7 +122,16 @@ PrepareReport prepare_dataset(const FrameSource& frames, const PrepareOptions& o
      : number % kSplitPeriod == kValidationOffset ? validation
                                                   : train)
         .push_back(name);
-    log.write({{"event", "frame"}, {"frame", index}, {"person", true}, {"number", number}, {"score", pose.score}});
+    nlohmann::json entry{
+        {"event", "frame"}, {"frame", index}, {"person", true}, {"number", number}, {"score", pose.score}};
+    if (pose.people > 1) {
+      entry["people"] = pose.people;
+      if (!options.quiet && report.frames_with_several == 0)
+        std::fprintf(stderr, "sfgs prepare: frame %lld shows %lld people; following the largest\n", (long long)index,
+                     (long long)pose.people);
+      ++report.frames_with_several;
+    }
+    log.write(entry);
     if (!options.quiet && report.frames % kProgressEvery == 0)
       std::fprintf(
           stderr, "sfgs prepare: %lld frames, %lld with a person, %.1f frames/s\n", (long long)report.frames,
@@ -140,6 +149,7 @@ PrepareReport prepare_dataset(const FrameSource& frames, const PrepareOptions& o
   log.write({{"event", "detection"},
              {"frames", report.frames},
              {"frames_with_person", report.frames_with_person},
+             {"frames_with_several_people", report.frames_with_several},
              {"width", report.width},
              {"height", report.height},
              {"focal", report.focal},

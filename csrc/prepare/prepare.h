@@ -34,8 +34,9 @@ struct PrepareOptions {
 };
 
 struct PrepareReport {
-  int64_t frames = 0;              // frames read
-  int64_t frames_with_person = 0;  // frames written (a frame without a person is left out)
+  int64_t frames = 0;               // frames read
+  int64_t frames_with_person = 0;   // frames written (a frame without a person is left out)
+  int64_t frames_with_several = 0;  // frames in which the detector saw several people (the largest is followed)
   int64_t width = 0, height = 0;
   double focal = 0;
   double detection_seconds = 0;  // reading and tracking, writing included

@@ -236,5 +236,31 @@ TEST(PoseTracker, FindsTheStandInPersonsFaceAndHands) {
   EXPECT_LT(median(hands), 8.0);
 }
 
+TEST(PoseTracker, FollowsTheLargestOfSeveralPeople) {
+  SKIP_WITHOUT_MODELS();
+  const std::filesystem::path folder =
+      std::filesystem::temp_directory_path() / ("sfgs_two_people_" + std::to_string(::getpid()));
+  data::SyntheticVideoOptions o;
+  o.frames = 1;
+  o.width = 180;
+  o.height = 320;
+  o.overwrite = true;
+  const data::Dataset video = data::write_synthetic_video(folder.string(), o);
+  const at::Tensor person = video.load(0).image;
+  std::filesystem::remove_all(folder);
+  // A white canvas with the person at full size on the left and at four fifths on the right.
+  at::Tensor canvas = at::ones({320, 400, 3});
+  canvas.slice(1, 0, 180).copy_(person);
+  const at::Tensor small =
+      at::upsample_bilinear2d(person.permute({2, 0, 1}).unsqueeze(0), {256, 144}, false)[0].permute({1, 2, 0});
+  canvas.slice(0, 64, 320).slice(1, 240, 384).copy_(small);
+  detect::PoseTracker tracker(at::kCPU);
+  const std::optional<detect::PersonDetection> found = tracker.detect(canvas);
+  ASSERT_TRUE(found.has_value());
+  EXPECT_EQ(found->people, 2);
+  EXPECT_LT(found->region.cx, 180) << "the larger person, on the left";
+  EXPECT_EQ(tracker.track(canvas).people, 2);
+}
+
 }  // namespace
 }  // namespace sfgs::testing

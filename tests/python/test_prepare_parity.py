@@ -1,6 +1,6 @@
 """`sfgs prepare`'s landmarks against MediaPipe's own: the npm package's WebAssembly build of Holistic, run in headless
-Chromium on the same synthetic frame, is the reference. The package is fetched with the models
-(scripts/fetch_mediapipe_models.py keeps its tarball's SHA-256); skipped without Chromium, the sfgs executable or the
+Chromium on the same synthetic frame, is the reference. The package's tarball is fetched with the models
+(scripts/fetch_mediapipe_models.py keeps it beside them, checked against its SHA-256); skipped without Chromium, the sfgs executable or the
 models. The body's and the hands' COCO-WholeBody keypoints are compared (the face's go through a correspondence)."""
 import functools
 import html
@@ -49,7 +49,10 @@ holistic.onResults(r => { out.textContent = JSON.stringify({pose: r.poseLandmark
 
 def reference_landmarks(folder, frame):
     """MediaPipe's landmarks of `frame` (a PNG) from the package's WebAssembly build, served over HTTP."""
-    with tarfile.open(fileobj=io.BytesIO(fetch_mediapipe_models.download()), mode="r:gz") as archive:
+    package = fetch_mediapipe_models.tarball(MODELS)
+    if package is None:
+        pytest.skip(f"no package tarball in {MODELS} (scripts/install_deps.sh fetches it)")
+    with tarfile.open(fileobj=io.BytesIO(package), mode="r:gz") as archive:
         archive.extractall(folder)
     site = os.path.join(folder, "package")
     shutil.copy(frame, os.path.join(site, "frame.png"))
