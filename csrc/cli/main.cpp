@@ -44,7 +44,8 @@ commands:
   prepare  a dataset from a video of one person (or a folder of its frames; docs/prepare.md): tracks the person
            (MediaPipe's pose networks run in sfgs), writes frames, masks, whole-body keypoints and a camera in the
            NeuMan layout, then fits SMPL-X (sfgs fit): VIDEO|DIR --out DATASET  --device cpu|cuda  --focal PX
-           (max(W, H))  --model lite|full|heavy (full)  --frames N (all)  --body SMPLX.npz  --no-fit
+           (max(W, H))  --model lite|full|heavy (full)  --frames N (all)  --fps F (the video's, else 30)
+           --body SMPLX.npz  --no-fit  --no-smoothing (landmarks as each frame gives them)
            --truth DIR (exact fits to measure the fit against)  --force  --quiet
   train    train an avatar: --data DATASET --out RUN  --config FILE  --iterations N  --device cpu|cuda
            --stop-at N (pause there, resumable)  --force  --quiet
@@ -116,7 +117,7 @@ int main(int argc, char** argv) {
       {"demo", {sfgs::cli::run_demo, {"force"}}},
       {"synth", {sfgs::cli::run_synth, {"force"}}},
       {"fit", {sfgs::cli::run_fit, {"betas-from-data", "start-from-data", "no-masks", "force", "quiet"}}},
-      {"prepare", {sfgs::cli::run_prepare, {"no-fit", "force", "quiet"}}},
+      {"prepare", {sfgs::cli::run_prepare, {"no-fit", "no-smoothing", "force", "quiet"}}},
       {"train", {sfgs::cli::run_train, {"resume", "force", "quiet"}}},
       {"eval",
        {sfgs::cli::run_eval,

@@ -24,14 +24,17 @@ int run_prepare(Arguments& args) {
             : model == "heavy" ? detect::PoseModel::kHeavy
                                : detect::PoseModel::kFull;
   o.max_frames = args.integer("frames", 0, 0, 10000000);
+  const bool folder = std::filesystem::is_directory(input);
+  const double stated = folder ? 0.0 : video_frame_rate(input);
+  o.frames_per_second = args.real("fps", stated > 0 ? stated : 30.0, 1e-3, 1e4);
   o.fit = !args.flag("no-fit");
+  o.smooth = !args.flag("no-smoothing");
   o.fit_options.body_model = args.text("body", "");
   o.fit_options.truth = args.text("truth", "");
   o.overwrite = args.flag("force");
   o.quiet = args.flag("quiet");
   args.finish();
-  const prepare::FrameSource frames =
-      std::filesystem::is_directory(input) ? prepare::image_folder(input) : read_video(input);
+  const prepare::FrameSource frames = folder ? prepare::image_folder(input) : read_video(input);
   const prepare::PrepareReport r = prepare::prepare_dataset(frames, o);
   std::printf("sfgs prepare: %lld of %lld frames show a person (%lld x %lld, focal %.0f px); detection %.1f s",
               (long long)r.frames_with_person, (long long)r.frames, (long long)r.width, (long long)r.height, r.focal,

@@ -31,5 +31,7 @@ class VideoWriter {
 // The frames of a video file in order, each (H, W, 3) float32 in [0, 1] on the CPU, none at the end. Throws naming
 // the file when it cannot be opened, and in a build without OpenCV (give a folder of frames instead).
 std::function<std::optional<at::Tensor>()> read_video(const std::string& path);
+// The video's frame rate as its file states it (0 when it states none).
+double video_frame_rate(const std::string& path);
 
 }  // namespace sfgs::cli

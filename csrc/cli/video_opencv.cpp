@@ -1,6 +1,7 @@
 #include <sys/statvfs.h>
 
 #include <cerrno>
+#include <cmath>
 #include <cstdint>
 #include <cstdio>
 #include <cstring>
@@ -115,6 +116,12 @@ bool VideoWriter::close() {
   }
   commit_file(state_->temporary, state_->path);
   return true;
+}
+
+double video_frame_rate(const std::string& path) {
+  cv::VideoCapture capture(path);
+  const double rate = capture.isOpened() ? capture.get(cv::CAP_PROP_FPS) : 0.0;
+  return std::isfinite(rate) && rate > 0 ? rate : 0.0;
 }
 
 std::function<std::optional<at::Tensor>()> read_video(const std::string& path) {

@@ -14,6 +14,8 @@ bool VideoWriter::available() const { return false; }
 void VideoWriter::add(const at::Tensor&) {}
 bool VideoWriter::close() { return false; }
 
+double video_frame_rate(const std::string&) { return 0.0; }
+
 std::function<std::optional<at::Tensor>()> read_video(const std::string& path) {
   TORCH_CHECK(false, "cannot read video '", path,
               "': this build of sfgs has no OpenCV (libopencv-dev); give a folder of its frames (.png, .jpg)");

@@ -27,6 +27,11 @@ constexpr double kMinHeatmapConfidence = 0.5;  // a landmark is refined where it
 constexpr int kCentreKeypoint = 0, kScaleKeypoint = 1;
 constexpr int kNextCentreLandmark = 33, kNextScaleLandmark = 34;
 constexpr double kRegionAngle = kPi / 2, kRegionScale = 1.25;
+// Smoothing over a video (MediaPipe's pose landmark filtering): one-euro cut-offs (Hz) and speed gains of the body's
+// landmarks and of the two that place the next region, and the low-pass weight of visibility and presence.
+constexpr double kLandmarkMinCutoff = 0.05, kLandmarkBeta = 80;
+constexpr double kAuxiliaryMinCutoff = 0.01, kAuxiliaryBeta = 10;
+constexpr double kProbabilitySmoothing = 0.1;
 
 const char* landmark_file(PoseModel model) {
   switch (model) {
@@ -46,7 +51,15 @@ PoseTracker::PoseTracker(at::Device device, PoseOptions options)
     : options_(options),
       detector_(TfliteNetwork::load(mediapipe_model("pose_detection.tflite"), device)),
       landmarker_(TfliteNetwork::load(mediapipe_model(landmark_file(options.model)), device)),
-      anchors_(ssd_anchors(kDetectorLayout)) {}
+      anchors_(ssd_anchors(kDetectorLayout)),
+      landmark_smoother_(kLandmarkMinCutoff, kLandmarkBeta),
+      auxiliary_smoother_(kAuxiliaryMinCutoff, kAuxiliaryBeta) {}
+
+void PoseTracker::forget_motion() {
+  landmark_smoother_.reset();
+  auxiliary_smoother_.reset();
+  last_probabilities_ = at::Tensor();
+}
 
 std::optional<PersonDetection> PoseTracker::detect(const at::Tensor& image) const {
   const Region frame = letterbox(image.size(1), image.size(0));
@@ -70,7 +83,7 @@ std::optional<PersonDetection> PoseTracker::detect(const at::Tensor& image) cons
                          int64_t(people.size())};
 }
 
-PoseFrame PoseTracker::landmarks_in(const at::Tensor& image, const Region& region) const {
+PoseFrame PoseTracker::landmarks_in(const at::Tensor& image, const Region& region, at::Tensor& auxiliary) const {
   const std::vector<at::Tensor> out = landmarker_.run({crop(image, region, kLandmarkSize, 0.0, 1.0, Border::kZero)});
   PoseFrame frame;
   frame.region = region;
@@ -105,18 +118,25 @@ PoseFrame PoseTracker::landmarks_in(const at::Tensor& image, const Region& regio
   const at::Tensor all = at::cat({pixels, depth, probabilities}, 1);
   frame.found = true;
   frame.landmarks = all.slice(0, 0, kBodyLandmarks).contiguous();
-  const auto next = [&](int64_t l) {
-    return std::array<double, 2>{all[l][0].item<double>(), all[l][1].item<double>()};
-  };
-  const auto a = next(kNextCentreLandmark), b = next(kNextScaleLandmark);
+  auxiliary = all.slice(0, kNextCentreLandmark, kNextScaleLandmark + 1).slice(1, 0, 2).contiguous();
   frame.mask =
       map_to_image(at::sigmoid(out[2].view({kLandmarkSize, kLandmarkSize})), region, image.size(0), image.size(1));
-  // Where the next frame looks: the detector's rule on this frame's two auxiliary landmarks.
-  frame.next_region = alignment_region(a[0], a[1], b[0], b[1], kRegionAngle).scaled(kRegionScale, true);
   return frame;
 }
 
-PoseFrame PoseTracker::track(const at::Tensor& image) {
+void PoseTracker::smooth(PoseFrame& frame, at::Tensor& auxiliary, double seconds) {
+  const double size = 0.5 * (frame.region.width + frame.region.height);
+  at::Tensor& l = frame.landmarks;
+  l.slice(1, 0, 3).copy_(landmark_smoother_.apply(l.slice(1, 0, 3), seconds, size));
+  // Visibility and presence: a plain low-pass.
+  if (last_probabilities_.defined())
+    l.slice(1, 3, 5).copy_(kProbabilitySmoothing * l.slice(1, 3, 5) +
+                           (1 - kProbabilitySmoothing) * last_probabilities_);
+  last_probabilities_ = l.slice(1, 3, 5).clone();
+  auxiliary = auxiliary_smoother_.apply(auxiliary, seconds, size);
+}
+
+PoseFrame PoseTracker::track(const at::Tensor& image, std::optional<double> seconds) {
   TORCH_CHECK(image.dim() == 3 && image.size(2) == 3 && image.scalar_type() == at::kFloat &&
                   image.device() == detector_.device(),
               "PoseTracker: a float32 (H, W, 3) image in [0, 1] on ", detector_.device(), " expected, got ",
@@ -126,21 +146,29 @@ PoseFrame PoseTracker::track(const at::Tensor& image) {
     const std::optional<PersonDetection> found = detect(image);
     people = found ? found->people : 0;
     followed_ = found ? std::optional(found->region) : std::nullopt;
+    forget_motion();  // a new track: nothing to smooth against
   };
   if (!followed_) detect_now();
   if (!followed_) return PoseFrame{};
-  PoseFrame frame = landmarks_in(image, *followed_);
+  at::Tensor auxiliary;
+  PoseFrame frame = landmarks_in(image, *followed_, auxiliary);
   if (!frame.found) {
     // Lost: detect again in this frame.
     detect_now();
     if (!followed_) return frame;
-    frame = landmarks_in(image, *followed_);
+    frame = landmarks_in(image, *followed_, auxiliary);
     if (!frame.found) {
       followed_.reset();
       return frame;
     }
   }
   frame.people = people;
+  if (options_.smooth && seconds) smooth(frame, auxiliary, *seconds);
+  // Where the next frame looks: the detector's rule on this frame's two auxiliary landmarks.
+  const at::Tensor a = auxiliary[0], b = auxiliary[1];
+  frame.next_region =
+      alignment_region(a[0].item<double>(), a[1].item<double>(), b[0].item<double>(), b[1].item<double>(), kRegionAngle)
+          .scaled(kRegionScale, true);
   followed_ = frame.next_region;
   return frame;
 }

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <vector>
@@ -56,6 +57,8 @@ PrepareReport prepare_dataset(const FrameSource& frames, const PrepareOptions& o
   TORCH_CHECK(!options.out.empty(), "prepare: give the dataset folder (--out)");
   TORCH_CHECK(options.device == "cpu" || options.device == "cuda", "prepare: device must be cpu or cuda, got '",
               options.device, "'");
+  TORCH_CHECK(options.frames_per_second > 0 && std::isfinite(options.frames_per_second),
+              "prepare: the frame rate must be positive, got ", options.frames_per_second);
   const fs::path out = fs::absolute(options.out);
   TORCH_CHECK(options.overwrite || !fs::exists(out) || fs::is_empty(out), "prepare: '", out.string(),
               "' exists; give another folder or --force to replace it");
@@ -78,6 +81,7 @@ PrepareReport prepare_dataset(const FrameSource& frames, const PrepareOptions& o
   const at::Device device = options.device == "cuda" ? at::Device(at::kCUDA) : at::Device(at::kCPU);
   detect::PoseOptions pose_options;
   pose_options.model = options.model;
+  pose_options.smooth = options.smooth;
   detect::PoseTracker tracker(device, pose_options);
   const detect::PartsLandmarker parts(device);
   PrepareReport report;
@@ -97,7 +101,7 @@ PrepareReport prepare_dataset(const FrameSource& frames, const PrepareOptions& o
     TORCH_CHECK(image.size(0) == report.height && image.size(1) == report.width, "prepare: frame ", report.frames,
                 " is ", image.size(1), " x ", image.size(0), ", the first was ", report.width, " x ", report.height);
     const at::Tensor frame_image = image.to(device);
-    const detect::PoseFrame pose = tracker.track(frame_image);
+    const detect::PoseFrame pose = tracker.track(frame_image, double(report.frames) / options.frames_per_second);
     const int64_t index = report.frames++;
     if (!pose.found) {
       log.write({{"event", "frame"}, {"frame", index}, {"person", false}});

@@ -26,11 +26,13 @@ struct PrepareOptions {
   std::string device = "cpu";  // where the networks and the fit run: cpu or cuda
   double focal = 0;            // pixels; 0: max(width, height), about 53 degrees along the longer side
   detect::PoseModel model = detect::PoseModel::kFull;
-  int64_t max_frames = 0;       // 0: every frame
-  bool fit = true;              // run `sfgs fit` on the result (the dataset needs fits to train)
-  fit::FitOptions fit_options;  // data, out, device, focal and overwrite are set from these options
-  bool overwrite = false;       // replace an existing dataset folder
-  bool quiet = false;           // no progress
+  bool smooth = true;             // the body's landmarks smoothed over the frames (one-euro filters, as MediaPipe)
+  int64_t max_frames = 0;         // 0: every frame
+  double frames_per_second = 30;  // the frames' rate (a video's own), for smoothing the landmarks over time
+  bool fit = true;                // run `sfgs fit` on the result (the dataset needs fits to train)
+  fit::FitOptions fit_options;    // data, out, device, focal and overwrite are set from these options
+  bool overwrite = false;         // replace an existing dataset folder
+  bool quiet = false;             // no progress
 };
 
 struct PrepareReport {
