@@ -14,10 +14,6 @@ at::Tensor scalar_tensor(const py::handle& value, const std::string& what) {
   return t.reshape({}).to(at::kDouble);
 }
 
-bool requires_grad(const py::handle& value) {
-  return THPVariable_Check(value.ptr()) && THPVariable_Unpack(value.ptr()).requires_grad();
-}
-
 }  // namespace
 
 CameraArgument camera_argument(const py::handle& world_to_camera, const py::handle& fx, const py::handle& fy,
@@ -34,10 +30,8 @@ CameraArgument camera_argument(const py::handle& world_to_camera, const py::hand
   tensors.far_plane = far_plane;
   CameraArgument camera;
   camera.value = tensors.value();
-  const bool differentiated =
-      at::GradMode::is_enabled() && (requires_grad(world_to_camera) || requires_grad(fx) || requires_grad(fy) ||
-                                     requires_grad(cx) || requires_grad(cy));
-  if (differentiated) camera.tensors = std::move(tensors);
+  // Under grad mode the stacked intrinsics require a gradient when any of the four given tensors does.
+  if (at::GradMode::is_enabled() && tensors.requires_grad()) camera.tensors = std::move(tensors);
   return camera;
 }
 

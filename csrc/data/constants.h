@@ -1,4 +1,6 @@
 #pragma once
+#include <cstdint>
+
 // The datasets' numbers, named once: the synthetic videos' key light.
 
 namespace sfgs {
@@ -14,6 +16,8 @@ inline constexpr double kShadowBiasRadii = 0.01;
 // the sequence's training times of one of them; this relative slack keeps frame times written in decimal seconds
 // (7.9 s against a reach of 0.1 s) on the right side of the comparison.
 inline constexpr double kReplayReachSlack = 1e-6;
+// NeuMan's interleaved split (interleaved_split, dataset.h): of every 10 frames, offset 4 validates and offset 9 tests.
+inline constexpr int64_t kInterleavedSplitPeriod = 10, kInterleavedValidationOffset = 4, kInterleavedTestOffset = 9;
 // `sfgs synth --pose-noise medium` (low halves every number, high doubles it): RMS rotation error of each body joint
 // (degrees), of each wrist and finger joint, of the global orientation; RMS translation error across the view (cm,
 // per axis) and along it (depth, which one view measures worst); the shape error per coefficient; the share of

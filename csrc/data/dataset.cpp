@@ -110,6 +110,12 @@ std::string relative_to(const std::string& folder, const std::string& path) {
 
 const char* split_name(Split split) { return split_names().at(split); }
 
+Split interleaved_split(int64_t frame) {
+  if (frame % kInterleavedSplitPeriod == kInterleavedValidationOffset) return Split::kVal;
+  if (frame % kInterleavedSplitPeriod == kInterleavedTestOffset) return Split::kTest;
+  return Split::kTrain;
+}
+
 const std::vector<int64_t>& Dataset::split(Split s) const {
   static const std::vector<int64_t> empty;
   const auto it = splits.find(s);

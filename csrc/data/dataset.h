@@ -49,6 +49,9 @@ struct Frame {
 enum class Split { kTrain, kVal, kTest };
 // "train", "val" or "test": how files, options and messages name a split.
 const char* split_name(Split split);
+// NeuMan's interleaved 80/10/10 split of a video's frames: every 10th frame (offset 4) is validation, every 10th
+// (offset 9) test, the others training.
+Split interleaved_split(int64_t frame);
 
 class Dataset {
  public:

@@ -177,13 +177,12 @@ at::Tensor vertex_regions(const body::SmplxModelData& model) {
       .to(at::kLong);
 }
 
-// Test blocks are all test; training blocks hold out every 10th frame (offset 4) for validation and, in the
-// interleaved split, every 10th (offset 9) for test.
+// Test blocks are all test; training blocks hold out the interleaved split's validation frames and, in the
+// interleaved split, its test frames.
 Split split_of(bool test_block, int64_t index_in_block, bool interleaved) {
   if (test_block) return Split::kTest;
-  if (index_in_block % 10 == 4) return Split::kVal;
-  if (interleaved && index_in_block % 10 == 9) return Split::kTest;
-  return Split::kTrain;
+  const Split split = interleaved_split(index_in_block);
+  return split == Split::kTest && !interleaved ? Split::kTrain : split;
 }
 
 void check_options(const SyntheticVideoOptions& options) {

@@ -39,10 +39,8 @@ std::array<double, 2> point(const at::Tensor& landmarks, int64_t k) {
   return {landmarks[k][0].item<double>(), landmarks[k][1].item<double>()};
 }
 
-// Turns the direction a -> b onto `target` (radians, counter-clockwise, y up), as alignment_region does.
 double rotation_of(const std::array<double, 2>& a, const std::array<double, 2>& b, double target) {
-  const double angle = target - std::atan2(-(b[1] - a[1]), b[0] - a[0]);
-  return angle - kTwoPi * std::floor((angle + kPi) / kTwoPi);
+  return alignment_rotation(a[0], a[1], b[0], b[1], target);
 }
 
 // The axis-aligned box of `points` (image pixels), turned by `rotation` about its centre.

@@ -11,9 +11,6 @@
 namespace sfgs::detect {
 namespace {
 
-// An angle in [-pi, pi).
-double normalised_angle(double angle) { return angle - 2 * kPi * std::floor((angle + kPi) / (2 * kPi)); }
-
 // grid_sample's coordinates (align_corners false: -1 and 1 are the outer edges) of the image points (..., 2).
 at::Tensor grid_coordinates(const at::Tensor& points, int64_t width, int64_t height) {
   const at::Tensor scale = at::tensor({2.0 / double(width), 2.0 / double(height)}, points.options());
@@ -43,12 +40,17 @@ Region Region::shifted(double along_x, double along_y) const {
   return r;
 }
 
+double alignment_rotation(double ax, double ay, double bx, double by, double target_angle) {
+  const double angle = target_angle - std::atan2(-(by - ay), bx - ax);
+  return angle - kTwoPi * std::floor((angle + kPi) / kTwoPi);
+}
+
 Region alignment_region(double ax, double ay, double bx, double by, double target_angle) {
   Region r;
   r.cx = ax;
   r.cy = ay;
   r.width = r.height = 2 * std::hypot(bx - ax, by - ay);
-  r.rotation = normalised_angle(target_angle - std::atan2(-(by - ay), bx - ax));
+  r.rotation = alignment_rotation(ax, ay, bx, by, target_angle);
   return r;
 }
 

@@ -20,8 +20,11 @@ struct Region {
   Region shifted(double along_x, double along_y) const;  // by these shares of its width and height, in its axes
 };
 
-// The region centred on `a` whose size is twice |b - a| and whose rotation turns the direction a -> b to
-// `target_angle` (MediaPipe's alignment-point rectangle; angles counter-clockwise from the image's x axis, y up).
+// The rotation (in [-pi, pi)) that turns the direction a -> b to `target_angle` (angles counter-clockwise from the
+// image's x axis, y up).
+double alignment_rotation(double ax, double ay, double bx, double by, double target_angle);
+// The region centred on `a` whose size is twice |b - a|, turned by alignment_rotation (MediaPipe's alignment-point
+// rectangle).
 Region alignment_region(double ax, double ay, double bx, double by, double target_angle);
 
 enum class Border { kZero, kReplicate };

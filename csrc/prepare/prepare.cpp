@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <map>
 #include <vector>
 
 #include <ATen/ATen.h>
@@ -14,6 +15,7 @@
 #include "data/image_io.h"
 #include "data/keypoint_file.h"
 #include "data/neuman_writer.h"
+#include "data/synthetic_layouts.h"
 #include "detect/wholebody.h"
 #include "train/progress.h"
 
@@ -23,15 +25,7 @@ namespace {
 
 // A mask pixel is the person where the segmentation's probability exceeds this.
 constexpr double kMaskThreshold = 0.5;
-// The interleaved split of NeuMan's layout: every tenth frame is validation (offset 4) or test (offset 9).
-constexpr int64_t kSplitPeriod = 10, kValidationOffset = 4, kTestOffset = 9;
 constexpr int64_t kProgressEvery = 30;  // frames between progress lines
-
-std::string padded(int64_t number, int digits) {
-  char name[32];
-  std::snprintf(name, sizeof name, "%0*lld", digits, (long long)number);
-  return name;
-}
 
 }  // namespace
 
@@ -86,7 +80,8 @@ PrepareReport prepare_dataset(const FrameSource& frames, const PrepareOptions& o
   const detect::PartsLandmarker parts(device);
   PrepareReport report;
   std::vector<data::ColmapFrame> cameras;
-  std::vector<std::string> train, validation, test;
+  std::map<data::Split, std::vector<std::string>> splits;
+  Camera camera;  // every frame's: at the origin, the focal length given or the default
   const auto started = std::chrono::steady_clock::now();
   while (options.max_frames <= 0 || report.frames < options.max_frames) {
     const std::optional<at::Tensor> next = frames();
@@ -97,6 +92,7 @@ PrepareReport prepare_dataset(const FrameSource& frames, const PrepareOptions& o
       report.height = image.size(0);
       report.width = image.size(1);
       report.focal = options.focal > 0 ? options.focal : double(std::max(report.width, report.height));
+      camera = Camera::looking_forward(report.focal, report.width, report.height);
     }
     TORCH_CHECK(image.size(0) == report.height && image.size(1) == report.width, "prepare: frame ", report.frames,
                 " is ", image.size(1), " x ", image.size(0), ", the first was ", report.width, " x ", report.height);
@@ -109,23 +105,19 @@ PrepareReport prepare_dataset(const FrameSource& frames, const PrepareOptions& o
     }
     // Frames are numbered as written, so the dataset's numbers have no gaps.
     const int64_t number = report.frames_with_person++;
-    const std::string name = padded(number, 5) + ".png";
-    data::write_png((building / "images" / name).string(), image, false);
-    data::write_png((building / "masks" / (std::to_string(number) + ".png")).string(),
-                    (pose.mask > kMaskThreshold).to(at::kFloat).cpu().unsqueeze(2).expand({-1, -1, 3}).contiguous(),
-                    false);
+    const data::SyntheticFramePaths paths =
+        data::synthetic_frame_paths(building.string(), data::DatasetLayout::kNeuman, number);
+    data::write_png(paths.image, image, false);
+    data::write_png(paths.mask, (pose.mask > kMaskThreshold).to(at::kFloat), false);
     data::write_wholebody_keypoints(
-        (building / "keypoints_whole_body" / (std::to_string(number) + ".json")).string(),
+        paths.keypoints,
         detect::wholebody_keypoints(pose, parts.face(frame_image, pose),
                                     parts.hand(frame_image, pose, detect::HandSide::kLeft),
                                     parts.hand(frame_image, pose, detect::HandSide::kRight)),
         false);
-    Camera camera = Camera::looking_forward(report.focal, report.width, report.height);
+    const std::string name = fs::path(paths.image).filename().string();
     cameras.push_back({name, camera});
-    (number % kSplitPeriod == kTestOffset         ? test
-     : number % kSplitPeriod == kValidationOffset ? validation
-                                                  : train)
-        .push_back(name);
+    splits[data::interleaved_split(number)].push_back(name);
     nlohmann::json entry{
         {"event", "frame"}, {"frame", index}, {"person", true}, {"number", number}, {"score", pose.score}};
     if (pose.people > 1) {
@@ -147,9 +139,9 @@ PrepareReport prepare_dataset(const FrameSource& frames, const PrepareOptions& o
   TORCH_CHECK(report.frames_with_person > 0, "prepare: no person was found in any of the ", report.frames,
               " frames (the detector looks for one whole person, in view)");
   data::write_colmap_model(building.string(), cameras, false);
-  data::write_split_file((building / "train_split.txt").string(), train, false);
-  data::write_split_file((building / "val_split.txt").string(), validation, false);
-  data::write_split_file((building / "test_split.txt").string(), test, false);
+  for (const data::Split split : {data::Split::kTrain, data::Split::kVal, data::Split::kTest})
+    data::write_split_file((building / (std::string(data::split_name(split)) + "_split.txt")).string(), splits[split],
+                           false);
   log.write({{"event", "detection"},
              {"frames", report.frames},
              {"frames_with_person", report.frames_with_person},

@@ -15,12 +15,11 @@
 #include "detect/models.h"
 #include "prepare/prepare.h"
 #include "test_body_utils.h"
+#include "test_detect_utils.h"
 
 namespace sfgs::testing {
 namespace {
 namespace fs = std::filesystem;
-
-bool models_fetched() { return fs::exists(detect::mediapipe_models_dir() + "/models.json"); }
 
 fs::path scratch(const std::string& name) {
   const fs::path p = fs::temp_directory_path() / ("sfgs_prepare_" + name + "_" + std::to_string(::getpid()));
@@ -29,7 +28,7 @@ fs::path scratch(const std::string& name) {
 }
 
 TEST(Prepare, AVideosFramesBecomeATrainableDataset) {
-  if (!models_fetched()) GTEST_SKIP() << "no MediaPipe models in " << detect::mediapipe_models_dir();
+  SFGS_SKIP_WITHOUT_MEDIAPIPE_MODELS();
   const fs::path root = scratch("video");
   data::SyntheticVideoOptions v;
   v.motions = {"walk"};
@@ -70,7 +69,7 @@ TEST(Prepare, AVideosFramesBecomeATrainableDataset) {
 }
 
 TEST(Prepare, InputsWithoutAPersonAreClearErrorsAndLeaveNothing) {
-  if (!models_fetched()) GTEST_SKIP() << "no MediaPipe models in " << detect::mediapipe_models_dir();
+  SFGS_SKIP_WITHOUT_MEDIAPIPE_MODELS();
   const fs::path root = scratch("empty");
   int served = 0;
   const prepare::FrameSource blank = [&]() -> std::optional<at::Tensor> {

@@ -22,15 +22,10 @@
 #include "detect/region.h"
 #include "detect/tflite_network.h"
 #include "test_body_utils.h"
+#include "test_detect_utils.h"
 
 namespace sfgs::testing {
 namespace {
-
-bool have_models() { return std::filesystem::exists(detect::mediapipe_models_dir() + "/models.json"); }
-#define SKIP_WITHOUT_MODELS()                                                 \
-  if (!have_models())                                                         \
-  GTEST_SKIP() << "no MediaPipe models in " << detect::mediapipe_models_dir() \
-               << " (scripts/install_deps.sh fetches them; SFGS_MEDIAPIPE_DIR names another folder)"
 
 struct ModelOutputs {
   const char* file;
@@ -38,7 +33,7 @@ struct ModelOutputs {
 };
 
 TEST(Tflite, EveryHolisticModelRunsAndGivesItsDeclaredOutputs) {
-  SKIP_WITHOUT_MODELS();
+  SFGS_SKIP_WITHOUT_MEDIAPIPE_MODELS();
   const std::vector<ModelOutputs> models = {
       {"pose_detection.tflite", {{1, 2254, 12}, {1, 2254, 1}}},
       {"pose_landmark_lite.tflite", {{1, 195}, {1, 1}, {1, 256, 256, 1}, {1, 64, 64, 39}, {1, 117}}},
@@ -123,7 +118,7 @@ TrackedVideo track_synthetic_walk(const std::string& body, const std::string& te
 // Its face has no features to tell front from back: in some runs the detector places one frame's arms on the wrong
 // sides (errors of 50-115 px), so each joint is compared with either side's keypoint and only the median is bounded.
 TEST(PoseTracker, FollowsTheBuiltInBodysLimbsAndMask) {
-  SKIP_WITHOUT_MODELS();
+  SFGS_SKIP_WITHOUT_MEDIAPIPE_MODELS();
   const TrackedVideo v = track_synthetic_walk("", "", 270, 480, /*either_side*/ true);
   ASSERT_EQ(v.mask_ious.size(), 4u);
   EXPECT_LT(median(v.limb_errors), 8.0);
@@ -132,7 +127,7 @@ TEST(PoseTracker, FollowsTheBuiltInBodysLimbsAndMask) {
 
 // The CC0 stand-in body with its albedo, a textured person: measured 3.1 px median at 270 x 480.
 TEST(PoseTracker, FollowsTheStandInPersonWithinFourPixels) {
-  SKIP_WITHOUT_MODELS();
+  SFGS_SKIP_WITHOUT_MEDIAPIPE_MODELS();
   SFGS_SKIP_WITHOUT_SHARED_BODIES();
   const std::string bodies = shared_bodies_folder();
   const TrackedVideo v = track_synthetic_walk(bodies + "/anny_smplx_layout.npz", bodies + "/anny_albedo.png", 270, 480);
@@ -142,7 +137,7 @@ TEST(PoseTracker, FollowsTheStandInPersonWithinFourPixels) {
 }
 
 TEST(PoseTracker, AnEmptyImageHasNoPerson) {
-  SKIP_WITHOUT_MODELS();
+  SFGS_SKIP_WITHOUT_MEDIAPIPE_MODELS();
   detect::PoseTracker tracker(at::kCPU);
   EXPECT_FALSE(tracker.track(at::ones({240, 180, 3})).found);
   EXPECT_FALSE(tracker.detect(at::zeros({240, 180, 3})).has_value());
@@ -157,7 +152,7 @@ TEST(Tflite, ADamagedOrForeignFileIsAClearError) {
   std::vector<unsigned char> bytes = {0xff, 0xff, 0xff, 0x7f, 'T', 'F', 'L', '3', 0, 0, 0, 0};
   write_bytes(path, bytes.data(), bytes.size());
   expect_error([&] { detect::read_tflite(path); }, {"is not a valid TensorFlow Lite model"});
-  if (have_models()) {  // a real model cut short
+  if (mediapipe_models_fetched()) {  // a real model cut short
     const std::vector<unsigned char> model = read_bytes(detect::mediapipe_model("hand_recrop.tflite"));
     write_bytes(path, model.data(), model.size() / 2);
     expect_error([&] { detect::read_tflite(path); }, {"is not a valid TensorFlow Lite model"});
@@ -193,7 +188,7 @@ TEST(Region, ACropMapsBackToTheImageItCameFrom) {
 // The face and hands of the stand-in person waving at 540 x 960 against its exact keypoints: the median error of the
 // points both report, pixels (the face's points are the mesh's by a fixed correspondence, so part of it is definition).
 TEST(PoseTracker, FindsTheStandInPersonsFaceAndHands) {
-  SKIP_WITHOUT_MODELS();
+  SFGS_SKIP_WITHOUT_MEDIAPIPE_MODELS();
   SFGS_SKIP_WITHOUT_SHARED_BODIES();
   const std::string bodies = shared_bodies_folder();
   const std::filesystem::path folder =
@@ -238,7 +233,7 @@ TEST(PoseTracker, FindsTheStandInPersonsFaceAndHands) {
 }
 
 TEST(PoseTracker, FollowsTheLargestOfSeveralPeople) {
-  SKIP_WITHOUT_MODELS();
+  SFGS_SKIP_WITHOUT_MEDIAPIPE_MODELS();
   const std::filesystem::path folder =
       std::filesystem::temp_directory_path() / ("sfgs_two_people_" + std::to_string(::getpid()));
   data::SyntheticVideoOptions o;

@@ -141,14 +141,19 @@ at::Tensor rotation_matrices(const at::Tensor& quaternions) {
       .view({-1, 3, 3});
 }
 
-// Packed covariances (N, 6) as (N, 3, 3) matrices and back.
+// Packed covariances (N, 6) as (N, 3, 3) matrices and back, in kCovariancePairs' order.
 at::Tensor unpacked(const at::Tensor& packed) {
-  const at::Tensor index = at::tensor({0, 1, 2, 1, 3, 4, 2, 4, 5}, packed.options().dtype(at::kLong));
-  return packed.index_select(1, index).view({-1, 3, 3});
+  std::vector<int64_t> index(9);
+  for (int k = 0; k < 6; ++k) {
+    const int a = kCovariancePairs[k][0], b = kCovariancePairs[k][1];
+    index[size_t(3 * a + b)] = index[size_t(3 * b + a)] = k;
+  }
+  return packed.index_select(1, at::tensor(index, packed.options().dtype(at::kLong))).view({-1, 3, 3});
 }
 at::Tensor packed(const at::Tensor& matrices) {
-  const at::Tensor index = at::tensor({0, 1, 2, 4, 5, 8}, matrices.options().dtype(at::kLong));
-  return matrices.reshape({-1, 9}).index_select(1, index);
+  std::vector<int64_t> index;
+  for (const auto& pair : kCovariancePairs) index.push_back(3 * pair[0] + pair[1]);
+  return matrices.reshape({-1, 9}).index_select(1, at::tensor(index, matrices.options().dtype(at::kLong)));
 }
 
 }  // namespace
