@@ -8,10 +8,11 @@
 // and per cut share (--blend-cut-shares, default 0,0.5,1,1.5,2,4: runs longer than that many times the intersections
 // per resident block are cut; 0 cuts every run longer than a segment; kBlendCutShare) the median graph frame and the
 // largest difference to the uncut image. Per size, the tile runs of the first pose (print_tile_runs: what the blend's
-// work is made of).
+// work is made of). And batches of --batch frames (default 8) through animate::BatchAnimator per lane count
+// (--batch-lanes, default 1,2,4,8): what rendering frames side by side on several streams gains.
 // Usage: bench_animate [--device cpu|cuda] [--shared DIR] [--run DIR] [--levels L] [--sizes 800x1200,540x960]
 //                      [--frames N] [--cull-cosines C,...] [--blend-segments L,...] [--blend-cut-shares S,...]
-//                      [--profile 1] [--time T]
+//                      [--batch B] [--batch-lanes L,...] [--profile 1] [--time T]
 //   --time T: replayed training frames (with the time branch and, for a trained avatar, the observation prior) at
 //   times from T on, each frame its own, instead of new-motion frames; the cull and blend tables stay new-motion.
 //   --shared DIR: the Anny stand-in body of DIR/bodies (with MANO hands and face ids) instead of the procedural body.
@@ -36,6 +37,7 @@
 #include <torch/cuda.h>
 
 #include "animate/animator.h"
+#include "animate/batch_animator.h"
 #include "body/mesh.h"
 #include "body/skeleton.h"
 #include "common/host_memory.h"
@@ -70,13 +72,15 @@ struct Arguments {
   std::vector<double> cull_cosines{0.3, 0.5, 0.7, 1.0};
   std::vector<int64_t> blend_segments{0, 128, 192, 256, 384, 512};
   std::vector<double> blend_cut_shares{0.0, 0.5, 1.0, 1.5, 2.0, 4.0};
+  int64_t batch = 8;                             // frames of one BatchAnimator call
+  std::vector<int64_t> batch_lanes{1, 2, 4, 8};  // Animators on streams of their own
 };
 
 [[noreturn]] void usage() {
   std::fprintf(stderr,
                "usage: bench_animate [--device cpu|cuda] [--shared DIR] [--run DIR] [--levels L] "
                "[--sizes WxH,...] [--frames N] [--cull-cosines C,...] [--blend-segments L,...] "
-               "[--blend-cut-shares S,...] [--profile 1]\n");
+               "[--blend-cut-shares S,...] [--batch B] [--batch-lanes L,...] [--profile 1]\n");
   std::exit(2);
 }
 
@@ -112,6 +116,14 @@ Arguments parse(int argc, char** argv) {
       std::stringstream list(value);
       for (std::string item; std::getline(list, item, ',');) a.blend_cut_shares.push_back(std::atof(item.c_str()));
       if (a.blend_cut_shares.empty()) usage();
+    } else if (flag == "--batch") {
+      a.batch = std::max(1L, std::atol(value.c_str()));
+    } else if (flag == "--batch-lanes") {
+      a.batch_lanes.clear();
+      std::stringstream list(value);
+      for (std::string item; std::getline(list, item, ',');)
+        a.batch_lanes.push_back(std::max(1L, std::atol(item.c_str())));
+      if (a.batch_lanes.empty()) usage();
     } else if (flag == "--sizes") {
       a.sizes.clear();
       std::stringstream list(value);
@@ -193,6 +205,35 @@ std::vector<double> time_frames(sfgs::animate::Animator& animator, const SmplxPo
     ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count());
   }
   return ms;
+}
+
+// A batch of frames through animate::BatchAnimator per lane count (1: one graph replay after another): the median
+// time of a whole batch over a sweep of batches, per frame, and the largest difference to the one-lane batch.
+void print_batch_table(sfgs::model::Avatar& avatar, const sfgs::Camera& camera, const at::Tensor& background,
+                       const SmplxPose& a, const SmplxPose& b, const Arguments& args) {
+  std::printf("  batches of %ld frames (new motion): lanes | ms a batch | ms a frame | frames/s | largest difference\n",
+              long(args.batch));
+  at::Tensor first;
+  const int rounds = std::max(5, args.frames / int(args.batch));
+  for (int64_t lanes : args.batch_lanes) {
+    sfgs::animate::BatchAnimator batch(avatar, background, {}, lanes);
+    std::vector<double> ms;
+    at::Tensor image;
+    for (int r = 0; r < rounds + 2; ++r) {
+      std::vector<sfgs::animate::BatchFrame> frames;
+      for (int64_t k = 0; k < args.batch; ++k)
+        frames.push_back({camera, blend(a, b, double(r * args.batch + k) / double(rounds * args.batch)), std::nullopt});
+      const auto start = std::chrono::steady_clock::now();
+      image = batch.render(frames).image;
+      torch::cuda::synchronize();
+      if (r >= 2)
+        ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count());
+    }
+    if (!first.defined()) first = image;
+    const double m = median(ms);
+    std::printf("    %ld | %.3f | %.3f | %.0f | %.2e\n", long(lanes), m, m / double(args.batch),
+                1000.0 * double(args.batch) / m, (image - first).abs().max().item<double>());
+  }
 }
 
 // Run time against error of the back-facing cull: per cosine, the median graph frame, its intersections, and the
@@ -467,6 +508,7 @@ int main(int argc, char** argv) {
           "(budget %ld); largest difference to the eager frame %.2e\n",
           graph_ms, 1000 / graph_ms, long(s.captures), long(s.budget_overflows), long(s.intersections), long(s.budget),
           difference);
+      print_batch_table(avatar, camera, white, a, b, args);
       print_culling_table(avatar, camera, white, a, b, args);
       print_blend_segment_table(avatar, camera, white, a, b, args);
     }

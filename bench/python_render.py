@@ -1,10 +1,10 @@
 """Avatar.render from Python on a trained avatar, as a user calls it: the median and 90th-percentile milliseconds
 of a frame (pose moving, camera circling the body's centre, the image returned as a CUDA tensor), for new-motion
 frames (no time) and replayed training frames (with their time), after a warm-up that holds the graphs'
-recordings; and the fast frame's PSNR against the eager, differentiable render of the same pose (without and with a
-time).
+recordings; a batch of B frames in one call against B single calls (the same poses and cameras); and the fast frame's
+PSNR against the eager, differentiable render of the same pose (without and with a time).
 
-Usage: python3 bench/python_render.py RUN [--frames 200] [--device cuda]
+Usage: python3 bench/python_render.py RUN [--frames 200] [--batch 8] [--device cuda]
 """
 import argparse
 import math
@@ -53,10 +53,39 @@ def time_frames(avatar, camera, pose, frames, timed):
     return statistics.median(times), times[int(0.9 * (len(times) - 1))], image, statistics.mean(coverage)
 
 
+def time_batch(avatar, camera, pose, batch, rounds):
+    """Median milliseconds of B single calls and of one call with B poses and cameras (new-motion frames), and the
+    largest difference between the two results."""
+    base = pose.get("body_pose", torch.zeros(21, 3)).double()
+    means = avatar.gaussians({k: v for k, v in pose.items() if k != "time"})["means"].double().cpu()
+    centre = (means.min(0).values + means.max(0).values) / 2
+    poses, cameras = [], []
+    for k in range(batch):
+        p = {k2: v for k2, v in pose.items() if k2 != "time"}
+        p["body_pose"] = base + 0.1 * math.sin(k / 3.0)
+        poses.append(p)
+        cameras.append(circling(camera, centre, 0.3 * k))
+    singles, batched = [], []
+    for r in range(rounds + 5):
+        start = time.perf_counter()
+        one = [avatar.render(c, p)["image"] for c, p in zip(cameras, poses)]
+        torch.cuda.synchronize()
+        middle = time.perf_counter()
+        many = avatar.render(cameras, poses)["image"]
+        torch.cuda.synchronize()
+        end = time.perf_counter()
+        if r >= 5:
+            singles.append(1e3 * (middle - start))
+            batched.append(1e3 * (end - middle))
+    difference = (torch.stack(one) - many).abs().max().item()
+    return statistics.median(singles), statistics.median(batched), difference
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("run")
     parser.add_argument("--frames", type=int, default=200)
+    parser.add_argument("--batch", type=int, default=8)
     parser.add_argument("--device", default="cuda")
     args = parser.parse_args()
     avatar = sfgs.load_avatar(args.run, device=args.device)
@@ -70,6 +99,10 @@ def main():
             kind = "replayed (time)" if timed else "new motion"
             print(f"  {kind:16s} median {median:.3f} ms  p90 {p90:.3f} ms  ({image.device}, {tuple(image.shape)}; "
                   f"the body covers {100 * coverage:.1f} % of the image)")
+        if args.device == "cuda" and args.batch > 0:
+            singles, batched, difference = time_batch(avatar, camera, pose, args.batch, 50)
+            print(f"  {args.batch} single calls {singles:.3f} ms, one batch of {args.batch} {batched:.3f} ms: "
+                  f"{singles / batched:.2f}x ({batched / args.batch:.3f} ms a frame; results differ by {difference:.1e})")
     # The fast frame against the eager render of the same pose (a pose that asks for a gradient takes that path, in
     # float32; the fast frame's networks take TF32 products), without and with the frame's time.
     for timed in (False, True):

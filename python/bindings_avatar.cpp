@@ -10,7 +10,7 @@
 
 #include <torch/extension.h>
 
-#include "animate/animator.h"
+#include "animate/batch_animator.h"
 #include "animate/camera_placement.h"
 #include "common/tensor_description.h"
 #include "data/dataset.h"
@@ -105,18 +105,19 @@ class TrainedAvatar {
   py::dict render(const py::object& camera, const py::object& pose, const py::object& background) {
     const auto given = to_optional_tensor(background, "Avatar.render(background)");
     const bool camera_list = py::isinstance<py::list>(camera), pose_list = py::isinstance<py::list>(pose);
-    if (!camera_list && !pose_list) return result_dict(render_one(camera_argument(camera), to_pose(pose), given));
+    if (!camera_list && !pose_list)
+      return result_dict(render_frames({camera_argument(camera)}, {to_pose(pose)}, given));
     const int64_t count = int64_t(camera_list ? py::len(camera) : py::len(pose));
     TORCH_CHECK(count > 0, "Avatar.render: a batch needs at least one camera and pose, got an empty list");
     TORCH_CHECK(!camera_list || !pose_list || int64_t(py::len(pose)) == count, "Avatar.render: ", count,
                 " cameras but ", py::len(pose), " poses; give as many of each, or one of either");
-    std::vector<sfgs::RenderResult> frames;
+    std::vector<CameraArgument> cameras;
+    std::vector<FramePose> poses;
     for (int64_t b = 0; b < count; ++b) {
-      const py::object c = camera_list ? py::list(camera)[size_t(b)] : camera;
-      const py::object q = pose_list ? py::list(pose)[size_t(b)] : pose;
-      frames.push_back(render_one(camera_argument(c), to_pose(q), given));
+      cameras.push_back(camera_argument(camera_list ? py::list(camera)[size_t(b)] : camera));
+      poses.push_back(to_pose(pose_list ? py::list(pose)[size_t(b)] : pose));
     }
-    return result_dict(stacked(frames));
+    return result_dict(render_frames(cameras, poses, given, true));
   }
 
   // The loss a training step takes on one frame, with the run's loss weights: the avatar in `pose` rendered by
@@ -205,31 +206,26 @@ class TrainedAvatar {
     return false;
   }
 
-  // The frame through the Animator (one CUDA graph replay): what sfgs render and sfgs eval run. The result is
-  // cloned, since the next replay writes into the graph's tensors.
-  sfgs::RenderResult render_fast(const sfgs::Camera& camera, const FramePose& p,
+  // The frames through the Animator (a CUDA graph replay each, several at once on streams of their own:
+  // animate/batch_animator.h): what sfgs render and sfgs eval run. The results are the caller's (no later frame
+  // overwrites them), stacked on a first dimension.
+  sfgs::RenderResult render_fast(const std::vector<CameraArgument>& cameras, const std::vector<FramePose>& poses,
                                  const std::optional<at::Tensor>& background) {
-    SmplxPose host;
-    for (const SmplxPose::Field& f : SmplxPose::fields()) {
-      const at::Tensor& t = p.pose.*(f.member);
-      if (t.defined()) host.*(f.member) = t.detach().cpu();
+    std::vector<sfgs::animate::BatchFrame> frames;
+    for (size_t b = 0; b < poses.size(); ++b) {
+      sfgs::animate::BatchFrame f{cameras[b].value, SmplxPose{}, poses[b].time};
+      for (const SmplxPose::Field& field : SmplxPose::fields()) {
+        const at::Tensor& t = poses[b].pose.*(field.member);
+        if (t.defined()) f.pose.*(field.member) = t.detach().cpu();
+      }
+      frames.push_back(std::move(f));
     }
     const at::Tensor bg = background ? *background : at::ones({3});
     if (!animator_)
-      animator_ = std::make_unique<sfgs::animate::Animator>(t_.avatar, camera, bg);
-    else {
-      animator_->set_camera(camera);
+      animator_ = std::make_unique<sfgs::animate::BatchAnimator>(t_.avatar, bg);
+    else
       animator_->set_background(bg);
-    }
-    animator_->render(host, p.time);
-    const sfgs::RenderResult& r = animator_->latest();
-    sfgs::RenderResult copy;
-    copy.image = r.image.clone();
-    copy.alpha = r.alpha.clone();
-    copy.depth = r.depth.clone();
-    copy.radii = r.radii.clone();
-    copy.visible = r.visible.clone();
-    return copy;
+    return animator_->render(frames);
   }
 
   // The module's parameters or buffers (named as in the checkpoint): the tensors themselves, which sfgs.Avatar, an
@@ -302,10 +298,25 @@ class TrainedAvatar {
   const sfgs::train::TrainedAvatar& trained() const { return t_; }
 
  private:
-  sfgs::RenderResult render_one(const CameraArgument& camera, const FramePose& p,
-                                const std::optional<at::Tensor>& background) {
+  // Frames on the fast path when none asks for a gradient on CUDA, else one by one through the differentiable
+  // render; stacked on a first dimension unless `batch` is false (one frame).
+  sfgs::RenderResult render_frames(const std::vector<CameraArgument>& cameras, const std::vector<FramePose>& poses,
+                                   const std::optional<at::Tensor>& background, bool batch = false) {
     refresh_if_changed();
-    if (device_.is_cuda() && !needs_gradient(p, camera, background)) return render_fast(camera.value, p, background);
+    bool fast = device_.is_cuda();
+    for (size_t b = 0; fast && b < poses.size(); ++b) fast = !needs_gradient(poses[b], cameras[b], background);
+    if (fast) {
+      sfgs::RenderResult r = render_fast(cameras, poses, background);
+      if (!batch) r = sfgs::RenderResult{r.image[0], r.alpha[0], r.depth[0], r.radii[0], r.visible[0]};
+      return r;
+    }
+    std::vector<sfgs::RenderResult> frames;
+    for (size_t b = 0; b < poses.size(); ++b) frames.push_back(render_eagerly(cameras[b], poses[b], background));
+    return batch ? stacked(frames) : frames.front();
+  }
+
+  sfgs::RenderResult render_eagerly(const CameraArgument& camera, const FramePose& p,
+                                    const std::optional<at::Tensor>& background) {
     const sfgs::model::AvatarOutput o = t_.avatar->forward(p.pose, p.time);
     const at::Tensor bg = background ? background->to(o.means.options()) : at::ones({3}, o.means.options());
     sfgs::Gaussians gaussians = sfgs::model::to_gaussians(o);
@@ -393,7 +404,7 @@ class TrainedAvatar {
   bool other_dataset_ = false;  // data_ may be another dataset than the run's own
   sfgs::train::TrainedAvatar t_;
   std::optional<sfgs::data::Dataset> dataset_;
-  std::unique_ptr<sfgs::animate::Animator> animator_;   // CUDA renders without a gradient, made at the first
+  std::unique_ptr<sfgs::animate::BatchAnimator> animator_;  // CUDA renders without a gradient, made at the first
   int64_t parameters_version_ = 0;                      // parameters_version() when the cache and Animator were made
   std::unique_ptr<sfgs::train::ImageLoss> image_loss_;  // training_loss's, made at its first call
   std::unique_ptr<sfgs::train::Regularisers> regularisers_;

@@ -110,18 +110,35 @@ void Animator::splat(const model::AvatarOutput& out, const BinningBudget* budget
 }
 
 at::Tensor Animator::render(const body::SmplxPose& pose, model::FrameTime time) {
+  submit(pose, time);
+  return finish().image;
+}
+
+void Animator::submit(const body::SmplxPose& pose, model::FrameTime time) {
+  TORCH_CHECK(pending_ == Pending::kNone, "Animator: submit() again before finish() of the frame submitted before");
   check_host_pose(pose);
   ++stats_.frames;
   stage_frame(time);
-  const bool graphs = options_.use_graph && device_.is_cuda() && device_graphs_available();
-  return graphs ? render_with_graph(pose, time) : render_eagerly(pose, time);
+  if (options_.use_graph && device_.is_cuda() && device_graphs_available()) {
+    launch_graph_frame(pose, time);
+    pending_ = Pending::kReplay;
+  } else {
+    render_eagerly(pose, time);
+    pending_ = Pending::kRendered;
+  }
 }
 
-at::Tensor Animator::render_eagerly(const body::SmplxPose& pose, model::FrameTime time) {
+const RenderResult& Animator::finish() {
+  TORCH_CHECK(pending_ != Pending::kNone, "Animator: finish() without a submitted frame");
+  if (pending_ == Pending::kReplay) finish_graph_frame();
+  pending_ = Pending::kNone;
+  return result_;
+}
+
+void Animator::render_eagerly(const body::SmplxPose& pose, model::FrameTime time) {
   at::NoGradGuard no_grad;
   keep_cache();
   splat(avatar_->forward_trusted_pose(pose, time));
-  return result_.image;
 }
 
 void Animator::stage_pose(const body::SmplxPose& pose) {
@@ -162,26 +179,32 @@ void Animator::capture(bool timed) {
   stats_.budget = budget_->intersections();
 }
 
-at::Tensor Animator::render_with_graph(const body::SmplxPose& pose, model::FrameTime time) {
+void Animator::launch_graph_frame(const body::SmplxPose& pose, model::FrameTime time) {
   stage_pose(pose);
   const std::string key = std::string(time ? "timed " : "new ") + layout_ + " " + intrinsics_key(camera_);
   if (key != graph_key_ || avatar_->cache_generation() != cache_generation_) {
     graph_.reset();
     graph_key_ = key;
   }
+  pending_timed_ = time.has_value();
+  if (!graph_) capture(pending_timed_);
+  graph_->replay();
+}
+
+void Animator::finish_graph_frame() {
   for (;;) {
-    if (!graph_) capture(time.has_value());
-    graph_->replay();
     const BinningCounts counts = budget_->read();
     stats_.intersections = counts.intersections;
     if (budget_->fits(counts)) break;
-    // The pass was emptied on the device: grow the budget, record again, and replay the same frame.
+    // The pass was emptied on the device: grow the budget, record again, and replay the same frame (its pose and
+    // values are still staged).
     ++stats_.budget_overflows;
     budget_->grow(counts);
     graph_.reset();
+    capture(pending_timed_);
+    graph_->replay();
   }
   ++stats_.graph_frames;
-  return result_.image;
 }
 
 }  // namespace sfgs::animate

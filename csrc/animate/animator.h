@@ -73,6 +73,13 @@ class Animator {
   // (time in [-1, 1]). The pose's tensors must be on the CPU, where they are checked; the image is overwritten by the
   // next graph frame (clone it to keep it).
   at::Tensor render(const body::SmplxPose& pose, model::FrameTime time = std::nullopt);
+  // The same frame in two halves, so that the host can queue the frames of several Animators (each on a stream of its
+  // own, animate/batch_animator.h) before it waits for any: submit() checks and stages the frame and queues it on the
+  // current stream (a graph replay; an eager frame is rendered there and then), finish() waits for it, renders it
+  // again should it have outgrown the splatting budget, and returns its result (overwritten by the next frame).
+  // render() is submit() then finish(); a second submit() needs a finish() between.
+  void submit(const body::SmplxPose& pose, model::FrameTime time = std::nullopt);
+  const RenderResult& finish();
   // The whole result of the latest frame (image, alpha, depth, and per Gaussian radii and visibility), with depth in
   // the camera's frame; overwritten by the next graph frame like the image.
   const RenderResult& latest() const { return result_; }
@@ -89,8 +96,9 @@ class Animator {
   // The posed avatar's image, seen from the staged camera (back-facing Gaussians culled), into result_; with a
   // budget (a recorded frame), its buffers sized from it (splat.h).
   void splat(const model::AvatarOutput& out, const BinningBudget* budget = nullptr);
-  at::Tensor render_eagerly(const body::SmplxPose& pose, model::FrameTime time);
-  at::Tensor render_with_graph(const body::SmplxPose& pose, model::FrameTime time);
+  void render_eagerly(const body::SmplxPose& pose, model::FrameTime time);
+  void launch_graph_frame(const body::SmplxPose& pose, model::FrameTime time);
+  void finish_graph_frame();
   void stage_pose(const body::SmplxPose& pose);
   void stage_frame(model::FrameTime time);
   void capture(bool timed);
@@ -121,6 +129,9 @@ class Animator {
   std::unique_ptr<GrowingBudget> budget_;
   RenderResult result_;
   std::unique_ptr<DeviceGraph> graph_;
+  // The submitted frame not yet finished: none, one already rendered (eagerly), or a queued replay.
+  enum class Pending { kNone, kRendered, kReplay } pending_ = Pending::kNone;
+  bool pending_timed_ = false;
 };
 
 }  // namespace sfgs::animate

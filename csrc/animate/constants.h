@@ -1,5 +1,6 @@
 #pragma once
 // The Animator's numbers, named once.
+#include <cstdint>
 
 namespace sfgs {
 
@@ -10,5 +11,10 @@ namespace sfgs {
 inline constexpr double kAnimatorBackFacingCosine = 1.0;
 // A cosine that culls clearly back-facing Gaussians only, for callers who trade that accuracy for speed.
 inline constexpr double kAnimatorFastBackFacingCosine = 0.3;
+
+// A batch of frames (animate/batch_animator.h) is rendered by at most this many Animators at once, each replaying its
+// graph on a stream of its own: one frame's short kernels leave the GPU partly idle, and the others fill it. Each
+// lane holds its own recording and buffers (about a frame's memory).
+inline constexpr int64_t kBatchLanes = 4;
 
 }  // namespace sfgs

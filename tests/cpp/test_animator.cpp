@@ -3,6 +3,7 @@
 // ones in tests/cuda/test_animate_cuda.cpp.
 #include <array>
 #include <cmath>
+#include <functional>
 #include <limits>
 #include <string>
 #include <utility>
@@ -14,10 +15,12 @@
 #include <torch/csrc/autograd/grad_mode.h>
 
 #include "animate/animator.h"
+#include "animate/batch_animator.h"
 #include "animate/visibility.h"
 #include "ops/splat/camera_frame.h"
 #include "metrics/image_metrics.h"
 #include "test_avatar_utils.h"
+#include "tensor_compare.h"
 #include "animate/constants.h"
 
 namespace sfgs::testing {
@@ -258,6 +261,54 @@ TEST(Animator, RefusesNonFinitePosesAndBadBackgroundsOrCameras) {
   pose.body_pose = at::zeros({21, 3}, at::kInt);
   EXPECT_NE(message([&] { animator.render(pose); }).find("pose.body_pose must be a floating tensor on the CPU"),
             std::string::npos);
+}
+
+// A batch on the CPU (one lane at a time, eager frames) gives each frame as an Animator renders it alone, stacked;
+// cameras of different image sizes and a refused pose are clear errors, after which the next batch renders.
+TEST(BatchAnimator, FramesEqualSingleFramesAndRefusalsLeaveItUsable) {
+  model::Avatar avatar = trained_looking_avatar();
+  const at::Tensor background = at::full({3}, 0.2);
+  animate::BatchAnimator batch(avatar, background, {}, 2);
+  animate::Animator single(avatar, front_camera(), background);
+  std::vector<animate::BatchFrame> frames;
+  for (int k = 0; k < 5; ++k) {
+    const double angle = 0.3 * k, c = std::cos(angle), s = std::sin(angle);
+    Camera camera = front_camera();
+    camera.world_to_camera = {c, 0, -s, 0, 0, -1, 0, 0.3, -s, 0, -c, 3, 0, 0, 0, 1};
+    frames.push_back(
+        {camera, test_pose(30 + k, 0.3, k % 2 == 0), k == 3 ? model::FrameTime(kTestTime) : model::FrameTime()});
+  }
+  const RenderResult out = batch.render(frames);
+  ASSERT_EQ(out.image.sizes(), at::IntArrayRef({5, 64, 48, 3}));
+  ASSERT_EQ(out.alpha.sizes(), at::IntArrayRef({5, 64, 48}));
+  ASSERT_EQ(out.radii.size(0), 5);
+  for (size_t k = 0; k < frames.size(); ++k) {
+    single.set_camera(frames[k].camera);
+    const at::Tensor image = single.render(frames[k].pose, frames[k].time);
+    EXPECT_EQ(max_difference(out.image[int64_t(k)], image), 0.0) << "frame " << k;
+    EXPECT_EQ(max_difference(out.depth[int64_t(k)], single.latest().depth), 0.0) << "frame " << k;
+    EXPECT_TRUE(out.visible[int64_t(k)].equal(single.latest().visible)) << "frame " << k;
+  }
+  EXPECT_GT(max_difference(out.image[0], out.image[1]), 1e-3) << "the frames differ";
+  EXPECT_EQ(batch.stats().frames, 5);
+
+  const auto message = [](const std::function<void()>& call) {
+    try {
+      call();
+    } catch (const c10::Error& e) {
+      return std::string(e.what_without_backtrace());
+    }
+    return std::string("no error");
+  };
+  std::vector<animate::BatchFrame> sizes = {frames[0], frames[1]};
+  sizes[1].camera = Camera::looking_forward(60, 32, 64);
+  EXPECT_NE(message([&] { batch.render(sizes); }).find("every camera needs one image size"), std::string::npos);
+  std::vector<animate::BatchFrame> refused = frames;
+  refused[3].pose.body_pose = refused[3].pose.body_pose.clone();
+  refused[3].pose.body_pose[1][0] = std::numeric_limits<double>::infinity();
+  EXPECT_NE(message([&] { batch.render(refused); }).find("body_pose must be finite"), std::string::npos);
+  EXPECT_EQ(max_difference(batch.render(frames).image, out.image), 0.0) << "usable after the refusal";
+  EXPECT_NE(message([&] { batch.render({}); }).find("at least one frame"), std::string::npos);
 }
 
 }  // namespace

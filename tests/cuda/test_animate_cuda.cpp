@@ -15,6 +15,7 @@
 #include <torch/cuda.h>
 
 #include "animate/animator.h"
+#include "animate/batch_animator.h"
 #include "body/kinematics.h"
 #include "body/mesh.h"
 #include "body/rotations.h"
@@ -424,6 +425,39 @@ TEST(AnimatorCuda, GraphFramesReplayTrainingTimesWithTheObservationPrior) {
   const at::Tensor new_motion = graphed.render(pose).clone();
   EXPECT_LT(max_difference(new_motion, eager.render(pose)), 1e-6);
   EXPECT_EQ(graphed.stats().captures, 2) << "a frame without a time is recorded apart";
+}
+
+// A batch on several streams (three lanes for seven frames, new and replayed, the camera turning): every frame equals
+// the eager frame of its pose, the results stay the caller's after the next batch, and each lane recorded its graph.
+TEST(AnimatorCuda, BatchFramesOnSeveralStreamsEqualEagerFrames) {
+  SKIP_WITHOUT_CUDA();
+  model::Avatar avatar = cuda_avatar();
+  const at::Tensor background = at::full({3}, 0.5);
+  animate::AnimatorOptions eager_options;
+  eager_options.use_graph = false;
+  animate::Animator eager(avatar, front_camera(96, 128), background, eager_options);
+  animate::BatchAnimator batch(avatar, background, {}, 3);
+  std::vector<animate::BatchFrame> frames;
+  for (int64_t k = 0; k < 7; ++k) {
+    const double angle = 0.2 * double(k), c = std::cos(angle), s = std::sin(angle);
+    Camera camera = front_camera(96, 128);
+    camera.world_to_camera = {c, 0, -s, 0, 0, -1, 0, 0.3, -s, 0, -c, 3, 0, 0, 0, 1};
+    frames.push_back(
+        {camera, test_pose(40 + k, 0.1 + 0.05 * double(k), true), k >= 5 ? model::FrameTime(0.3) : model::FrameTime()});
+  }
+  const RenderResult out = batch.render(frames);
+  std::vector<animate::BatchFrame> next = frames;
+  for (auto& f : next) f.pose = test_pose(60, 0.3, true);
+  batch.render(next);
+  for (size_t k = 0; k < frames.size(); ++k) {
+    eager.set_camera(frames[k].camera);
+    const at::Tensor image = eager.render(frames[k].pose, frames[k].time);
+    EXPECT_LT(max_difference(out.image[int64_t(k)], image), 1e-6) << "frame " << k;
+    EXPECT_LT(max_difference(out.alpha[int64_t(k)], eager.latest().alpha), 1e-6) << "frame " << k;
+  }
+  EXPECT_EQ(batch.lane_count(), 3);
+  EXPECT_EQ(batch.stats().graph_frames, 14);
+  EXPECT_GE(batch.stats().captures, 3);
 }
 
 }  // namespace

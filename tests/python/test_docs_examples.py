@@ -26,8 +26,13 @@ def test_the_docs_have_examples():
     assert any("training_loss" in b for b in blocks) and any("requires_grad_(True)" in b for b in blocks)
 
 
-def test_every_python_example_runs(run, tmp_path, monkeypatch):
+@pytest.mark.parametrize("device", ["cpu", "cuda"])
+def test_every_python_example_runs(run, tmp_path, monkeypatch, device):
+    import torch
     import sfgs
+
+    if device == "cuda" and not (torch.cuda.is_available() and sfgs.cuda_available()):
+        pytest.skip("the examples on CUDA need a GPU and a CUDA build")
 
     monkeypatch.chdir(tmp_path)  # what the examples write (finetuned.pt) lands here
     data = sfgs.load_avatar(run).dataset_path
@@ -37,6 +42,7 @@ def test_every_python_example_runs(run, tmp_path, monkeypatch):
         '"walk"': repr(data),
         '"SMPLX_NEUTRAL.npz"': repr(os.path.join(BODIES, "anny_smplx_layout.npz")),
         '"MANO_RIGHT.npz"': repr(os.path.join(BODIES, "anny_mano_right.npz")),
+        'device="cpu")    # or "cuda"': f'device="{device}")    #',
     }
     needs = {"sfgs.lpips(": LPIPS_WEIGHTS, "sfgs.evaluate(": LPIPS_WEIGHTS,
              "sfgs.Smplx(": os.path.join(BODIES, "anny_smplx_layout.npz")}
