@@ -6,7 +6,7 @@
 #
 #   bash scripts/device_check.sh [build] [test] [python] [pip] [sanitize] [bench] [profile] [avatar] [animate]
 #                                [train-step] [animate-trained] [stage-profile] [step-profile] [train] [ablate] [novel]
-#                                [sizes] [resolution] [fits] [render-path] [refine-cost] [fit-profile]
+#                                [sizes] [resolution] [fits] [render-path] [refine-cost] [fit-profile] [prepare]
 #   (no argument: build, test, sanitize, bench, profile, in this order)
 #
 # python: the pytest suite against the module built with the machine's pip torch and pybind11 (CUDA included).
@@ -25,6 +25,7 @@
 #                       lacks them
 #   .device/googletest  /usr/src/googletest
 #   .device/shared      ../shared/bodies and ../shared/lpips (avatar and train steps)
+#   .device/include/flatbuffers and .device/mediapipe (the MediaPipe models): sfgs prepare (prepare step)
 #
 # avatar: the avatar benchmark on the GPU and the avatar and trainer tests (CPU, with the GPU build).
 # animate: the animation path's CUDA tests (skinning kernel, fused gathered MLP, binning budget, Animator graph and
@@ -174,7 +175,9 @@ if wants build; then
 fi
 
 if wants test; then
-  run test 150 env OMP_NUM_THREADS="$jobs" "$tests" --gtest_color=no
+  # The detection tests read the carried MediaPipe models and the stand-in person.
+  run test 150 env OMP_NUM_THREADS="$jobs" SFGS_MEDIAPIPE_DIR="$root/.device/mediapipe" \
+    SFGS_SHARED_DIR="$root/.device/shared" "$tests" --gtest_color=no
   grep -E "^\[parity\]|^\[  FAILED|^\[  PASSED|Failure|Expected|Which is|actual|ms total\)" "$out/test.log" | cut -c1-400
 fi
 
@@ -345,6 +348,35 @@ if wants render-path; then
   run render-python 200 env PYTHONUNBUFFERED=1 PYTHONPATH="$build/python" python3 "$root/bench/python_render.py" "$scene/run" --frames 200
   grep -h -E "frame|sfgs eval|render |encode|PSNR|median|python" "$out"/render-frame*.log "$out"/render-eval-*.log \
     "$out"/render-video.log "$out"/render-python.log | cut -c1-200
+fi
+
+# prepare: issue 45's pipeline on CUDA. The Anny body walking and waving (SFGS_DEVICE_PREPARE_FRAMES frames a motion,
+# default 40, at SFGS_DEVICE_PREPARE_SIZE, default 540x960) in the NeuMan layout with its ground truth; `sfgs prepare`
+# on its images with the camera's focal length, on CUDA (detection frames/s, keypoint and fit accuracy); then one
+# avatar trained on the exact fits and one on the prepared ones (configs/device_anny.yaml,
+# SFGS_DEVICE_PREPARE_ITERATIONS, default 2000), each evaluated on its own test frames (the prepared one also with its
+# test poses fitted).
+if wants prepare; then
+  export SFGS_SHARED_DIR=$shared SFGS_MEDIAPIPE_DIR=$root/.device/mediapipe
+  scene=/tmp/sfgs-prepare
+  size=${SFGS_DEVICE_PREPARE_SIZE:-540x960}
+  run prepare-synth 300 "$build/sfgs" synth --out "$scene/exact" --layout neuman \
+    --body "$shared/bodies/anny_smplx_layout.npz" --texture "$shared/bodies/anny_albedo.png" --motions walk,wave \
+    --frames "${SFGS_DEVICE_PREPARE_FRAMES:-40}" --width "${size%x*}" --height "${size#*x}" --force
+  sed "s|@SHARED@|$shared|g" "$root/configs/device_anny.yaml" >"$scene/config.yaml"
+  focal=$(awk -v h="${size#*x}" 'BEGIN { print 1.2 * h }')
+  run prepare-cuda 400 "$build/sfgs" prepare "$scene/exact/images" --out "$scene/prepared" --focal "$focal" \
+    --body "$shared/bodies/anny_smplx_layout.npz" --truth "$scene/exact/ground_truth" --device cuda --force
+  grep -E "sfgs prepare|frames/s|median|IoU" "$out/prepare-cuda.log" | tail -n 12
+  for variant in exact prepared; do
+    run "prepare-train-$variant" 400 "$build/sfgs" train --data "$scene/$variant" --out "$scene/run-$variant" \
+      --config "$scene/config.yaml" --iterations "${SFGS_DEVICE_PREPARE_ITERATIONS:-2000}" --force --quiet
+    run "prepare-eval-$variant" 300 "$build/sfgs" eval --run "$scene/run-$variant" --split test --device cuda --force
+    grep -E "PSNR|psnr" "$out/prepare-eval-$variant.log" | tail -n 3
+  done
+  run prepare-eval-prepared-fitted 400 "$build/sfgs" eval --run "$scene/run-prepared" --split test --device cuda \
+    --fit-test-poses --force
+  grep -E "PSNR|psnr" "$out/prepare-eval-prepared-fitted.log" | tail -n 3
 fi
 
 # refine-cost: what pose refinement costs a training (issue 40), on render-path's scene (made here if render-path did

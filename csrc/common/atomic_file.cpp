@@ -28,15 +28,12 @@ void sync_folder_of(const std::string& path) {
 
 bool process_runs(long pid) { return ::kill(pid_t(pid), 0) == 0 || errno == EPERM; }
 
-// Removes a folder and everything in it; false when something stayed. Not std::filesystem::remove_all: the pip
-// wheels of LibTorch 2.x export their own build of it, which the dynamic linker binds our calls to and which crashes
-// when called from code built with GCC 13.
+}  // namespace
+
 bool remove_tree(const std::string& path) {
   const auto remove_entry = [](const char* entry, const struct stat*, int, struct FTW*) { return ::remove(entry); };
   return ::nftw(path.c_str(), remove_entry, 16, FTW_DEPTH | FTW_PHYS) == 0;
 }
-
-}  // namespace
 
 std::string temporary_path(const std::string& path, const std::string& suffix) {
   return path + ".tmp-" + std::to_string(::getpid()) + suffix;

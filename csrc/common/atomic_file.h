@@ -12,6 +12,12 @@ namespace sfgs {
 // Throws std::runtime_error naming the file on any failure (a full disk included); nothing is left behind then.
 void write_file_atomically(const std::string& path, const std::vector<unsigned char>& bytes, bool overwrite);
 
+// Removes a file or a folder and everything in it (links are removed, not followed); false when something stayed or
+// nothing was there. Use it instead of std::filesystem::remove_all: the pip wheels of LibTorch 2.x export their own
+// build of that function, which the dynamic linker binds our calls to and which crashes when called from code built
+// with GCC 13 (pytorch/pytorch#133437).
+bool remove_tree(const std::string& path);
+
 // The name a process gives its temporary copy of `path` ("<path>.tmp-<pid>"); `suffix` is appended (a video
 // writer needs the container's extension).
 std::string temporary_path(const std::string& path, const std::string& suffix = "");

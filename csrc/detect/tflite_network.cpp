@@ -1,12 +1,15 @@
 #include "detect/tflite_network.h"
 
 #include <algorithm>
+#include <cstdio>
 #include <limits>
 #include <set>
 #include <utility>
 
 #include <ATen/ATen.h>
 
+#include "common/device_graph.h"
+#include "common/matmul_precision.h"
 #include "common/tensor_description.h"
 
 namespace sfgs::detect {
@@ -90,10 +93,37 @@ at::Tensor strided_slice(const at::Tensor& x, const std::vector<int64_t>& begin,
   return y;
 }
 
+// The device as the tensors made on it name theirs ("cuda" is the current CUDA device, "cuda:0" say), so that inputs
+// made with the same device compare equal to it.
+at::Device indexed(at::Device device) { return at::empty({0}, at::TensorOptions().device(device)).device(); }
+
+// cuDNN off for a scope (restored after): for these small networks LibTorch's own convolution kernels serve as well
+// once recorded (120 frames of prepare at 540 x 960: 2.3 s on an H200), and cuDNN's first use of each of their
+// hundreds of convolution shapes (choosing and building its plans) took the first 15-20 s of a run.
+class WithoutCudnn {
+ public:
+  WithoutCudnn() : previous_(at::globalContext().userEnabledCuDNN()) { at::globalContext().setUserEnabledCuDNN(false); }
+  ~WithoutCudnn() { at::globalContext().setUserEnabledCuDNN(previous_); }
+  WithoutCudnn(const WithoutCudnn&) = delete;
+  WithoutCudnn& operator=(const WithoutCudnn&) = delete;
+
+ private:
+  bool previous_;
+};
+
 }  // namespace
 
-TfliteNetwork::TfliteNetwork(TfliteGraph graph, at::Device device)
-    : graph_(std::move(graph)), device_(device), constants_(graph_.tensors.size()), integers_(graph_.tensors.size()) {
+struct TfliteNetwork::Recording {
+  std::vector<at::Tensor> inputs, outputs;
+  std::unique_ptr<DeviceGraph> graph;
+};
+
+TfliteNetwork::TfliteNetwork(TfliteGraph graph, at::Device device, bool use_graphs)
+    : graph_(std::move(graph)),
+      device_(indexed(device)),
+      use_graphs_(use_graphs),
+      constants_(graph_.tensors.size()),
+      integers_(graph_.tensors.size()) {
   for (const TfliteOperator& op : graph_.operators) {
     TORCH_CHECK(runnable().count(op.code), "'", graph_.source, "': operator ",
                 is(op, TfliteOp::kCustom) ? "CUSTOM '" + op.custom_code + "'" : tflite_op_name(op.code),
@@ -120,7 +150,7 @@ const std::vector<int64_t>& TfliteNetwork::input_shape(size_t k) const {
 std::vector<at::Tensor> TfliteNetwork::run(const std::vector<at::Tensor>& inputs) const {
   TORCH_CHECK(inputs.size() == graph_.inputs.size(), "'", graph_.source, "' takes ", graph_.inputs.size(),
               " inputs, got ", inputs.size());
-  std::vector<at::Tensor> values = constants_;
+  std::string key;
   for (size_t k = 0; k < inputs.size(); ++k) {
     const std::vector<int64_t>& shape = input_shape(k);
     const at::Tensor& x = inputs[k];
@@ -134,8 +164,37 @@ std::vector<at::Tensor> TfliteNetwork::run(const std::vector<at::Tensor>& inputs
           return s;
         }(),
         ") on ", device_, ", got ", describe(x));
-    values[size_t(graph_.inputs[k])] = x;
+    for (const int64_t size : x.sizes()) key += std::to_string(size) + " ";
+    key += ";";
   }
+  // Float32 throughout, as TensorFlow Lite computes (TF32 convolutions moved landmarks by up to 7 px); LibTorch's own
+  // convolutions are matrix products.
+  const Tf32MatmulScope matmul(false);
+  const WithoutCudnn own_convolutions;
+  if (!use_graphs_ || !device_.is_cuda() || !device_graphs_available()) return run_eagerly(inputs);
+  std::shared_ptr<Recording>& r = recordings_[key];
+  if (!r) {
+    r = std::make_shared<Recording>();
+    for (const at::Tensor& x : inputs) r->inputs.push_back(x.clone());
+    try {
+      r->graph = capture_device_graph([&] { r->outputs = run_eagerly(r->inputs); });
+    } catch (const GraphCaptureError& e) {
+      std::fprintf(stderr, "sfgs: '%s' runs eagerly on CUDA (its graph could not be recorded: %s)\n",
+                   graph_.source.c_str(), e.what());
+      r->outputs.clear();
+    }
+  }
+  if (!r->graph) return run_eagerly(inputs);
+  for (size_t k = 0; k < inputs.size(); ++k) r->inputs[k].copy_(inputs[k]);
+  r->graph->replay();
+  std::vector<at::Tensor> out;
+  for (const at::Tensor& y : r->outputs) out.push_back(y.clone());
+  return out;
+}
+
+std::vector<at::Tensor> TfliteNetwork::run_eagerly(const std::vector<at::Tensor>& inputs) const {
+  std::vector<at::Tensor> values = constants_;
+  for (size_t k = 0; k < inputs.size(); ++k) values[size_t(graph_.inputs[k])] = inputs[k];
   for (const TfliteOperator& op : graph_.operators) {
     if (values[size_t(op.outputs[0])].defined()) continue;  // a constant, made at load
     values[size_t(op.outputs[0])] = run_operator(op, values);

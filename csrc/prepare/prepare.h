@@ -21,6 +21,11 @@ using FrameSource = std::function<std::optional<at::Tensor>()>;
 // A folder's images (.png, .jpg, .jpeg; read in name order), as a frame source; errors name the folder.
 FrameSource image_folder(const std::string& folder);
 
+// `source`'s frames decoded on a thread of its own, up to `depth` frames ahead of the caller, so that decoding overlaps
+// detection. An error of the source comes to the caller at the frame where it happened. The source is called from
+// that thread only.
+FrameSource read_ahead(FrameSource source, size_t depth);
+
 struct PrepareOptions {
   std::string out;             // the dataset folder
   std::string device = "cpu";  // where the networks and the fit run: cpu or cuda

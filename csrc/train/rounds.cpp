@@ -80,7 +80,8 @@ struct ClaimedRounds {
   std::vector<std::unique_ptr<FolderLock>> locks;
 
   void remove() const {
-    for (const fs::path& folder : folders) fs::remove_all(folder);
+    for (const fs::path& folder : folders)
+      TORCH_CHECK(remove_tree(folder.string()), "could not remove the round folder '", folder.string(), "'");
   }
 };
 

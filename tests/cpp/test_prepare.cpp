@@ -5,6 +5,9 @@
 
 #include <filesystem>
 #include <string>
+#include <stdexcept>
+#include <optional>
+#include <memory>
 
 #include <ATen/ATen.h>
 #include <gtest/gtest.h>
@@ -86,6 +89,44 @@ TEST(Prepare, InputsWithoutAPersonAreClearErrorsAndLeaveNothing) {
   expect_error([&] { prepare::image_folder((root / "nothing").string()); }, {"is neither a video nor a folder"});
   expect_error([&] { prepare::image_folder(root.string()); }, {"holds no .png or .jpg images"});
   fs::remove_all(root);
+}
+
+// Frames read ahead on another thread come in the source's order; an error of the source comes at the frame where it
+// happened, after the frames before it; a reader dropped before the end stops without waiting for the rest.
+TEST(Prepare, FramesReadAheadKeepTheirOrderAndTheSourcesError) {
+  const auto counting = [](int64_t count, int64_t failing) {
+    auto next = std::make_shared<int64_t>(0);
+    return prepare::FrameSource([=]() -> std::optional<at::Tensor> {
+      if (*next == failing) throw std::runtime_error("frame " + std::to_string(*next) + " is damaged");
+      if (*next >= count) return std::nullopt;
+      return at::full({2, 2, 3}, double((*next)++));
+    });
+  };
+  prepare::FrameSource frames = prepare::read_ahead(counting(7, -1), 3);
+  for (int64_t k = 0; k < 7; ++k) {
+    const std::optional<at::Tensor> frame = frames();
+    ASSERT_TRUE(frame.has_value()) << "frame " << k;
+    EXPECT_EQ((*frame)[0][0][0].item<double>(), double(k));
+  }
+  EXPECT_FALSE(frames().has_value());
+  EXPECT_FALSE(frames().has_value()) << "the end stays the end";
+
+  prepare::FrameSource failing = prepare::read_ahead(counting(7, 3), 2);
+  for (int64_t k = 0; k < 3; ++k) EXPECT_TRUE(failing().has_value());
+  EXPECT_THROW(
+      {
+        try {
+          failing();
+        } catch (const std::runtime_error& e) {
+          EXPECT_STREQ(e.what(), "frame 3 is damaged");
+          throw;
+        }
+      },
+      std::runtime_error);
+
+  prepare::FrameSource dropped = prepare::read_ahead(counting(1000000, -1), 2);
+  EXPECT_TRUE(dropped().has_value());
+  dropped = nullptr;  // joins the reader, which is waiting for room
 }
 
 }  // namespace

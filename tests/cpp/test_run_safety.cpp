@@ -1,11 +1,13 @@
 // No silent failures and no lost runs: a diverging run stops naming the iteration and term and keeps its last good
 // checkpoint; damaged checkpoints are refused by name; a resume keeps the run's model and data and rewrites nothing
 // it refuses; a run folder has one trainer at a time; killed runs leave nothing that lingers.
+#include <atomic>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <limits>
 #include <map>
+#include <stdexcept>
 #include <string>
 
 #include <ATen/ATen.h>
@@ -15,6 +17,7 @@
 #include <unistd.h>
 
 #include "common/atomic_file.h"
+#include "common/background_jobs.h"
 #include "common/folder_lock.h"
 #include "test_avatar_utils.h"
 #include "test_files.h"
@@ -337,6 +340,31 @@ TEST(AtomicFiles, AFolderAppearsWholeOrNotAtAll) {
   EXPECT_TRUE(fs::exists(target + "/index.html"));
   EXPECT_FALSE(fs::exists(target + "/data/static.js"));  // replaced as a whole, not merged
   EXPECT_EQ(std::distance(fs::directory_iterator(folder.str()), fs::directory_iterator()), 1);
+}
+
+// Every queued job runs, on the workers; the first error a job throws reaches the caller (at finish() or its next
+// add()), and the jobs after it still run.
+TEST(BackgroundJobs, RunsEveryJobAndHandsBackTheFirstError) {
+  std::atomic<int> done{0};
+  {
+    BackgroundJobs jobs(3, 2);
+    for (int k = 0; k < 50; ++k) jobs.add([&done] { ++done; });
+    jobs.finish();
+    EXPECT_EQ(done.load(), 50);
+    jobs.add([] { throw std::runtime_error("disk full writing frame 7"); });
+    try {
+      jobs.finish();
+      ADD_FAILURE() << "the job's error was not handed back";
+    } catch (const std::runtime_error& e) {
+      EXPECT_STREQ(e.what(), "disk full writing frame 7");
+    }
+    jobs.add([&done] { ++done; });
+    jobs.finish();
+    EXPECT_EQ(done.load(), 51) << "usable after an error";
+    for (int k = 0; k < 10; ++k) jobs.add([&done] { ++done; });
+  }  // the destructor runs what is queued
+  EXPECT_EQ(done.load(), 61);
+  EXPECT_THROW(BackgroundJobs(0, 1), std::invalid_argument);
 }
 
 }  // namespace
