@@ -39,6 +39,16 @@ model::Avatar trained_looking_avatar() {
   return avatar;
 }
 
+// The message of the error `call` raises ("no error" when it raises none).
+std::string animator_error(const std::function<void()>& call) {
+  try {
+    call();
+  } catch (const c10::Error& e) {
+    return std::string(e.what_without_backtrace());
+  }
+  return std::string("no error");
+}
+
 TEST(Animator, CpuFrameEqualsTheAvatarPosedAndRenderedDirectly) {
   model::Avatar avatar = trained_looking_avatar();
   const at::Tensor background = at::full({3}, 0.25);
@@ -238,28 +248,21 @@ TEST(Animator, CullingTheFarSideOfTheBodyLeavesTheImage) {
 
 TEST(Animator, RefusesNonFinitePosesAndBadBackgroundsOrCameras) {
   model::Avatar avatar = trained_looking_avatar();
-  const auto message = [](const std::function<void()>& call) {
-    try {
-      call();
-    } catch (const c10::Error& e) {
-      return std::string(e.what_without_backtrace());
-    }
-    return std::string("no error");
-  };
-  EXPECT_NE(message([&] {
+  EXPECT_NE(animator_error([&] {
               animate::Animator(avatar, front_camera(), at::zeros({4}));
             }).find("background must be a floating (3) tensor"),
             std::string::npos);
   Camera bad = front_camera();
   bad.fx = -1;
-  EXPECT_NE(message([&] { animate::Animator(avatar, bad, at::zeros({3})); }).find("Animator: "), std::string::npos);
+  EXPECT_NE(animator_error([&] { animate::Animator(avatar, bad, at::zeros({3})); }).find("Animator: "),
+            std::string::npos);
   animate::Animator animator(avatar, front_camera(), at::zeros({3}));
   body::SmplxPose pose = test_pose(5, 0.3, true);
   pose.body_pose = pose.body_pose.clone();
   pose.body_pose[2][1] = std::numeric_limits<double>::quiet_NaN();
-  EXPECT_NE(message([&] { animator.render(pose); }).find("body_pose must be finite"), std::string::npos);
+  EXPECT_NE(animator_error([&] { animator.render(pose); }).find("body_pose must be finite"), std::string::npos);
   pose.body_pose = at::zeros({21, 3}, at::kInt);
-  EXPECT_NE(message([&] { animator.render(pose); }).find("pose.body_pose must be a floating tensor on the CPU"),
+  EXPECT_NE(animator_error([&] { animator.render(pose); }).find("pose.body_pose must be a floating tensor on the CPU"),
             std::string::npos);
 }
 
@@ -292,23 +295,15 @@ TEST(BatchAnimator, FramesEqualSingleFramesAndRefusalsLeaveItUsable) {
   EXPECT_GT(max_difference(out.image[0], out.image[1]), 1e-3) << "the frames differ";
   EXPECT_EQ(batch.stats().frames, 5);
 
-  const auto message = [](const std::function<void()>& call) {
-    try {
-      call();
-    } catch (const c10::Error& e) {
-      return std::string(e.what_without_backtrace());
-    }
-    return std::string("no error");
-  };
   std::vector<animate::BatchFrame> sizes = {frames[0], frames[1]};
   sizes[1].camera = Camera::looking_forward(60, 32, 64);
-  EXPECT_NE(message([&] { batch.render(sizes); }).find("every camera needs one image size"), std::string::npos);
+  EXPECT_NE(animator_error([&] { batch.render(sizes); }).find("every camera needs one image size"), std::string::npos);
   std::vector<animate::BatchFrame> refused = frames;
   refused[3].pose.body_pose = refused[3].pose.body_pose.clone();
   refused[3].pose.body_pose[1][0] = std::numeric_limits<double>::infinity();
-  EXPECT_NE(message([&] { batch.render(refused); }).find("body_pose must be finite"), std::string::npos);
+  EXPECT_NE(animator_error([&] { batch.render(refused); }).find("body_pose must be finite"), std::string::npos);
   EXPECT_EQ(max_difference(batch.render(frames).image, out.image), 0.0) << "usable after the refusal";
-  EXPECT_NE(message([&] { batch.render({}); }).find("at least one frame"), std::string::npos);
+  EXPECT_NE(animator_error([&] { batch.render({}); }).find("at least one frame"), std::string::npos);
 }
 
 }  // namespace

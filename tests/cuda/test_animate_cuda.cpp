@@ -92,6 +92,13 @@ model::Avatar cuda_avatar() {
   return avatar;
 }
 
+// An Animator's options for eager frames: the reference its graph frames are compared with.
+animate::AnimatorOptions eager_animator_options() {
+  animate::AnimatorOptions options;
+  options.use_graph = false;
+  return options;
+}
+
 TEST(BinningBudget, WithinItTheRenderIsThePlainOneAndBeyondItOnlyTheBackground) {
   SKIP_WITHOUT_CUDA();
   model::Avatar avatar = cuda_avatar();
@@ -284,9 +291,7 @@ TEST(AnimatorCuda, GraphFramesEqualEagerFramesOverAMotion) {
   SKIP_WITHOUT_CUDA();
   model::Avatar avatar = cuda_avatar();
   const at::Tensor background = at::full({3}, 0.5);
-  animate::AnimatorOptions eager_options;
-  eager_options.use_graph = false;
-  animate::Animator eager(avatar, front_camera(96, 128), background, eager_options);
+  animate::Animator eager(avatar, front_camera(96, 128), background, eager_animator_options());
   animate::Animator graphed(avatar, front_camera(96, 128), background);
   for (int64_t k = 0; k < 6; ++k) {
     const body::SmplxPose pose = test_pose(10 + k, 0.1 + 0.1 * double(k), true);
@@ -312,9 +317,7 @@ TEST(AnimatorCuda, GraphFramesWidenGaussiansToTheirSamplingRecord) {
   // Three times the footprint a 96 x 128 view 3 m away has: as if trained on images a third the size.
   const Camera camera = front_camera(96, 128);
   avatar->set_sampling_record(at::full({avatar->gaussian_count()}, 3 * 3.0 / std::sqrt(camera.fx * camera.fy)));
-  animate::AnimatorOptions eager_options;
-  eager_options.use_graph = false;
-  animate::Animator eager(avatar, camera, background, eager_options);
+  animate::Animator eager(avatar, camera, background, eager_animator_options());
   animate::Animator graphed(avatar, camera, background);
   const at::Tensor from_graph = graphed.render(pose).clone();
   EXPECT_LT(max_difference(from_graph, eager.render(pose)), 1e-6);
@@ -334,9 +337,7 @@ TEST(AnimatorCuda, GraphFrameThatOutgrowsItsBudgetIsRenderedAgainWhole) {
   const Camera one_tile = front_camera(16, 16), close = front_camera(384, 512);
   animate::Animator graphed(avatar, one_tile, background, tight);
   graphed.render(test_pose(20, 0.05, true));
-  animate::AnimatorOptions eager_options;
-  eager_options.use_graph = false;
-  animate::Animator eager(avatar, close, background, eager_options);
+  animate::Animator eager(avatar, close, background, eager_animator_options());
   graphed.set_camera(close);
   const body::SmplxPose pose = test_pose(21, 0.05, true);
   const at::Tensor from_graph = graphed.render(pose).clone();
@@ -350,9 +351,7 @@ TEST(AnimatorCuda, GraphFrameOfANewPoseLayoutCapturesAgain) {
   model::Avatar avatar = cuda_avatar();
   const at::Tensor background = at::full({3}, 0.5);
   animate::Animator graphed(avatar, front_camera(96, 128), background);
-  animate::AnimatorOptions eager_options;
-  eager_options.use_graph = false;
-  animate::Animator eager(avatar, front_camera(96, 128), background, eager_options);
+  animate::Animator eager(avatar, front_camera(96, 128), background, eager_animator_options());
   const body::SmplxPose with_hands = test_pose(30, 0.2, true), without_hands = test_pose(31, 0.2, false);
   graphed.render(with_hands);
   const int64_t captures = graphed.stats().captures;
@@ -374,9 +373,7 @@ TEST(AnimatorCuda, GraphFramesFollowAMovingCameraWithoutRecordingAgain) {
   SKIP_WITHOUT_CUDA();
   model::Avatar avatar = cuda_avatar();
   const at::Tensor background = at::full({3}, 0.5);
-  animate::AnimatorOptions eager_options;
-  eager_options.use_graph = false;
-  animate::Animator eager(avatar, circling_camera(0), background, eager_options);
+  animate::Animator eager(avatar, circling_camera(0), background, eager_animator_options());
   animate::Animator graphed(avatar, circling_camera(0), background);
   at::NoGradGuard no_grad;
   for (int64_t k = 0; k < 5; ++k) {
@@ -408,9 +405,7 @@ TEST(AnimatorCuda, GraphFramesReplayTrainingTimesWithTheObservationPrior) {
   const int64_t n = avatar->gaussian_count();
   avatar->set_observation((at::arange(n) < n / 3).to(at::kFloat));
   const at::Tensor background = at::full({3}, 0.5);
-  animate::AnimatorOptions eager_options;
-  eager_options.use_graph = false;
-  animate::Animator eager(avatar, front_camera(96, 128), background, eager_options);
+  animate::Animator eager(avatar, front_camera(96, 128), background, eager_animator_options());
   animate::Animator graphed(avatar, front_camera(96, 128), background);
   const body::SmplxPose pose = test_pose(70, 0.2, false);
   at::Tensor previous;
@@ -433,9 +428,7 @@ TEST(AnimatorCuda, BatchFramesOnSeveralStreamsEqualEagerFrames) {
   SKIP_WITHOUT_CUDA();
   model::Avatar avatar = cuda_avatar();
   const at::Tensor background = at::full({3}, 0.5);
-  animate::AnimatorOptions eager_options;
-  eager_options.use_graph = false;
-  animate::Animator eager(avatar, front_camera(96, 128), background, eager_options);
+  animate::Animator eager(avatar, front_camera(96, 128), background, eager_animator_options());
   animate::BatchAnimator batch(avatar, background, {}, 3);
   std::vector<animate::BatchFrame> frames;
   for (int64_t k = 0; k < 7; ++k) {

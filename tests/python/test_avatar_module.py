@@ -109,6 +109,27 @@ def test_to_device_and_bad_conversions(run):
             avatar.to("cuda")
 
 
+def test_to_cuda_moves_the_same_tensors_and_renders_as_an_avatar_loaded_there(run):
+    if not (torch.cuda.is_available() and sfgs.cuda_available()):
+        pytest.skip("moving to CUDA needs a GPU and a CUDA build")
+    avatar = sfgs.load_avatar(run)
+    frame = avatar.frame(9)
+    before = dict(avatar.named_parameters())
+    with torch.no_grad():
+        on_cpu = avatar.render(frame["camera"], frame["pose"])["image"]
+    assert avatar.to("cuda") is avatar and avatar.device.type == "cuda"
+    assert all(p.is_cuda and before[name] is p for name, p in avatar.named_parameters()), "moved in place"
+    with torch.no_grad():
+        moved = avatar.render(frame["camera"], frame["pose"])["image"]
+        loaded = sfgs.load_avatar(run, device="cuda").render(frame["camera"], frame["pose"])["image"]
+    assert moved.is_cuda and (moved - loaded).abs().max().item() < 1e-5
+    assert (moved.cpu() - on_cpu).abs().max().item() < 1e-3
+    avatar.cpu()
+    assert not any(p.is_cuda for p in avatar.parameters())
+    with torch.no_grad():
+        assert (avatar.render(frame["camera"], frame["pose"])["image"] - on_cpu).abs().max().item() < 1e-6
+
+
 def test_renders_differentiate_the_camera_and_optimise_a_pose(run):
     avatar = sfgs.load_avatar(run)
     frame = avatar.frame(9)
