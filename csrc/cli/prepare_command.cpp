@@ -2,12 +2,14 @@
 // (prepare/prepare.h, docs/prepare.md).
 #include <c10/util/Exception.h>
 
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 
 #include "cli/commands.h"
 #include "cli/video.h"
 #include "prepare/prepare.h"
+#include "prepare/video_metadata.h"
 
 namespace sfgs::cli {
 
@@ -25,6 +27,8 @@ int run_prepare(Arguments& args) {
                                : detect::PoseModel::kFull;
   o.max_frames = args.integer("frames", 0, 0, 10000000);
   const bool folder = std::filesystem::is_directory(input);
+  // A phone's video may state its lens; a given --focal wins.
+  if (o.focal == 0 && !folder) o.focal_35mm = prepare::focal_length_35mm(input).value_or(0.0);
   const double stated = folder ? 0.0 : video_frame_rate(input);
   o.frames_per_second = args.real("fps", stated > 0 ? stated : 30.0, 1e-3, 1e4);
   o.fit = !args.flag("no-fit");
@@ -36,9 +40,14 @@ int run_prepare(Arguments& args) {
   args.finish();
   const prepare::FrameSource frames = folder ? prepare::image_folder(input) : read_video(input);
   const prepare::PrepareReport r = prepare::prepare_dataset(frames, o);
-  std::printf("sfgs prepare: %lld of %lld frames show a person (%lld x %lld, focal %.0f px); detection %.1f s",
+  std::string focal_from = "given";
+  if (r.focal_source == "metadata")
+    focal_from = "from the video's " + std::to_string(std::lround(o.focal_35mm)) + " mm-equivalent lens";
+  else if (r.focal_source == "default")
+    focal_from = "the default, max(width, height)";
+  std::printf("sfgs prepare: %lld of %lld frames show a person (%lld x %lld, focal %.0f px, %s); detection %.1f s",
               (long long)r.frames_with_person, (long long)r.frames, (long long)r.width, (long long)r.height, r.focal,
-              r.detection_seconds);
+              focal_from.c_str(), r.detection_seconds);
   if (r.fit) std::printf(", fit %.1f s", r.fit->seconds);
   std::printf("\n");
   if (r.frames_with_several > 0)

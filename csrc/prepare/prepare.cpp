@@ -24,6 +24,7 @@
 #include "data/neuman_writer.h"
 #include "data/synthetic_layouts.h"
 #include "detect/wholebody.h"
+#include "prepare/video_metadata.h"
 #include "train/progress.h"
 
 namespace sfgs::prepare {
@@ -162,7 +163,16 @@ PrepareReport prepare_dataset(const FrameSource& frames, const PrepareOptions& o
     if (report.frames == 0) {
       report.height = image.size(0);
       report.width = image.size(1);
-      report.focal = options.focal > 0 ? options.focal : double(std::max(report.width, report.height));
+      if (options.focal > 0) {
+        report.focal = options.focal;
+        report.focal_source = "given";
+      } else if (options.focal_35mm > 0) {
+        report.focal = focal_pixels_from_35mm(options.focal_35mm, report.width, report.height);
+        report.focal_source = "metadata";
+      } else {
+        report.focal = double(std::max(report.width, report.height));
+        report.focal_source = "default";
+      }
       camera = Camera::looking_forward(report.focal, report.width, report.height);
     }
     TORCH_CHECK(image.size(0) == report.height && image.size(1) == report.width, "prepare: frame ", report.frames,
@@ -223,6 +233,7 @@ PrepareReport prepare_dataset(const FrameSource& frames, const PrepareOptions& o
              {"width", report.width},
              {"height", report.height},
              {"focal", report.focal},
+             {"focal_source", report.focal_source},
              {"seconds", report.detection_seconds}});
   // The frames, masks, keypoints and camera are in place as one piece; the fit then writes its own files there
   // (atomically), so a failed fit leaves a dataset that `sfgs fit` can be run on again.

@@ -29,7 +29,8 @@ FrameSource read_ahead(FrameSource source, size_t depth);
 struct PrepareOptions {
   std::string out;             // the dataset folder
   std::string device = "cpu";  // where the networks and the fit run: cpu or cuda
-  double focal = 0;            // pixels; 0: max(width, height), about 53 degrees along the longer side
+  double focal = 0;            // pixels; 0: from focal_35mm, else max(width, height) (53 degrees along the longer side)
+  double focal_35mm = 0;       // the video's 35 mm-equivalent focal length (video_metadata.h); 0: none stated
   detect::PoseModel model = detect::PoseModel::kFull;
   bool smooth = true;             // the body's landmarks smoothed over the frames (one-euro filters, as MediaPipe)
   int64_t max_frames = 0;         // 0: every frame
@@ -46,6 +47,7 @@ struct PrepareReport {
   int64_t frames_with_several = 0;  // frames in which the detector saw several people (the largest is followed)
   int64_t width = 0, height = 0;
   double focal = 0;
+  std::string focal_source;      // "given", "metadata" (the video's 35 mm-equivalent focal length) or "default"
   double detection_seconds = 0;  // reading and tracking, writing included
   std::optional<fit::FitReport> fit;
 };

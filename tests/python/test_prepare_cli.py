@@ -26,7 +26,7 @@ def test_a_folder_of_frames_becomes_a_dataset(tmp_path):
                 "--height", "320").returncode == 0
     result = sfgs("prepare", os.path.join(video, "images"), "--out", out, "--no-fit", "--quiet")
     assert result.returncode == 0, result.stderr
-    assert "4 of 4 frames show a person (180 x 320, focal 320 px)" in result.stdout
+    assert "4 of 4 frames show a person (180 x 320, focal 320 px, the default, max(width, height))" in result.stdout
     assert sorted(os.listdir(os.path.join(out, "keypoints_whole_body"))) == ["0.json", "1.json", "2.json", "3.json"]
     with open(os.path.join(out, "keypoints_whole_body", "0.json")) as f:
         assert len(json.load(f)) == 133
