@@ -77,7 +77,8 @@ RenderResult BatchAnimator::render(const std::vector<BatchFrame>& frames) {
   for (size_t k = 0; k < lane_count; ++k) lane(k, frames[k].camera);
 
   const c10::impl::VirtualGuardImpl guard_impl(device.type());
-  const bool streams = device.is_cuda();
+  // One frame runs on the caller's stream: with nothing to overlap, the hand-over between streams would only cost.
+  const bool streams = device.is_cuda() && frames.size() > 1;
   const c10::Stream caller = guard_impl.getStream(device);
   if (streams) {
     // The lanes read the avatar only after the caller's work queued so far (an optimiser step, say).
@@ -124,7 +125,7 @@ RenderResult BatchAnimator::render(const std::vector<BatchFrame>& frames) {
     for (size_t b = 0; b < frames.size(); ++b) {
       const size_t k = b % lane_count;
       Lane& l = *lanes_[k];
-      const c10::StreamGuard on_lane(l.stream.value_or(caller));
+      const c10::StreamGuard on_lane(streams ? *l.stream : caller);
       if (l.pending >= 0) collect(k);
       l.animator.set_camera(frames[b].camera);
       l.animator.submit(frames[b].pose, frames[b].time);
@@ -136,7 +137,7 @@ RenderResult BatchAnimator::render(const std::vector<BatchFrame>& frames) {
     for (size_t k = 0; k < lane_count; ++k) {
       Lane& l = *lanes_[k];
       if (l.pending < 0) continue;
-      const c10::StreamGuard on_lane(l.stream.value_or(caller));
+      const c10::StreamGuard on_lane(streams ? *l.stream : caller);
       l.animator.finish();
       l.pending = -1;
     }
@@ -144,7 +145,7 @@ RenderResult BatchAnimator::render(const std::vector<BatchFrame>& frames) {
   }
   for (size_t k = 0; k < lane_count; ++k) {
     Lane& l = *lanes_[k];
-    const c10::StreamGuard on_lane(l.stream.value_or(caller));
+    const c10::StreamGuard on_lane(streams ? *l.stream : caller);
     if (l.pending >= 0) collect(k);
     if (streams) {
       // The caller's later work on the outputs waits for the lane's copies.

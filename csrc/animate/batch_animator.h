@@ -1,10 +1,10 @@
 #pragma once
 // Several frames of one avatar in one call: B poses (with their times) seen by B cameras of one image size, rendered
-// by up to kBatchLanes Animators at once. On CUDA each lane replays its graph on a stream of its own and the host
-// queues a lane's next frame as soon as that lane's last one is done, so the GPU runs several frames side by side;
-// on the CPU one lane renders them in turn. Results are stacked on a first dimension of B and belong to the caller
-// (no later frame overwrites them); the caller's stream waits for them, and the lanes wait for the caller's earlier
-// work (a parameter update, say) before they read the avatar.
+// by up to kBatchLanes Animators at once. On CUDA each lane replays its graph on a stream of its own (a batch of one
+// frame stays on the caller's stream), and the host queues a lane's next frame as soon as that lane's last one is
+// done, so the GPU runs several frames side by side; on the CPU one lane renders them in turn. Results are stacked on
+// a first dimension of B and belong to the caller (no later frame overwrites them); the caller's stream waits for
+// them, and the lanes wait for the caller's earlier work (a parameter update, say) before they read the avatar.
 #include <memory>
 #include <vector>
 

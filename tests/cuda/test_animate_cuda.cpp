@@ -423,7 +423,8 @@ TEST(AnimatorCuda, GraphFramesReplayTrainingTimesWithTheObservationPrior) {
 }
 
 // A batch on several streams (three lanes for seven frames, new and replayed, the camera turning): every frame equals
-// the eager frame of its pose, the results stay the caller's after the next batch, and each lane recorded its graph.
+// the eager frame of its pose, the results stay the caller's after the next batch, and each lane recorded its graph;
+// a batch of one frame (on the caller's stream) too.
 TEST(AnimatorCuda, BatchFramesOnSeveralStreamsEqualEagerFrames) {
   SKIP_WITHOUT_CUDA();
   model::Avatar avatar = cuda_avatar();
@@ -448,8 +449,12 @@ TEST(AnimatorCuda, BatchFramesOnSeveralStreamsEqualEagerFrames) {
     EXPECT_LT(max_difference(out.image[int64_t(k)], image), 1e-6) << "frame " << k;
     EXPECT_LT(max_difference(out.alpha[int64_t(k)], eager.latest().alpha), 1e-6) << "frame " << k;
   }
+  // A batch of one frame, on the caller's stream.
+  const RenderResult one = batch.render({frames[2]});
+  eager.set_camera(frames[2].camera);
+  EXPECT_LT(max_difference(one.image[0], eager.render(frames[2].pose, frames[2].time)), 1e-6);
   EXPECT_EQ(batch.lane_count(), 3);
-  EXPECT_EQ(batch.stats().graph_frames, 14);
+  EXPECT_EQ(batch.stats().graph_frames, 15);
   EXPECT_GE(batch.stats().captures, 3);
 }
 
