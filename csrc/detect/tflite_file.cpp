@@ -4,7 +4,6 @@
 #include <cstring>
 #include <fstream>
 #include <iterator>
-#include <map>
 
 #include <ATen/ATen.h>
 #include <c10/util/Exception.h>
@@ -239,28 +238,51 @@ at::Tensor densified(const at::Tensor& values, const std::vector<int64_t>& shape
 
 }  // namespace
 
+namespace {
+
+// Every TfliteOp with its name in TensorFlow Lite's schema.
+struct NamedOp {
+  TfliteOp op;
+  const char* name;
+};
+constexpr NamedOp kNamedOps[] = {
+    {TfliteOp::kAdd, "ADD"},
+    {TfliteOp::kConcatenation, "CONCATENATION"},
+    {TfliteOp::kConv2d, "CONV_2D"},
+    {TfliteOp::kDepthwiseConv2d, "DEPTHWISE_CONV_2D"},
+    {TfliteOp::kDepthToSpace, "DEPTH_TO_SPACE"},
+    {TfliteOp::kDequantize, "DEQUANTIZE"},
+    {TfliteOp::kFullyConnected, "FULLY_CONNECTED"},
+    {TfliteOp::kLogistic, "LOGISTIC"},
+    {TfliteOp::kMaxPool2d, "MAX_POOL_2D"},
+    {TfliteOp::kMul, "MUL"},
+    {TfliteOp::kRelu, "RELU"},
+    {TfliteOp::kReshape, "RESHAPE"},
+    {TfliteOp::kResizeBilinear, "RESIZE_BILINEAR"},
+    {TfliteOp::kCustom, "CUSTOM"},
+    {TfliteOp::kPad, "PAD"},
+    {TfliteOp::kMean, "MEAN"},
+    {TfliteOp::kStridedSlice, "STRIDED_SLICE"},
+    {TfliteOp::kPrelu, "PRELU"},
+    {TfliteOp::kDensify, "DENSIFY"},
+};
+
+const NamedOp* named_op(int32_t code) {
+  for (const NamedOp& n : kNamedOps)
+    if (int32_t(n.op) == code) return &n;
+  return nullptr;
+}
+
+}  // namespace
+
 std::string tflite_op_name(int32_t code) {
-  static const std::map<int32_t, const char*> names = {{0, "ADD"},
-                                                       {2, "CONCATENATION"},
-                                                       {3, "CONV_2D"},
-                                                       {4, "DEPTHWISE_CONV_2D"},
-                                                       {5, "DEPTH_TO_SPACE"},
-                                                       {6, "DEQUANTIZE"},
-                                                       {9, "FULLY_CONNECTED"},
-                                                       {14, "LOGISTIC"},
-                                                       {17, "MAX_POOL_2D"},
-                                                       {18, "MUL"},
-                                                       {19, "RELU"},
-                                                       {22, "RESHAPE"},
-                                                       {23, "RESIZE_BILINEAR"},
-                                                       {32, "CUSTOM"},
-                                                       {34, "PAD"},
-                                                       {40, "MEAN"},
-                                                       {45, "STRIDED_SLICE"},
-                                                       {54, "PRELU"},
-                                                       {124, "DENSIFY"}};
-  const auto it = names.find(code);
-  return it != names.end() ? it->second : "builtin " + std::to_string(code);
+  const NamedOp* n = named_op(code);
+  return n != nullptr ? n->name : "builtin " + std::to_string(code);
+}
+
+bool tflite_op_runs(int32_t code) {
+  const NamedOp* n = named_op(code);
+  return n != nullptr && n->op != TfliteOp::kCustom;
 }
 
 TfliteGraph read_tflite(const std::string& path) {

@@ -36,6 +36,8 @@ enum class TfliteOp : int32_t {
 };
 // The operator's name for errors ("CONV_2D", or "builtin 97" for one sfgs does not know).
 std::string tflite_op_name(int32_t code);
+// Whether `code` is one of TfliteOp's builtins other than CUSTOM: the operators detect/tflite_network.h runs.
+bool tflite_op_runs(int32_t code);
 
 enum class TflitePadding : int8_t { kSame = 0, kValid = 1 };
 enum class TfliteActivation : int8_t { kNone = 0, kRelu = 1, kReluN1To1 = 2, kRelu6 = 3, kTanh = 4 };

@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <cstdio>
 #include <limits>
-#include <set>
 #include <utility>
 
 #include <ATen/ATen.h>
@@ -16,20 +15,6 @@ namespace sfgs::detect {
 namespace {
 
 bool is(const TfliteOperator& op, TfliteOp code) { return op.code == int32_t(code); }
-
-const std::set<int32_t>& runnable() {
-  static const std::set<int32_t> codes = [] {
-    std::set<int32_t> c;
-    for (const TfliteOp op :
-         {TfliteOp::kAdd, TfliteOp::kConcatenation, TfliteOp::kConv2d, TfliteOp::kDepthwiseConv2d,
-          TfliteOp::kDepthToSpace, TfliteOp::kDequantize, TfliteOp::kFullyConnected, TfliteOp::kLogistic,
-          TfliteOp::kMaxPool2d, TfliteOp::kMul, TfliteOp::kRelu, TfliteOp::kReshape, TfliteOp::kResizeBilinear,
-          TfliteOp::kPad, TfliteOp::kMean, TfliteOp::kStridedSlice, TfliteOp::kPrelu, TfliteOp::kDensify})
-      c.insert(int32_t(op));
-    return c;
-  }();
-  return codes;
-}
 
 at::Tensor activated(const at::Tensor& x, TfliteActivation activation) {
   switch (activation) {
@@ -125,7 +110,7 @@ TfliteNetwork::TfliteNetwork(TfliteGraph graph, at::Device device, bool use_grap
       constants_(graph_.tensors.size()),
       integers_(graph_.tensors.size()) {
   for (const TfliteOperator& op : graph_.operators) {
-    TORCH_CHECK(runnable().count(op.code), "'", graph_.source, "': operator ",
+    TORCH_CHECK(tflite_op_runs(op.code), "'", graph_.source, "': operator ",
                 is(op, TfliteOp::kCustom) ? "CUSTOM '" + op.custom_code + "'" : tflite_op_name(op.code),
                 " is not one sfgs runs");
     TORCH_CHECK(!op.outputs.empty(), "'", graph_.source, "': an operator without outputs");

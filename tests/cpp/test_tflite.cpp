@@ -144,6 +144,20 @@ TEST(PoseTracker, AnEmptyImageHasNoPerson) {
   expect_error([&] { tracker.track(at::ones({240, 180})); }, {"float32 (H, W, 3) image"});
 }
 
+// One table names the operators and says which run: CUSTOM is named but not run, an unknown builtin neither; the
+// attention face model's custom operators are refused by name at load.
+TEST(Tflite, OperatorsAreNamedAndCustomOnesRefused) {
+  EXPECT_EQ(detect::tflite_op_name(int32_t(detect::TfliteOp::kConv2d)), "CONV_2D");
+  EXPECT_EQ(detect::tflite_op_name(97), "builtin 97");
+  EXPECT_TRUE(detect::tflite_op_runs(int32_t(detect::TfliteOp::kDensify)));
+  EXPECT_FALSE(detect::tflite_op_runs(int32_t(detect::TfliteOp::kCustom)));
+  EXPECT_FALSE(detect::tflite_op_runs(97));
+  SFGS_SKIP_WITHOUT_MEDIAPIPE_MODELS();
+  expect_error(
+      [] { detect::TfliteNetwork::load(detect::mediapipe_model("face_landmark_with_attention.tflite"), at::kCPU); },
+      {"face_landmark_with_attention.tflite", "CUSTOM '", "is not one sfgs runs"});
+}
+
 TEST(Tflite, ADamagedOrForeignFileIsAClearError) {
   const std::string path =
       (std::filesystem::temp_directory_path() / ("sfgs_tflite_" + std::to_string(::getpid()))).string();
