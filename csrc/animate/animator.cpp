@@ -130,8 +130,9 @@ void Animator::submit(const body::SmplxPose& pose, model::FrameTime time) {
 
 const RenderResult& Animator::finish() {
   TORCH_CHECK(pending_ != Pending::kNone, "Animator: finish() without a submitted frame");
-  if (pending_ == Pending::kReplay) finish_graph_frame();
-  pending_ = Pending::kNone;
+  const Pending pending = pending_;
+  pending_ = Pending::kNone;  // a frame that fails below is dropped: the next submit() starts clean
+  if (pending == Pending::kReplay) finish_graph_frame();
   return result_;
 }
 

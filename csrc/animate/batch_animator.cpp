@@ -94,6 +94,8 @@ RenderResult BatchAnimator::render(const std::vector<BatchFrame>& frames) {
   // it. The outputs are made on the caller's stream, so each lane waits for their allocation once.
   const auto collect = [&](size_t k) {
     Lane& l = *lanes_[k];
+    const int64_t b = l.pending;
+    l.pending = -1;  // collected, or failed: either way not the next batch's
     const RenderResult& r = l.animator.finish();
     if (!out.image.defined()) {
       const c10::StreamGuard on_caller(caller);
@@ -112,13 +114,32 @@ RenderResult BatchAnimator::render(const std::vector<BatchFrame>& frames) {
       outputs_ready->block(*l.stream);
       waited_for_outputs[k] = true;
     }
-    const int64_t b = l.pending;
     out.image[b].copy_(r.image);
     out.alpha[b].copy_(r.alpha);
     out.depth[b].copy_(r.depth);
     out.radii[b].copy_(r.radii);
     out.visible[b].copy_(r.visible);
-    l.pending = -1;
+  };
+  // On every way out, an error included: the lanes' frames still queued are finished and dropped (the next batch
+  // starts clean), and the caller's stream waits for each lane's work, so that the outputs (the caller's, or freed by
+  // an error) are never reused while a lane still writes them.
+  const auto hand_back = [&] {
+    for (size_t k = 0; k < lane_count; ++k) {
+      Lane& l = *lanes_[k];
+      const c10::StreamGuard on_lane(streams ? *l.stream : caller);
+      if (l.pending >= 0) {
+        l.pending = -1;
+        try {
+          l.animator.finish();
+        } catch (...) {  // the error being handed on is the first one
+        }
+      }
+      if (streams) {
+        c10::Event done(device.type());
+        done.record(*l.stream);
+        done.block(caller);
+      }
+    }
   };
 
   try {
@@ -131,29 +152,15 @@ RenderResult BatchAnimator::render(const std::vector<BatchFrame>& frames) {
       l.animator.submit(frames[b].pose, frames[b].time);
       l.pending = int64_t(b);
     }
-  } catch (...) {
-    // A frame the Animator refused (a non-finite pose, say): the lanes' queued frames are finished and dropped, so
-    // that the next batch starts clean.
     for (size_t k = 0; k < lane_count; ++k) {
-      Lane& l = *lanes_[k];
-      if (l.pending < 0) continue;
-      const c10::StreamGuard on_lane(streams ? *l.stream : caller);
-      l.animator.finish();
-      l.pending = -1;
+      const c10::StreamGuard on_lane(streams ? *lanes_[k]->stream : caller);
+      if (lanes_[k]->pending >= 0) collect(k);
     }
+  } catch (...) {
+    hand_back();
     throw;
   }
-  for (size_t k = 0; k < lane_count; ++k) {
-    Lane& l = *lanes_[k];
-    const c10::StreamGuard on_lane(streams ? *l.stream : caller);
-    if (l.pending >= 0) collect(k);
-    if (streams) {
-      // The caller's later work on the outputs waits for the lane's copies.
-      c10::Event copied(device.type());
-      copied.record(*l.stream);
-      copied.block(caller);
-    }
-  }
+  hand_back();
   return out;
 }
 

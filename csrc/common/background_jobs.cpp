@@ -10,7 +10,18 @@ namespace sfgs {
 BackgroundJobs::BackgroundJobs(int threads, size_t capacity) : capacity_(std::max<size_t>(capacity, 1)) {
   if (threads < 1)
     throw std::invalid_argument("BackgroundJobs: threads must be at least 1, got " + std::to_string(threads));
-  for (int k = 0; k < threads; ++k) workers_.emplace_back([this] { work(); });
+  try {
+    for (int k = 0; k < threads; ++k) workers_.emplace_back([this] { work(); });
+  } catch (...) {
+    // A thread that could not start: the ones that did are stopped before the error goes on.
+    {
+      const std::lock_guard<std::mutex> lock(mutex_);
+      closing_ = true;
+    }
+    changed_.notify_all();
+    for (std::thread& w : workers_) w.join();
+    throw;
+  }
 }
 
 BackgroundJobs::~BackgroundJobs() {

@@ -6,6 +6,7 @@
 #include <utility>
 
 #include <ATen/ATen.h>
+#include <c10/core/DeviceGuard.h>
 
 #include "common/device_graph.h"
 #include "common/matmul_precision.h"
@@ -156,6 +157,7 @@ std::vector<at::Tensor> TfliteNetwork::run(const std::vector<at::Tensor>& inputs
   // convolutions are matrix products.
   const Tf32MatmulScope matmul(false);
   const WithoutCudnn own_convolutions;
+  const c10::DeviceGuard on_device(device_);  // recorded and replayed on the network's device
   if (!use_graphs_ || !device_.is_cuda() || !device_graphs_available()) return run_eagerly(inputs);
   std::shared_ptr<Recording>& r = recordings_[key];
   if (!r) {

@@ -26,7 +26,8 @@ class TfliteNetwork {
   }
 
   // The graph's outputs, in its order, for inputs in its order (float32, the shapes input_shape gives, any batch);
-  // the caller's own tensors, which no later run overwrites.
+  // the caller's own tensors, which no later run overwrites. Not for several threads at once: a network's recordings
+  // share their buffers, and a run turns cuDNN and TF32 off process-wide for its duration.
   std::vector<at::Tensor> run(const std::vector<at::Tensor>& inputs) const;
   const std::vector<int64_t>& input_shape(size_t k = 0) const;
   at::Device device() const { return device_; }

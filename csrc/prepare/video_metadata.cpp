@@ -139,29 +139,37 @@ std::optional<double> focal_in(const unsigned char* begin, const unsigned char* 
 }  // namespace
 
 std::optional<double> focal_length_35mm(const std::string& path) {
-  std::ifstream file(path, std::ios::binary);
+  std::ifstream file(path, std::ios::binary | std::ios::ate);
   if (!file) return std::nullopt;
-  // The top-level atoms, by their headers only, until the movie atom.
+  const std::streamoff length = file.tellg();
+  if (length <= 0) return std::nullopt;
+  file.seekg(0);
+  // The top-level atoms, by their headers only, until the movie atom; every atom must end within the file, so the
+  // reader only ever moves forward.
+  uint64_t position = 0;
   for (;;) {
+    const uint64_t left = uint64_t(length) - position;
     unsigned char header[16];
-    if (!file.read(reinterpret_cast<char*>(header), 8)) return std::nullopt;
+    if (left < 8 || !file.read(reinterpret_cast<char*>(header), 8)) return std::nullopt;
     uint64_t size = big_endian(header, 4), header_size = 8;
     if (size == 1) {
-      if (!file.read(reinterpret_cast<char*>(header + 8), 8)) return std::nullopt;
+      if (left < 16 || !file.read(reinterpret_cast<char*>(header + 8), 8)) return std::nullopt;
       size = big_endian(header + 8, 8);
       header_size = 16;
+    } else if (size == 0) {
+      size = left;  // the last atom
     }
-    if (size != 0 && size < header_size) return std::nullopt;
+    if (size < header_size || size > left) return std::nullopt;
     if (std::memcmp(header + 4, "moov", 4) == 0) {
-      if (size == 0 || size - header_size > kMaxMovieAtomBytes) return std::nullopt;
+      if (size - header_size > kMaxMovieAtomBytes) return std::nullopt;
       std::vector<unsigned char> movie(size_t(size - header_size));
       if (!file.read(reinterpret_cast<char*>(movie.data()), std::streamsize(movie.size()))) return std::nullopt;
       const std::optional<double> focal = focal_in(movie.data(), movie.data() + movie.size(), 0);
       if (focal && std::isfinite(*focal) && *focal >= kMin35mmFocal && *focal <= kMax35mmFocal) return focal;
       return std::nullopt;
     }
-    if (size == 0) return std::nullopt;  // the last atom, not the movie's
-    file.seekg(std::streamoff(size - header_size), std::ios::cur);
+    position += size;
+    file.seekg(std::streamoff(position));
     if (!file) return std::nullopt;
   }
 }

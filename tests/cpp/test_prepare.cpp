@@ -196,6 +196,8 @@ TEST(Prepare, TheLensComesFromAVideosMetadata) {
       {"no metadata", movie("", "moov"), std::nullopt},
       {"not a movie", std::string("\x89PNG\r\n\x1a\n and more bytes"), std::nullopt},
       {"a truncated movie", movie(meta_atom(21, be32(26), false), "trak").substr(0, 180), std::nullopt},
+      // A 64-bit size that would send the reader back to an earlier atom, or past the file's end.
+      {"an atom larger than the file", ftyp + be32(1) + "free" + std::string(8, '\xff') + mdat, std::nullopt},
   };
   for (const Case& c : cases) {
     const std::string path = write_movie("sfgs_movie_", c.bytes);
