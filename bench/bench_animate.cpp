@@ -28,7 +28,6 @@
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
-#include <sstream>
 #include <string>
 #include <vector>
 
@@ -84,7 +83,11 @@ struct Arguments {
   std::exit(2);
 }
 
+double real(const std::string& item) { return std::atof(item.c_str()); }
+int64_t integer(const std::string& item) { return std::atol(item.c_str()); }
+
 Arguments parse(int argc, char** argv) {
+  using sfgs::bench::listed;
   Arguments a;
   sfgs::bench::parse_flags(argc, argv, usage, [&](const std::string& flag, const std::string& value) {
     if (flag == "--device")
@@ -101,38 +104,24 @@ Arguments parse(int argc, char** argv) {
       a.profile = value == "1";
     else if (flag == "--time")
       a.time = std::clamp(std::atof(value.c_str()), -1.0, 1.0);
-    else if (flag == "--cull-cosines") {
-      a.cull_cosines.clear();
-      std::stringstream list(value);
-      for (std::string item; std::getline(list, item, ',');) a.cull_cosines.push_back(std::atof(item.c_str()));
-      if (a.cull_cosines.empty()) usage();
-    } else if (flag == "--blend-segments") {
-      a.blend_segments.clear();
-      std::stringstream list(value);
-      for (std::string item; std::getline(list, item, ',');) a.blend_segments.push_back(std::atol(item.c_str()));
-      if (a.blend_segments.empty()) usage();
-    } else if (flag == "--blend-cut-shares") {
-      a.blend_cut_shares.clear();
-      std::stringstream list(value);
-      for (std::string item; std::getline(list, item, ',');) a.blend_cut_shares.push_back(std::atof(item.c_str()));
-      if (a.blend_cut_shares.empty()) usage();
-    } else if (flag == "--batch") {
+    else if (flag == "--cull-cosines")
+      a.cull_cosines = listed<double>(value, usage, real);
+    else if (flag == "--blend-segments")
+      a.blend_segments = listed<int64_t>(value, usage, integer);
+    else if (flag == "--blend-cut-shares")
+      a.blend_cut_shares = listed<double>(value, usage, real);
+    else if (flag == "--batch")
       a.batch = std::max(1L, std::atol(value.c_str()));
-    } else if (flag == "--batch-lanes") {
-      a.batch_lanes.clear();
-      std::stringstream list(value);
-      for (std::string item; std::getline(list, item, ',');)
-        a.batch_lanes.push_back(std::max(1L, std::atol(item.c_str())));
-      if (a.batch_lanes.empty()) usage();
-    } else if (flag == "--sizes") {
-      a.sizes.clear();
-      std::stringstream list(value);
-      for (std::string item; std::getline(list, item, ',');) {
+    else if (flag == "--batch-lanes")
+      a.batch_lanes =
+          listed<int64_t>(value, usage, [](const std::string& item) { return std::max<int64_t>(1, integer(item)); });
+    else if (flag == "--sizes")
+      a.sizes = listed<std::pair<int64_t, int64_t>>(value, usage, [](const std::string& item) {
         long w = 0, h = 0;
         if (std::sscanf(item.c_str(), "%ldx%ld", &w, &h) != 2 || w <= 0 || h <= 0) usage();
-        a.sizes.push_back({w, h});
-      }
-    } else
+        return std::pair<int64_t, int64_t>(w, h);
+      });
+    else
       return false;
     return true;
   });

@@ -28,10 +28,15 @@ def circling(camera, centre, angle):
     return moved
 
 
+def body_centre(avatar, pose):
+    """The centre of the posed avatar's bounding box (the cameras circle it)."""
+    means = avatar.gaussians({k: v for k, v in pose.items() if k != "time"})["means"].double().cpu()
+    return (means.min(0).values + means.max(0).values) / 2
+
+
 def time_frames(avatar, camera, pose, frames, timed):
     base = pose.get("body_pose", torch.zeros(21, 3)).double()
-    means = avatar.gaussians({k: v for k, v in pose.items() if k != "time"})["means"].double().cpu()
-    centre = (means.min(0).values + means.max(0).values) / 2
+    centre = body_centre(avatar, pose)
     times, coverage = [], []
     for k in range(frames + 10):
         p = dict(pose)
@@ -57,8 +62,7 @@ def time_batch(avatar, camera, pose, batch, rounds):
     """Median milliseconds of B single calls and of one call with B poses and cameras (new-motion frames), and the
     largest difference between the two results."""
     base = pose.get("body_pose", torch.zeros(21, 3)).double()
-    means = avatar.gaussians({k: v for k, v in pose.items() if k != "time"})["means"].double().cpu()
-    centre = (means.min(0).values + means.max(0).values) / 2
+    centre = body_centre(avatar, pose)
     poses, cameras = [], []
     for k in range(batch):
         p = {k2: v for k2, v in pose.items() if k2 != "time"}

@@ -212,14 +212,8 @@ class TrainedAvatar {
   sfgs::RenderResult render_fast(const std::vector<CameraArgument>& cameras, const std::vector<FramePose>& poses,
                                  const std::optional<at::Tensor>& background) {
     std::vector<sfgs::animate::BatchFrame> frames;
-    for (size_t b = 0; b < poses.size(); ++b) {
-      sfgs::animate::BatchFrame f{cameras[b].value, SmplxPose{}, poses[b].time};
-      for (const SmplxPose::Field& field : SmplxPose::fields()) {
-        const at::Tensor& t = poses[b].pose.*(field.member);
-        if (t.defined()) f.pose.*(field.member) = t.detach().cpu();
-      }
-      frames.push_back(std::move(f));
-    }
+    for (size_t b = 0; b < poses.size(); ++b)
+      frames.push_back({cameras[b].value, poses[b].pose.to(at::TensorOptions(at::kCPU)), poses[b].time});
     const at::Tensor bg = background ? *background : at::ones({3});
     if (!animator_)
       animator_ = std::make_unique<sfgs::animate::BatchAnimator>(t_.avatar, bg);

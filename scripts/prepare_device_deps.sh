@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Fills the git-ignored .device/ folder with what a GPU machine's image lacks (headers, small libraries, GoogleTest's
-# sources, the shared body models and LPIPS weights, the MediaPipe models), from this Debian machine's packages; scripts/device_check.sh
-# uses it there. Run once from the repository root: bash scripts/prepare_device_deps.sh [SHARED_DIR (../shared)]
+# sources, the shared body models and LPIPS weights, the MediaPipe models), from this Debian machine's packages;
+# scripts/device_check.sh uses it there. Run once from the repository root:
+# bash scripts/prepare_device_deps.sh [SHARED_DIR (../shared)]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 shared=${1:-../shared}

@@ -80,6 +80,7 @@ RenderResult BatchAnimator::render(const std::vector<BatchFrame>& frames) {
   // One frame runs on the caller's stream: with nothing to overlap, the hand-over between streams would only cost.
   const bool streams = device.is_cuda() && frames.size() > 1;
   const c10::Stream caller = guard_impl.getStream(device);
+  const auto stream_of = [&](const Lane& l) { return streams ? *l.stream : caller; };
   if (streams) {
     // The lanes read the avatar only after the caller's work queued so far (an optimiser step, say).
     c10::Event queued(device.type());
@@ -126,7 +127,7 @@ RenderResult BatchAnimator::render(const std::vector<BatchFrame>& frames) {
   const auto hand_back = [&] {
     for (size_t k = 0; k < lane_count; ++k) {
       Lane& l = *lanes_[k];
-      const c10::StreamGuard on_lane(streams ? *l.stream : caller);
+      const c10::StreamGuard on_lane(stream_of(l));
       if (l.pending >= 0) {
         l.pending = -1;
         try {
@@ -146,14 +147,14 @@ RenderResult BatchAnimator::render(const std::vector<BatchFrame>& frames) {
     for (size_t b = 0; b < frames.size(); ++b) {
       const size_t k = b % lane_count;
       Lane& l = *lanes_[k];
-      const c10::StreamGuard on_lane(streams ? *l.stream : caller);
+      const c10::StreamGuard on_lane(stream_of(l));
       if (l.pending >= 0) collect(k);
       l.animator.set_camera(frames[b].camera);
       l.animator.submit(frames[b].pose, frames[b].time);
       l.pending = int64_t(b);
     }
     for (size_t k = 0; k < lane_count; ++k) {
-      const c10::StreamGuard on_lane(streams ? *lanes_[k]->stream : caller);
+      const c10::StreamGuard on_lane(stream_of(*lanes_[k]));
       if (lanes_[k]->pending >= 0) collect(k);
     }
   } catch (...) {

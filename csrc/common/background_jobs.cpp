@@ -13,18 +13,14 @@ BackgroundJobs::BackgroundJobs(int threads, size_t capacity) : capacity_(std::ma
   try {
     for (int k = 0; k < threads; ++k) workers_.emplace_back([this] { work(); });
   } catch (...) {
-    // A thread that could not start: the ones that did are stopped before the error goes on.
-    {
-      const std::lock_guard<std::mutex> lock(mutex_);
-      closing_ = true;
-    }
-    changed_.notify_all();
-    for (std::thread& w : workers_) w.join();
+    stop();  // a thread that could not start: the ones that did stop before the error goes on
     throw;
   }
 }
 
-BackgroundJobs::~BackgroundJobs() {
+BackgroundJobs::~BackgroundJobs() { stop(); }
+
+void BackgroundJobs::stop() {
   {
     const std::lock_guard<std::mutex> lock(mutex_);
     closing_ = true;

@@ -29,6 +29,7 @@ class BackgroundJobs {
  private:
   void work();
   void rethrow();
+  void stop();  // runs what is queued, then joins the workers
 
   size_t capacity_;
   std::mutex mutex_;

@@ -236,10 +236,6 @@ at::Tensor densified(const at::Tensor& values, const std::vector<int64_t>& shape
   return dense.view(shape);
 }
 
-}  // namespace
-
-namespace {
-
 // Every TfliteOp with its name in TensorFlow Lite's schema.
 struct NamedOp {
   TfliteOp op;

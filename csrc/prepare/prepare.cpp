@@ -150,7 +150,7 @@ PrepareReport prepare_dataset(const FrameSource& frames, const PrepareOptions& o
   PrepareReport report;
   std::vector<data::ColmapFrame> cameras;
   std::map<data::Split, std::vector<std::string>> splits;
-  Camera camera;  // every frame's: at the origin, the focal length given or the default
+  Camera camera;  // every frame's: at the origin, with the focal length given, the video's or the default
   const FrameSource next_frame = read_ahead(frames, kFramesReadAhead);
   const int writers = std::clamp(int(std::thread::hardware_concurrency()), 1, kMaxWriterThreads);
   BackgroundJobs files(writers, 2 * size_t(writers));

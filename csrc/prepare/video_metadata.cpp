@@ -1,9 +1,11 @@
 #include "prepare/video_metadata.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
 #include <fstream>
+#include <optional>
 #include <vector>
 
 #include "prepare/constants.h"
@@ -24,7 +26,27 @@ uint64_t big_endian(const unsigned char* p, int bytes) {
   return v;
 }
 
-// One atom inside [begin, end): its type, and where its payload starts and ends; false when the header does not fit.
+// An atom's size and header length from its first bytes (at least 8, and 16 where `left` allows), `left` bytes being
+// all there is from its start to its container's end (a size of 0: the rest); none when the header does not fit or
+// the atom overruns its container.
+struct Extent {
+  uint64_t size = 0, header = 8;
+};
+
+std::optional<Extent> extent_of(const unsigned char* at, uint64_t left) {
+  if (left < 8) return std::nullopt;
+  Extent e{big_endian(at, 4), 8};
+  if (e.size == 1) {
+    if (left < 16) return std::nullopt;
+    e = {big_endian(at + 8, 8), 16};
+  } else if (e.size == 0) {
+    e.size = left;
+  }
+  if (e.size < e.header || e.size > left) return std::nullopt;
+  return e;
+}
+
+// One atom inside [at, end): its type, and where its payload starts and ends; false when it does not fit.
 struct Atom {
   char type[5] = {0, 0, 0, 0, 0};
   const unsigned char* payload = nullptr;
@@ -32,20 +54,11 @@ struct Atom {
 };
 
 bool next_atom(const unsigned char*& at, const unsigned char* end, Atom& atom) {
-  if (end - at < 8) return false;
-  uint64_t size = big_endian(at, 4);
+  const std::optional<Extent> e = extent_of(at, uint64_t(end - at));
+  if (!e) return false;
   std::memcpy(atom.type, at + 4, 4);
-  uint64_t header = 8;
-  if (size == 1) {
-    if (end - at < 16) return false;
-    size = big_endian(at + 8, 8);
-    header = 16;
-  } else if (size == 0) {
-    size = uint64_t(end - at);
-  }
-  if (size < header || size > uint64_t(end - at)) return false;
-  atom.payload = at + header;
-  atom.end = at + size;
+  atom.payload = at + e->header;
+  atom.end = at + e->size;
   at = atom.end;
   return true;
 }
@@ -150,25 +163,20 @@ std::optional<double> focal_length_35mm(const std::string& path) {
   for (;;) {
     const uint64_t left = uint64_t(length) - position;
     unsigned char header[16];
-    if (left < 8 || !file.read(reinterpret_cast<char*>(header), 8)) return std::nullopt;
-    uint64_t size = big_endian(header, 4), header_size = 8;
-    if (size == 1) {
-      if (left < 16 || !file.read(reinterpret_cast<char*>(header + 8), 8)) return std::nullopt;
-      size = big_endian(header + 8, 8);
-      header_size = 16;
-    } else if (size == 0) {
-      size = left;  // the last atom
-    }
-    if (size < header_size || size > left) return std::nullopt;
+    if (!file.read(reinterpret_cast<char*>(header), std::streamsize(std::min<uint64_t>(left, sizeof header))))
+      return std::nullopt;
+    const std::optional<Extent> e = extent_of(header, left);
+    if (!e) return std::nullopt;
     if (std::memcmp(header + 4, "moov", 4) == 0) {
-      if (size - header_size > kMaxMovieAtomBytes) return std::nullopt;
-      std::vector<unsigned char> movie(size_t(size - header_size));
+      if (e->size - e->header > kMaxMovieAtomBytes) return std::nullopt;
+      std::vector<unsigned char> movie(size_t(e->size - e->header));
+      file.seekg(std::streamoff(position + e->header));
       if (!file.read(reinterpret_cast<char*>(movie.data()), std::streamsize(movie.size()))) return std::nullopt;
       const std::optional<double> focal = focal_in(movie.data(), movie.data() + movie.size(), 0);
       if (focal && std::isfinite(*focal) && *focal >= kMin35mmFocal && *focal <= kMax35mmFocal) return focal;
       return std::nullopt;
     }
-    position += size;
+    position += e->size;
     file.seekg(std::streamoff(position));
     if (!file) return std::nullopt;
   }

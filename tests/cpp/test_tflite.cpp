@@ -75,21 +75,11 @@ double median(std::vector<double> values) {
 
 // Tracks a synthetic walk (4 frames of width x height) and compares with its exact keypoints and masks. With
 // `either_side`, a joint's error is the smaller of those against its own and its mirror joint's keypoint.
-TrackedVideo track_synthetic_walk(const std::string& body, const std::string& texture, int64_t width, int64_t height,
-                                  bool either_side = false) {
+TrackedVideo track_synthetic_walk(const std::string& bodies, int64_t width, int64_t height, bool either_side = false) {
   const std::filesystem::path folder =
       std::filesystem::temp_directory_path() /
       ("sfgs_pose_tracker_" + std::to_string(::getpid()) + "_" + std::to_string(width));
-  data::SyntheticVideoOptions o;
-  o.body_model = body;
-  o.texture = texture;
-  o.motions = {"walk"};
-  o.frames = 4;
-  o.width = width;
-  o.height = height;
-  o.keypoint_noise.exact = true;
-  o.overwrite = true;
-  const data::Dataset video = data::write_synthetic_video(folder.string(), o);
+  const data::Dataset video = person_video(folder, bodies, "walk", 4, width, height);
   detect::PoseTracker tracker(at::kCPU);
   TrackedVideo result;
   for (int64_t f = 0; f < video.size(); ++f) {
@@ -108,8 +98,9 @@ TrackedVideo track_synthetic_walk(const std::string& body, const std::string& te
   }
   std::filesystem::remove_all(folder);
   std::sort(result.mask_ious.begin(), result.mask_ious.end());
-  std::printf("%s: median limb error %.2f px, mask IoU %.3f-%.3f\n", body.empty() ? "built-in body" : body.c_str(),
-              median(result.limb_errors), result.mask_ious.front(), result.mask_ious.back());
+  std::printf("%s: median limb error %.2f px, mask IoU %.3f-%.3f\n",
+              bodies.empty() ? "built-in body" : "the stand-in person", median(result.limb_errors),
+              result.mask_ious.front(), result.mask_ious.back());
   return result;
 }
 
@@ -119,7 +110,7 @@ TrackedVideo track_synthetic_walk(const std::string& body, const std::string& te
 // sides (errors of 50-115 px), so each joint is compared with either side's keypoint and only the median is bounded.
 TEST(PoseTracker, FollowsTheBuiltInBodysLimbsAndMask) {
   SFGS_SKIP_WITHOUT_MEDIAPIPE_MODELS();
-  const TrackedVideo v = track_synthetic_walk("", "", 270, 480, /*either_side*/ true);
+  const TrackedVideo v = track_synthetic_walk("", 270, 480, /*either_side*/ true);
   ASSERT_EQ(v.mask_ious.size(), 4u);
   EXPECT_LT(median(v.limb_errors), 8.0);
   for (const double iou : v.mask_ious) EXPECT_GT(iou, 0.93);
@@ -130,7 +121,7 @@ TEST(PoseTracker, FollowsTheStandInPersonWithinFourPixels) {
   SFGS_SKIP_WITHOUT_MEDIAPIPE_MODELS();
   SFGS_SKIP_WITHOUT_SHARED_BODIES();
   const std::string bodies = shared_bodies_folder();
-  const TrackedVideo v = track_synthetic_walk(bodies + "/anny_smplx_layout.npz", bodies + "/anny_albedo.png", 270, 480);
+  const TrackedVideo v = track_synthetic_walk(bodies, 270, 480);
   ASSERT_EQ(v.mask_ious.size(), 4u);
   EXPECT_LT(median(v.limb_errors), 4.0);
   for (const double iou : v.mask_ious) EXPECT_GT(iou, 0.94);
@@ -207,16 +198,7 @@ TEST(PoseTracker, FindsTheStandInPersonsFaceAndHands) {
   const std::string bodies = shared_bodies_folder();
   const std::filesystem::path folder =
       std::filesystem::temp_directory_path() / ("sfgs_wholebody_" + std::to_string(::getpid()));
-  data::SyntheticVideoOptions o;
-  o.body_model = bodies + "/anny_smplx_layout.npz";
-  o.texture = bodies + "/anny_albedo.png";
-  o.motions = {"wave"};
-  o.frames = 3;
-  o.width = 540;
-  o.height = 960;
-  o.keypoint_noise.exact = true;
-  o.overwrite = true;
-  const data::Dataset video = data::write_synthetic_video(folder.string(), o);
+  const data::Dataset video = person_video(folder, bodies, "wave", 3, 540, 960);
   detect::PoseTracker tracker(at::kCPU);
   const detect::PartsLandmarker parts(at::kCPU);
   std::vector<double> face, hands;

@@ -17,7 +17,6 @@
 #include <torch/cuda.h>
 
 #include "common/atomic_file.h"
-#include "data/synthetic.h"
 #include "detect/parts.h"
 #include "detect/models.h"
 #include "detect/pose_tracker.h"
@@ -82,17 +81,7 @@ TEST(DetectCuda, WholeBodyKeypointsAndMaskEqualTheCpus) {
   const std::string bodies = shared_bodies_folder();
   const std::filesystem::path folder =
       std::filesystem::temp_directory_path() / ("sfgs_detect_cuda_" + std::to_string(::getpid()));
-  data::SyntheticVideoOptions o;
-  if (!bodies.empty()) {
-    o.body_model = bodies + "/anny_smplx_layout.npz";
-    o.texture = bodies + "/anny_albedo.png";
-  }
-  o.motions = {"wave"};
-  o.frames = 3;
-  o.width = 540;
-  o.height = 960;
-  o.overwrite = true;
-  const data::Dataset video = data::write_synthetic_video(folder.string(), o);
+  const data::Dataset video = person_video(folder, bodies, "wave", 3, 540, 960);
   detect::PoseTracker cpu_tracker(at::kCPU), gpu_tracker(at::Device(at::kCUDA));
   const detect::PartsLandmarker cpu_parts(at::kCPU), gpu_parts(at::Device(at::kCUDA));
   std::vector<double> distances;
